@@ -1,0 +1,447 @@
+"""Scenario configuration: validated pydantic models loaded from YAML.
+
+Every physical quantity is in SI units; the unit and the allowed range are in
+each field's description. A scenario file may start from another one with
+``base: <file>`` (relative to the file, or ``paper`` for the packaged defaults)
+and override any subset of fields; the merge is recursive over mappings.
+
+Errors name the field path and the allowed range, e.g.
+``capsule.mass_kg: must be > 0, got -0.02``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+__all__ = [
+    "CapsuleConfig",
+    "ConfigError",
+    "EPMConfig",
+    "ForceMapConfig",
+    "FrictionConfig",
+    "IPMConfig",
+    "LearnedFrictionModel",
+    "PlateConfig",
+    "RateStateConfig",
+    "Scenario",
+    "config_from_dict",
+    "dump_config",
+    "load_config",
+    "packaged_config_path",
+]
+
+#: The paper's learned c(v) polynomial, p1..p5 highest power first (paper §IV-C, Fig. 7b).
+PAPER_C_COEFFICIENTS: tuple[float, ...] = (-1.189e5, 1.173e4, -404.7, 7.44, 0.03222)
+#: Speed range the paper's polynomial was fitted on, m/s (paper §IV-C).
+PAPER_C_VALIDITY_MPS: tuple[float, float] = (0.005, 0.04)
+
+
+class ConfigError(ValueError):
+    """A scenario file or value is invalid; the message names the field and the allowed range."""
+
+
+class _Strict(BaseModel):
+    """Base for every section: unknown keys are rejected, NaN/inf are rejected, assignment is validated."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, validate_assignment=True)
+
+
+def _pos(description: str, default: Any = ..., **kw: Any) -> Any:
+    """A strictly positive float field."""
+    return Field(default, gt=0, description=description, **kw)
+
+
+class CapsuleConfig(_Strict):
+    """The capsule body (paper Table 2)."""
+
+    mass_kg: float = _pos("Capsule mass m, kg, > 0. Paper: 20.9 g.")
+    length_m: float = _pos("Capsule length, m, > 0. Paper: 36 mm.")
+    diameter_m: float = _pos("Capsule diameter, m, > 0. Paper: 14 mm.")
+
+
+class IPMConfig(_Strict):
+    """Internal permanent magnet: an axially magnetised hollow cylinder along the capsule axis."""
+
+    outer_diameter_m: float = _pos("Outer diameter, m, > 0. Paper: 10 mm.")
+    inner_diameter_m: float = Field(
+        ..., ge=0, description="Inner (bore) diameter, m, >= 0 and < outer. Paper: 6 mm."
+    )
+    length_m: float = _pos("Length along the capsule axis, m, > 0. Paper: 35 mm.")
+    remanence_t: float = _pos("Remanence B_r, T, > 0. Paper: N30, 1.26 T.")
+    grade: str = Field("N30", description="Magnet grade (informational).")
+
+    @model_validator(mode="after")
+    def _bore_inside(self) -> IPMConfig:
+        if self.inner_diameter_m >= self.outer_diameter_m:
+            raise ValueError(
+                f"inner_diameter_m: must be < outer_diameter_m ({self.outer_diameter_m}), "
+                f"got {self.inner_diameter_m}"
+            )
+        return self
+
+
+class EPMConfig(_Strict):
+    """External permanent magnet: a linear Halbach array of cuboid blocks side by side along x.
+
+    The EPM frame has x along the array, z up; the array's centre is the EPM position.
+    """
+
+    block_size_m: tuple[float, float, float] = Field(
+        ..., description="One block's size (x, y, z), m, each > 0. Paper: 20 x 60 x 50 mm."
+    )
+    magnetisation: list[tuple[float, float, float]] = Field(
+        ...,
+        min_length=1,
+        description=(
+            "Unit magnetisation direction of each block in the EPM frame, from -x to +x; "
+            "one entry per block (>= 1). Paper: 4 blocks turning 90 deg block to block, "
+            "strong side facing the plate (-z)."
+        ),
+    )
+    remanence_t: float = _pos("Remanence B_r, T, > 0. Paper: N35, 1.26 T.")
+    grade: str = Field("N35", description="Magnet grade (informational).")
+
+    @field_validator("block_size_m")
+    @classmethod
+    def _positive_size(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if any(not (s > 0) for s in v):
+            raise ValueError(f"every block dimension must be > 0, got {v}")
+        return v
+
+    @field_validator("magnetisation")
+    @classmethod
+    def _unit_vectors(cls, v: list[tuple[float, float, float]]) -> list[tuple[float, float, float]]:
+        for i, d in enumerate(v):
+            n = math.sqrt(sum(c * c for c in d))
+            if abs(n - 1.0) > 1e-6:
+                raise ValueError(f"entry {i} must be a unit vector (norm 1), got norm {n:.6g}")
+        return v
+
+    @property
+    def n_blocks(self) -> int:
+        """Number of blocks in the array."""
+        return len(self.magnetisation)
+
+    @property
+    def size_m(self) -> tuple[float, float, float]:
+        """Overall array size (x, y, z), m."""
+        bx, by, bz = self.block_size_m
+        return (bx * self.n_blocks, by, bz)
+
+
+class PlateConfig(_Strict):
+    """The plate the capsule slides on, and where the EPM is."""
+
+    setup: Literal["below_plate", "on_plate"] = Field(
+        "below_plate",
+        description=(
+            "below_plate: the capsule hangs under the plate, held against it by the EPM above "
+            "(F_N = F_z - m g; F_N <= 0 means the capsule drops). on_plate: the capsule rests on "
+            "the plate and the EPM below pulls it against it (F_N = m g + |F_z|)."
+        ),
+    )
+    epm_height_m: float = Field(
+        ...,
+        gt=0,
+        le=0.5,
+        description=(
+            "Vertical distance between the EPM centre and the IPM centre, m, in (0, 0.5]. Not given "
+            "in the paper; the default is chosen so the normal force at zero lead is 2-4 x m g."
+        ),
+    )
+    size_m: tuple[float, float] = Field(
+        ..., description="Plate size (x, y), m, each > 0; the plate is centred on the origin."
+    )
+    thickness_m: float = _pos("Plate thickness, m, > 0 (informational; inside epm_height_m).")
+    gravity_mps2: float = _pos("Gravitational acceleration g, m/s^2, > 0.", 9.81)
+
+    @field_validator("size_m")
+    @classmethod
+    def _positive_plate(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if any(not (s > 0) for s in v):
+            raise ValueError(f"every plate dimension must be > 0, got {v}")
+        return v
+
+
+class RateStateConfig(_Strict):
+    """Dieterich-Ruina rate-and-state constants of the plant (paper eq. 5-6)."""
+
+    a: float = Field(..., ge=0, description="Direct-effect constant a, >= 0 (paper eq. 5).")
+    b: float = Field(..., ge=0, description="Evolution-effect constant b, >= 0 (paper eq. 5).")
+
+
+class LearnedFrictionModel(_Strict):
+    """A steady-state friction law mu(v) = mu0 - c(v) ln(v*/|v|) with polynomial c(v) (paper eq. 10).
+
+    Written by ``capsule-mpc learn-friction``; loadable inline or from a file.
+    """
+
+    coefficients: list[float] = Field(
+        ..., min_length=1, description="Polynomial c(v), highest power first (like p1..p5)."
+    )
+    validity_mps: tuple[float, float] = Field(
+        ..., description="Speed range (min, max) the polynomial was fitted on, m/s, 0 < min < max."
+    )
+    degree: int | None = Field(None, ge=0, description="Polynomial degree (len(coefficients)-1).")
+    mu0: float | None = Field(None, ge=0, description="mu0 used in the fit (informational).")
+    v_star_mps: float | None = Field(None, gt=0, description="v* used in the fit, m/s.")
+    tether_drag_n: float | None = Field(None, ge=0, description="f_s used in the fit, N.")
+    mass_kg: float | None = Field(None, gt=0, description="Capsule mass used in the fit, kg.")
+    n_samples: int | None = Field(None, ge=0, description="Number of samples fitted.")
+    sse: float | None = Field(None, ge=0, description="Sum of squared residuals of c.")
+    r2: float | None = Field(None, description="Coefficient of determination of the fit.")
+    rmse: float | None = Field(None, ge=0, description="Root-mean-square residual of c.")
+
+    @model_validator(mode="after")
+    def _check(self) -> LearnedFrictionModel:
+        lo, hi = self.validity_mps
+        if not (0 < lo < hi):
+            raise ValueError(f"validity_mps: must satisfy 0 < min < max, got {self.validity_mps}")
+        if self.degree is not None and self.degree != len(self.coefficients) - 1:
+            raise ValueError(
+                f"degree: must equal len(coefficients) - 1 = {len(self.coefficients) - 1}, got {self.degree}"
+            )
+        return self
+
+
+class FrictionConfig(_Strict):
+    """Friction and tether drag (paper eq. 4-12, Table 1)."""
+
+    mu0: float = Field(..., ge=0, le=2, description="Sliding friction mu0, in [0, 2]. Paper: 0.22.")
+    mu_static: float = Field(
+        ...,
+        ge=0,
+        le=2,
+        description="Static (breakaway) friction coefficient of the plant, in [0, 2], >= mu0.",
+    )
+    tether_drag_n: float = Field(
+        ..., ge=0, description="Tether drag f_s, N, >= 0; opposes motion. Paper: 0.03 N."
+    )
+    v_star_mps: float = _pos("Rate-and-state reference speed v*, m/s, > 0. Paper: 0.2 m/s.")
+    d_c_m: float = _pos("Critical slip length D_c, m, > 0. Paper: ~10 um.")
+    rate_state: RateStateConfig = Field(
+        ..., description="Dieterich-Ruina a, b of the plant (the paper's c ~ a - b)."
+    )
+    paper_c: LearnedFrictionModel = Field(
+        default_factory=lambda: LearnedFrictionModel(
+            coefficients=list(PAPER_C_COEFFICIENTS), validity_mps=PAPER_C_VALIDITY_MPS, degree=4
+        ),
+        description="The paper's c(v) polynomial p1..p5 and its validity range (paper §IV-C).",
+    )
+    learned: LearnedFrictionModel | Path | None = Field(
+        None,
+        description=(
+            "The controller's friction law: a learned-model YAML path (relative to the config "
+            "file) or an inline model; None uses paper_c."
+        ),
+    )
+    smoothing_eps_mps: float = Field(
+        1e-3,
+        gt=0,
+        le=0.01,
+        description="Speed smoothing eps for CasADi models (|v| -> sqrt(v^2 + eps^2)), m/s, (0, 0.01].",
+    )
+
+    @model_validator(mode="after")
+    def _static_above_kinetic(self) -> FrictionConfig:
+        if self.mu_static < self.mu0:
+            raise ValueError(f"mu_static: must be >= mu0 ({self.mu0}), got {self.mu_static}")
+        return self
+
+
+class ForceMapConfig(_Strict):
+    """Tabulated finite-magnet force over the EPM-IPM lead and height (cached on disk)."""
+
+    lead_half_range_m: float = Field(
+        0.045, gt=0, le=0.2, description="The map covers |lead_x|, |lead_y| <= this, m, (0, 0.2]."
+    )
+    lead_step_m: float = Field(0.003, gt=0, le=0.02, description="Grid step in lead, m, (0, 0.02].")
+    height_offsets_m: list[float] = Field(
+        [-0.01, -0.005, 0.0, 0.005, 0.01],
+        min_length=2,
+        description="Heights tabulated, as offsets from plate.epm_height_m, m (>= 2, increasing).",
+    )
+    meshing: int = Field(
+        100, ge=10, le=5000, description="Cells of the IPM mesh for magpylib getFT, [10, 5000]."
+    )
+    cache_dir: Path | None = Field(
+        None,
+        description=("Where force maps are cached; None uses $CAPSULE_MPC_CACHE or ~/.cache/capsule_mpc."),
+    )
+
+    @field_validator("height_offsets_m")
+    @classmethod
+    def _increasing(cls, v: list[float]) -> list[float]:
+        if any(b <= a for a, b in itertools.pairwise(v)):
+            raise ValueError(f"must be strictly increasing, got {v}")
+        return v
+
+
+class Scenario(_Strict):
+    """A whole scenario: the rig's physics and the models' settings."""
+
+    name: str = Field("paper", description="Scenario name, used in reports.")
+    capsule: CapsuleConfig
+    ipm: IPMConfig
+    epm: EPMConfig
+    plate: PlateConfig
+    friction: FrictionConfig
+    force_map: ForceMapConfig = Field(default_factory=ForceMapConfig)
+    force_model: Literal["dipole", "lookup"] = Field(
+        "dipole",
+        description=(
+            "The controller's magnetic model: 'dipole' (point dipoles, paper eq. 1-3) or "
+            "'lookup' (CasADi B-spline of the finite-magnet force map)."
+        ),
+    )
+    source_path: Path | None = Field(
+        None, exclude=True, description="File this scenario was loaded from (not dumped)."
+    )
+
+    def controller_friction(self) -> LearnedFrictionModel:
+        """The steady-state friction law the controller uses: ``friction.learned`` or the paper's."""
+        learned = self.friction.learned
+        if learned is None:
+            return self.friction.paper_c
+        if isinstance(learned, LearnedFrictionModel):
+            return learned
+        path = learned
+        if not path.is_absolute() and self.source_path is not None:
+            path = self.source_path.parent / path
+        data = _read_yaml(path)
+        return _validate(LearnedFrictionModel, data, f"friction.learned ({path})")
+
+
+def packaged_config_path(name: str = "paper") -> Path:
+    """Path of a scenario shipped with the package (``paper``, ``rectangle``, ``pipe``)."""
+    ref = resources.files("capsule_mpc") / "configs" / f"{name}.yaml"
+    return Path(str(ref))
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"cannot read config {path}: {exc}") from exc
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: top level must be a mapping, got {type(data).__name__}")
+    return data
+
+
+def _deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _resolve_base(path: Path, data: dict[str, Any], depth: int = 0) -> dict[str, Any]:
+    base = data.pop("base", None)
+    if base is None:
+        return data
+    if depth > 8:
+        raise ConfigError(f"{path}: 'base' chain deeper than 8 files (a cycle?)")
+    base_path = packaged_config_path(base) if base in ("paper",) else path.parent / str(base)
+    base_data = _resolve_base(base_path, _read_yaml(base_path), depth + 1)
+    return _deep_merge(base_data, data)
+
+
+_RANGE_TEXT = {
+    "greater_than": ("must be >", "gt"),
+    "greater_than_equal": ("must be >=", "ge"),
+    "less_than": ("must be <", "lt"),
+    "less_than_equal": ("must be <=", "le"),
+}
+
+
+def _format_errors(exc: ValidationError, where: str) -> str:
+    lines = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"]) or "<top>"
+        bound = _RANGE_TEXT.get(err["type"])
+        if bound is not None:
+            msg = f"{bound[0]} {err.get('ctx', {}).get(bound[1])!s:.12}".replace(".0 ", " ")
+            msg = msg.removesuffix(".0")
+        elif err["type"] == "extra_forbidden":
+            msg = "unknown key (not a field of this section)"
+        elif err["type"] == "missing":
+            msg = "required field is missing"
+        elif err["type"] == "finite_number":
+            msg = "must be a finite number"
+        else:
+            msg = err["msg"].removeprefix("Value error, ")
+        lines.append(f"{loc}: {msg}, got {err.get('input')!r}")
+    return f"invalid {where}:\n  " + "\n  ".join(lines)
+
+
+def _validate(model: type[Any], data: dict[str, Any], where: str) -> Any:
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(_format_errors(exc, where)) from None
+
+
+def load_config(path: str | Path | None = None) -> Scenario:
+    """Load and validate a scenario.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        A scenario YAML file. None loads the packaged paper defaults.
+
+    Returns
+    -------
+    Scenario
+        The validated scenario.
+
+    Raises
+    ------
+    ConfigError
+        If the file cannot be read or any field is invalid; the message names
+        every offending field with its allowed range.
+    """
+    path = packaged_config_path("paper") if path is None else Path(path)
+    data = _resolve_base(path, _read_yaml(path))
+    scenario: Scenario = _validate(Scenario, data, f"config {path}")
+    scenario.source_path = path.resolve()
+    return scenario
+
+
+def config_from_dict(data: dict[str, Any]) -> Scenario:
+    """Validate a scenario given as a mapping (same rules and errors as :func:`load_config`)."""
+    scenario: Scenario = _validate(Scenario, dict(data), "config")
+    return scenario
+
+
+def dump_config(scenario: Scenario, path: str | Path | None = None) -> str:
+    """Serialise a scenario to YAML (and write it to ``path`` if given).
+
+    The output re-loads to an identical scenario with :func:`load_config`.
+    """
+    data = scenario.model_dump(mode="json", exclude_none=True)
+    learned = scenario.friction.learned
+    if isinstance(learned, Path) and scenario.source_path is not None:
+        # Inline the learned model so the dump is self-contained beside results.
+        data["friction"]["learned"] = scenario.controller_friction().model_dump(
+            mode="json", exclude_none=True
+        )
+    text = yaml.safe_dump(data, sort_keys=False)
+    if path is not None:
+        Path(path).write_text(text)
+    return text

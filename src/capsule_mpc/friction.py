@@ -1,0 +1,216 @@
+"""Friction laws: the paper's learned steady-state law and Dieterich-Ruina rate-and-state.
+
+* :class:`SteadyFrictionLaw` -- mu(v) = mu0 - c(v) ln(v*/|v|) with polynomial c(v)
+  (paper eq. 10). Numeric form (non-smooth, clipped at mu = 0 with a warning) and a
+  smooth CasADi form for the controller. c(v) is held at its end values outside the
+  speed range it was fitted on (no polynomial extrapolation); such speeds are flagged.
+* :class:`RateStateFriction` -- mu(v, theta) and theta' (paper eq. 5-9), the plant's law.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from .config import PAPER_C_COEFFICIENTS, LearnedFrictionModel, Scenario
+
+__all__ = [
+    "MU_SMOOTHING",
+    "FrictionRangeWarning",
+    "NegativeFrictionWarning",
+    "RateStateFriction",
+    "SteadyFrictionLaw",
+    "paper_c",
+]
+
+#: Width of the smooth max(mu, 0) in the CasADi law (dimensionless; 1 % of mu0).
+MU_SMOOTHING = 2e-3
+
+
+class FrictionRangeWarning(UserWarning):
+    """A speed outside the friction polynomial's validity range was evaluated."""
+
+
+class NegativeFrictionWarning(UserWarning):
+    """The friction law gave mu < 0; it was clipped to 0."""
+
+
+def paper_c(v: Any) -> Any:
+    """The paper's learned c(v) = p1 v^4 + p2 v^3 + p3 v^2 + p4 v + p5 (paper §IV-C).
+
+    Parameters
+    ----------
+    v : float or array_like
+        Speed, m/s (valid for 0.005 <= v <= 0.04).
+
+    Returns
+    -------
+    float or numpy.ndarray
+        c (dimensionless).
+    """
+    return np.polyval(PAPER_C_COEFFICIENTS, v)
+
+
+class SteadyFrictionLaw:
+    """Steady-state friction mu(v) = mu0 - c(v) ln(v*/|v|), c a polynomial (paper eq. 10).
+
+    Parameters
+    ----------
+    coefficients : sequence of float
+        c(v), highest power first (any degree).
+    mu0 : float
+        Sliding friction mu0 (dimensionless).
+    v_star_mps : float
+        Reference speed v*, m/s.
+    validity_mps : (float, float)
+        Speed range the polynomial was fitted on, m/s.
+    smoothing_eps_mps : float
+        eps of the smooth speed sqrt(v^2 + eps^2) in the CasADi form, m/s.
+    """
+
+    def __init__(
+        self,
+        coefficients: list[float] | tuple[float, ...] | np.ndarray,
+        mu0: float,
+        v_star_mps: float,
+        validity_mps: tuple[float, float],
+        smoothing_eps_mps: float = 1e-3,
+    ) -> None:
+        self.coefficients = np.asarray(coefficients, dtype=float)
+        if self.coefficients.ndim != 1 or self.coefficients.size == 0:
+            raise ValueError("coefficients: need a non-empty 1-D list, highest power first")
+        if not np.all(np.isfinite(self.coefficients)):
+            raise ValueError(f"coefficients: must be finite, got {self.coefficients}")
+        lo, hi = validity_mps
+        if not 0 < lo < hi:
+            raise ValueError(f"validity_mps: must satisfy 0 < min < max, got {validity_mps}")
+        self.mu0 = float(mu0)
+        self.v_star_mps = float(v_star_mps)
+        self.validity_mps = (float(lo), float(hi))
+        self.smoothing_eps_mps = float(smoothing_eps_mps)
+        self._warned: set[type[Warning]] = set()
+
+    @classmethod
+    def from_model(cls, model: LearnedFrictionModel, scenario: Scenario) -> SteadyFrictionLaw:
+        """A law from a learned-model record, with mu0, v* and eps from the scenario."""
+        fr = scenario.friction
+        return cls(model.coefficients, fr.mu0, fr.v_star_mps, model.validity_mps, fr.smoothing_eps_mps)
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario) -> SteadyFrictionLaw:
+        """The controller's law: ``friction.learned`` if set, else the paper's polynomial."""
+        return cls.from_model(scenario.controller_friction(), scenario)
+
+    def _warn_once(self, category: type[Warning], message: str) -> None:
+        if category not in self._warned:
+            self._warned.add(category)
+            warnings.warn(message, category, stacklevel=3)
+
+    def in_range(self, v: Any) -> np.ndarray:
+        """Whether each |v| lies in the validity range."""
+        speed = np.abs(np.asarray(v, dtype=float))
+        lo, hi = self.validity_mps
+        return (speed >= lo) & (speed <= hi)
+
+    def c(self, v: Any) -> np.ndarray:
+        """c(|v|), with |v| held inside the validity range (flagged with a warning if outside)."""
+        speed = np.abs(np.asarray(v, dtype=float))
+        if not np.all(self.in_range(speed)):
+            lo, hi = self.validity_mps
+            self._warn_once(
+                FrictionRangeWarning,
+                f"friction law evaluated at speeds outside its validity range [{lo}, {hi}] m/s "
+                f"(min {speed.min():.4g}, max {speed.max():.4g}); c(v) held at its end values",
+            )
+        return np.asarray(np.polyval(self.coefficients, np.clip(speed, *self.validity_mps)))
+
+    def mu(self, v: Any) -> np.ndarray:
+        """Friction coefficient at speed(s) v, never negative (clipped with a warning).
+
+        |v| is floored at the smoothing eps so the law is finite at rest, as in
+        :meth:`casadi_mu`.
+        """
+        speed = np.maximum(np.abs(np.asarray(v, dtype=float)), self.smoothing_eps_mps)
+        mu = self.mu0 - self.c(speed) * np.log(self.v_star_mps / speed)
+        if np.any(mu < 0):
+            self._warn_once(
+                NegativeFrictionWarning,
+                f"friction law gave mu < 0 (min {np.min(mu):.4g}); clipped to 0",
+            )
+        return np.asarray(np.maximum(mu, 0.0))
+
+    def casadi_mu(self, velocity: Any) -> Any:
+        """Smooth CasADi mu of a velocity (vector or scalar) expression, m/s.
+
+        The speed is smoothed as sqrt(|v|^2 + eps^2) so the logarithm and every
+        derivative are finite at rest, c(v) is held constant outside the validity
+        range, and mu >= 0 by a smooth max of width :data:`MU_SMOOTHING`.
+        """
+        smooth = ca.sqrt(ca.sumsqr(velocity) + self.smoothing_eps_mps**2)
+        lo, hi = self.validity_mps
+        v_c = ca.fmin(ca.fmax(smooth, lo), hi)
+        c = 0
+        for coef in self.coefficients:  # Horner's scheme, highest power first
+            c = c * v_c + float(coef)
+        mu = self.mu0 - c * ca.log(self.v_star_mps / smooth)
+        return 0.5 * (mu + ca.sqrt(mu**2 + MU_SMOOTHING**2))
+
+
+@dataclass(frozen=True)
+class RateStateFriction:
+    """Dieterich-Ruina rate-and-state friction (paper eq. 5-9); the plant's law.
+
+    Attributes
+    ----------
+    mu0 : float
+        Reference friction coefficient.
+    a, b : float
+        Direct- and evolution-effect constants (paper eq. 5).
+    v_star_mps : float
+        Reference speed v*, m/s.
+    d_c_m : float
+        Critical slip length D_c, m.
+    """
+
+    mu0: float
+    a: float
+    b: float
+    v_star_mps: float
+    d_c_m: float
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario) -> RateStateFriction:
+        """The plant's law from ``scenario.friction``."""
+        fr = scenario.friction
+        return cls(fr.mu0, fr.rate_state.a, fr.rate_state.b, fr.v_star_mps, fr.d_c_m)
+
+    def mu(self, v: Any, theta: Any) -> Any:
+        """mu = mu0 - a ln(v*/|v| + 1) + b ln(v* theta / D_c + 1) (paper eq. 5).
+
+        At |v| = 0 the direct term is -inf: call this only while sliding.
+        """
+        speed = np.abs(v)
+        with np.errstate(divide="ignore"):
+            direct = self.a * np.log(self.v_star_mps / speed + 1.0)
+        return self.mu0 - direct + self.b * np.log(self.v_star_mps * theta / self.d_c_m + 1.0)
+
+    def theta_rate(self, v: Any, theta: Any) -> Any:
+        """theta' = 1 - |v| theta / D_c (paper eq. 6), 1/s * s = dimensionless."""
+        return 1.0 - np.abs(v) * theta / self.d_c_m
+
+    def theta_steady(self, v: Any) -> Any:
+        """Steady state theta = D_c / |v| (paper eq. 8), s."""
+        return self.d_c_m / np.abs(v)
+
+    def theta_constant_speed(self, t_s: Any, v: Any, theta0: float) -> Any:
+        """theta(t) at constant speed from theta(0) = theta0 (paper eq. 7), s."""
+        ss = self.theta_steady(v)
+        return ss + (theta0 - ss) * np.exp(-np.abs(v) * np.asarray(t_s) / self.d_c_m)
+
+    def mu_steady(self, v: Any) -> Any:
+        """Steady-state mu = mu0 - (a - b) ln(v*/|v| + 1) (paper eq. 9 with c = a - b)."""
+        return self.mu0 - (self.a - self.b) * np.log(self.v_star_mps / np.abs(v) + 1.0)

@@ -1,0 +1,186 @@
+"""The finite-magnet force tabulated over lead and height, cached on disk, and its interpolants.
+
+Computing one finite-magnet force takes milliseconds (magpylib ``getFT`` on a
+meshed IPM), far too slow for a 1 kHz plant, so the map is computed once per
+magnet geometry and grid, stored as ``.npz`` under a key that hashes every
+input, and interpolated: cubic splines (SciPy) for the simulator's plant and a
+CasADi B-spline for the controller's ``lookup`` model.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import magpylib as magpy
+import numpy as np
+from scipy.interpolate import RectBivariateSpline
+
+from ..config import Scenario
+from .finite import finite_force
+
+__all__ = ["ForceMap", "cache_directory", "force_map", "force_map_key"]
+
+#: Bump when the table's meaning or layout changes, to invalidate old caches.
+_FORMAT_VERSION = 1
+
+
+def cache_directory(scenario: Scenario) -> Path:
+    """Cache folder: ``force_map.cache_dir``, else ``$CAPSULE_MPC_CACHE``, else ~/.cache/capsule_mpc."""
+    if scenario.force_map.cache_dir is not None:
+        return Path(scenario.force_map.cache_dir)
+    env = os.environ.get("CAPSULE_MPC_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "capsule_mpc"
+
+
+def _axes(scenario: Scenario) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    fm = scenario.force_map
+    n = round(fm.lead_half_range_m / fm.lead_step_m)
+    lead = np.linspace(-n * fm.lead_step_m, n * fm.lead_step_m, 2 * n + 1)
+    heights = scenario.plate.epm_height_m + np.asarray(fm.height_offsets_m, dtype=float)
+    if heights[0] <= 0:
+        raise ValueError(
+            f"force_map.height_offsets_m: plate.epm_height_m + offset must be > 0, got {heights[0]:.4g} m"
+        )
+    return lead, lead.copy(), heights
+
+
+def force_map_key(scenario: Scenario) -> str:
+    """A hash of everything the table depends on (magnets, grid, meshing, magpylib version)."""
+    lead_x, _, heights = _axes(scenario)
+    payload = {
+        "format": _FORMAT_VERSION,
+        "magpylib": magpy.__version__,
+        "ipm": scenario.ipm.model_dump(mode="json"),
+        "epm": scenario.epm.model_dump(mode="json"),
+        "lead": lead_x.round(9).tolist(),
+        "heights": heights.round(9).tolist(),
+        "meshing": scenario.force_map.meshing,
+    }
+    blob = json.dumps(payload, sort_keys=True).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class ForceMap:
+    """Finite-magnet force on the capsule over a (lead_x, lead_y, height) grid.
+
+    Attributes
+    ----------
+    lead_x_m, lead_y_m, height_m : numpy.ndarray
+        Strictly increasing grid axes, m.
+    force_n : numpy.ndarray (nx, ny, nh, 3)
+        ``(F_x, F_y, F_att)`` at every grid point, N (see :mod:`.finite`).
+    key : str
+        The cache key the table was stored under.
+    """
+
+    lead_x_m: np.ndarray
+    lead_y_m: np.ndarray
+    height_m: np.ndarray
+    force_n: np.ndarray
+    key: str
+
+    def __post_init__(self) -> None:
+        # One 2-D cubic spline per (height, component): ~5 us per call, fast enough for 1 kHz.
+        splines = [
+            [RectBivariateSpline(self.lead_x_m, self.lead_y_m, self.force_n[:, :, k, c]) for c in range(3)]
+            for k in range(len(self.height_m))
+        ]
+        object.__setattr__(self, "_splines", splines)
+
+    def contains(self, lead_xy: np.ndarray, height_m: float) -> bool:
+        """Whether a point lies inside the tabulated region."""
+        lx, ly = float(lead_xy[0]), float(lead_xy[1])
+        return bool(
+            self.lead_x_m[0] <= lx <= self.lead_x_m[-1]
+            and self.lead_y_m[0] <= ly <= self.lead_y_m[-1]
+            and self.height_m[0] <= height_m <= self.height_m[-1]
+        )
+
+    def evaluate(self, lead_xy: np.ndarray, height_m: float) -> np.ndarray:
+        """Force ``(F_x, F_y, F_att)``, N, at one lead (m) and height (m).
+
+        Cubic splines in lead, linear in height. Raises ValueError outside the
+        table: the simulator must report a lost capsule, not extrapolate.
+        """
+        if not self.contains(lead_xy, height_m):
+            raise ValueError(
+                f"lead {np.asarray(lead_xy)} m / height {height_m} m is outside the force map "
+                f"(|lead| <= {self.lead_x_m[-1]:.3f} m, height in "
+                f"[{self.height_m[0]:.3f}, {self.height_m[-1]:.3f}] m)"
+            )
+        k = int(np.clip(np.searchsorted(self.height_m, height_m) - 1, 0, len(self.height_m) - 2))
+        w = (height_m - self.height_m[k]) / (self.height_m[k + 1] - self.height_m[k])
+        lx, ly = float(lead_xy[0]), float(lead_xy[1])
+        splines = self._splines  # type: ignore[attr-defined]
+        lo = np.array([s(lx, ly, grid=False) for s in splines[k]])
+        if w == 0.0:  # on a tabulated height (the usual case): one spline set suffices
+            return lo
+        hi = np.array([s(lx, ly, grid=False) for s in splines[k + 1]])
+        return np.asarray((1 - w) * lo + w * hi, dtype=float)
+
+    def casadi_function(self, name: str = "force_lookup") -> ca.Function:
+        """CasADi B-spline of the table: ``F = f(lead (2), height (1))`` with F = (F_x, F_y, F_att)."""
+        # CasADi wants the grid values column-major (first axis fastest), outputs innermost.
+        values = np.transpose(self.force_n, (3, 0, 1, 2)).ravel(order="F")
+        spline = ca.interpolant(
+            name + "_bspline",
+            "bspline",
+            [self.lead_x_m.tolist(), self.lead_y_m.tolist(), self.height_m.tolist()],
+            values.tolist(),
+        )
+        lead = ca.MX.sym("lead", 2)
+        height = ca.MX.sym("height")
+        return ca.Function(
+            name, [lead, height], [spline(ca.vertcat(lead, height))], ["lead", "height"], ["F"]
+        )
+
+    def save(self, path: Path) -> None:
+        """Write the table atomically to ``path`` (.npz)."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(
+            tmp, lead_x_m=self.lead_x_m, lead_y_m=self.lead_y_m, height_m=self.height_m,
+            force_n=self.force_n, key=np.array(self.key),
+        )  # fmt: skip
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: Path) -> ForceMap:
+        """Read a table written by :meth:`save`."""
+        with np.load(path) as data:
+            return cls(
+                lead_x_m=data["lead_x_m"], lead_y_m=data["lead_y_m"], height_m=data["height_m"],
+                force_n=data["force_n"], key=str(data["key"]),
+            )  # fmt: skip
+
+
+def force_map(scenario: Scenario, *, progress: bool = False, use_cache: bool = True) -> ForceMap:
+    """The scenario's finite-magnet force map, from the disk cache or computed (and cached).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Magnets and grid (``force_map`` section).
+    progress : bool
+        Show a progress bar while computing.
+    use_cache : bool
+        Read and write the cache; False always recomputes and writes nothing.
+    """
+    key = force_map_key(scenario)
+    path = cache_directory(scenario) / f"force_map_{key}.npz"
+    if use_cache and path.exists():
+        return ForceMap.load(path)
+    lead_x, lead_y, heights = _axes(scenario)
+    gx, gy, gh = np.meshgrid(lead_x, lead_y, heights, indexing="ij")
+    leads = np.column_stack([gx.ravel(), gy.ravel()])
+    forces = finite_force(scenario, leads, gh.ravel(), progress=progress)
+    table = ForceMap(lead_x, lead_y, heights, forces.reshape(*gx.shape, 3), key)
+    if use_cache:
+        table.save(path)
+    return table
