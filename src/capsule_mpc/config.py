@@ -21,6 +21,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 __all__ = [
+    "CameraConfig",
     "CapsuleConfig",
     "ConfigError",
     "EPMConfig",
@@ -28,9 +29,12 @@ __all__ = [
     "FrictionConfig",
     "IPMConfig",
     "LearnedFrictionModel",
+    "LimitsConfig",
+    "PathConfig",
     "PlateConfig",
     "RateStateConfig",
     "Scenario",
+    "SimConfig",
     "config_from_dict",
     "dump_config",
     "load_config",
@@ -284,6 +288,94 @@ class ForceMapConfig(_Strict):
         return v
 
 
+class PathConfig(_Strict):
+    """The reference path the capsule must follow (time-parameterised along arc length)."""
+
+    kind: Literal["rectangle", "pipe", "waypoints"] = Field(
+        "rectangle", description="rectangle, pipe (three bends, the paper's pipe) or a waypoint file."
+    )
+    speed_mps: float = Field(
+        0.02, gt=0, le=0.1, description="Nominal speed v along the path, m/s, (0, 0.1]. Paper: 0.02."
+    )
+    rectangle_size_m: tuple[float, float] = Field(
+        (0.10, 0.06), description="Rectangle (x, y) size, m, each > 0. Default 100 x 60 mm."
+    )
+    origin_m: tuple[float, float] = Field(
+        (0.0, 0.0), description="Plate point the path is centred on (x, y), m."
+    )
+    waypoints_file: Path | None = Field(
+        None, description="CSV with header x_m,y_m (kind: waypoints); relative to the config file."
+    )
+
+    @field_validator("rectangle_size_m")
+    @classmethod
+    def _positive_rect(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if any(not (s > 0) for s in v):
+            raise ValueError(f"every side must be > 0, got {v}")
+        return v
+
+
+class LimitsConfig(_Strict):
+    """What the EPM may do: every command honours these (DESIGN.md §3)."""
+
+    speed_mps: float = Field(0.08, gt=0, le=1.0, description="Max EPM speed per axis, m/s, (0, 1].")
+    accel_mps2: float = Field(0.5, gt=0, le=10.0, description="Max EPM acceleration per axis, m/s^2.")
+    jerk_mps3: float = Field(5.0, gt=0, le=1000.0, description="Max EPM jerk per axis, m/s^3.")
+    workspace_min_m: tuple[float, float, float] = Field(
+        (-0.18, -0.13, 0.085), description="EPM workspace lower corner (x, y, height), m."
+    )
+    workspace_max_m: tuple[float, float, float] = Field(
+        (0.18, 0.13, 0.105), description="EPM workspace upper corner (x, y, height), m."
+    )
+    max_lead_m: float = Field(
+        0.025,
+        gt=0,
+        le=0.045,
+        description=(
+            "Coupling limit: max |lead - equilibrium lead|, m, (0, 0.045]; beyond it the capsule "
+            "risks losing the magnet."
+        ),
+    )
+    normal_force_min_n: float = Field(
+        0.1, ge=0, description="Min normal force F_N, N, >= 0 (capsule stays on the plate)."
+    )
+    normal_force_max_n: float = Field(1.5, gt=0, description="Max normal force F_N, N, > 0 (tissue-safe).")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> LimitsConfig:
+        for i, (lo, hi) in enumerate(zip(self.workspace_min_m, self.workspace_max_m)):
+            if not lo < hi:
+                raise ValueError(f"workspace_min_m[{i}]: must be < workspace_max_m[{i}] ({hi}), got {lo}")
+        if self.normal_force_min_n >= self.normal_force_max_n:
+            raise ValueError(
+                f"normal_force_min_n: must be < normal_force_max_n ({self.normal_force_max_n}), "
+                f"got {self.normal_force_min_n}"
+            )
+        return self
+
+
+class CameraConfig(_Strict):
+    """The camera that measures the capsule position."""
+
+    rate_hz: float = Field(30.0, gt=0, le=1000, description="Frame rate, Hz, (0, 1000]. Paper: ~30 Hz.")
+    noise_std_m: float = Field(3e-4, ge=0, le=0.01, description="Gaussian noise per axis, m, [0, 0.01].")
+    latency_frames: int = Field(1, ge=0, le=10, description="Delay of each measurement in frames, [0, 10].")
+    drop_probability: float = Field(0.0, ge=0, lt=1, description="Probability a frame is lost, [0, 1).")
+
+
+class SimConfig(_Strict):
+    """The simulated rig (plant integration and run length)."""
+
+    plant_rate_hz: float = Field(1000.0, ge=1000, le=100000, description="Plant step rate, Hz, >= 1000.")
+    seed: int = Field(0, ge=0, description="Seed of every random draw (camera noise, drops), >= 0.")
+    settle_s: float = Field(
+        1.0, ge=0, le=30, description="Time the capsule settles under the resting EPM before motion, s."
+    )
+    tail_s: float = Field(
+        5.0, ge=0, le=120, description="Time allowed after the nominal end before a run is cut off, s."
+    )
+
+
 class Scenario(_Strict):
     """A whole scenario: the rig's physics and the models' settings."""
 
@@ -301,6 +393,10 @@ class Scenario(_Strict):
             "'lookup' (CasADi B-spline of the finite-magnet force map)."
         ),
     )
+    path: PathConfig = Field(default_factory=PathConfig, description="The reference path.")
+    limits: LimitsConfig = Field(default_factory=LimitsConfig, description="EPM command limits.")
+    camera: CameraConfig = Field(default_factory=CameraConfig, description="The camera.")
+    sim: SimConfig = Field(default_factory=SimConfig, description="The simulated rig.")
     source_path: Path | None = Field(
         None, exclude=True, description="File this scenario was loaded from (not dumped)."
     )
