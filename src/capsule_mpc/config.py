@@ -30,6 +30,7 @@ __all__ = [
     "IPMConfig",
     "LearnedFrictionModel",
     "LimitsConfig",
+    "MPCConfig",
     "PathConfig",
     "PlateConfig",
     "RateStateConfig",
@@ -376,6 +377,61 @@ class SimConfig(_Strict):
     )
 
 
+class MPCConfig(_Strict):
+    """The receding-horizon controller (see ``capsule_mpc.mpc``)."""
+
+    horizon: int = Field(20, ge=2, le=200, description="Prediction horizon N, steps, [2, 200].")
+    dt_s: float | None = Field(
+        None, gt=0, le=0.5, description="Step of the prediction, s; None = one camera frame."
+    )
+    scheme: Literal["rti", "sqp", "ipopt"] = Field(
+        "rti",
+        description=(
+            "rti: one Gauss-Newton SQP step per frame (qrqp), warm-started, first frame solved to "
+            "convergence by IPOPT; sqp: Gauss-Newton SQP to convergence; ipopt: interior point."
+        ),
+    )
+    max_sqp_iter: int = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
+    max_ipopt_iter: int = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
+    position_tol_m: float = Field(
+        1e-3, gt=0, description="Tracking weight as a tolerance: (p - r) / tol is one cost unit, m."
+    )
+    velocity_tol_mps: float = Field(
+        0.01, gt=0, description="Capsule velocity tracking tolerance, m/s (weight 1/tol^2)."
+    )
+    input_tol_mps: float = Field(
+        0.05, gt=0, description="EPM velocity deviation from the path feed-forward tolerance, m/s."
+    )
+    input_rate_tol_mps: float = Field(
+        0.004, gt=0, description="EPM velocity change per step tolerance, m/s (smoothness)."
+    )
+    terminal_factor: float = Field(
+        3.0, ge=1, le=100, description="Terminal tracking weight factor, [1, 100]."
+    )
+    slack_weight: float = Field(
+        1e4, gt=0, description="Weight of constraint slacks (coupling, normal force), per unit slack."
+    )
+    height_control: bool = Field(
+        False, description="Let the MPC move the EPM height (else the height command is 0)."
+    )
+    deadline_ms: float | None = Field(
+        None, gt=0, description="Solve deadline, ms; None = one frame period. Late -> shifted plan."
+    )
+    disturbance_gain: float = Field(
+        0.15,
+        ge=0,
+        le=1,
+        description=("Gain of the force-disturbance estimator (offset-free MPC), [0, 1]; 0 disables it."),
+    )
+    disturbance_max_n: float = Field(
+        0.3, ge=0, description="Bound on the estimated disturbance force per axis, N."
+    )
+    estimator_accel_std_mps2: float = Field(
+        0.3, gt=0, description="Kalman filter process noise: capsule acceleration std, m/s^2."
+    )
+    jit: bool = Field(False, description="JIT-compile the NLP functions (needs a C compiler).")
+
+
 class Scenario(_Strict):
     """A whole scenario: the rig's physics and the models' settings."""
 
@@ -397,6 +453,7 @@ class Scenario(_Strict):
     limits: LimitsConfig = Field(default_factory=LimitsConfig, description="EPM command limits.")
     camera: CameraConfig = Field(default_factory=CameraConfig, description="The camera.")
     sim: SimConfig = Field(default_factory=SimConfig, description="The simulated rig.")
+    mpc: MPCConfig = Field(default_factory=MPCConfig, description="The MPC controller.")
     source_path: Path | None = Field(
         None, exclude=True, description="File this scenario was loaded from (not dumped)."
     )
