@@ -18,9 +18,18 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 __all__ = [
+    "ArmConfig",
     "CameraConfig",
     "CapsuleConfig",
     "ConfigError",
@@ -432,6 +441,140 @@ class MPCConfig(_Strict):
     jit: bool = Field(False, description="JIT-compile the NLP functions (needs a C compiler).")
 
 
+_Vec3 = tuple[float, float, float]
+
+
+def _rpy_matrix(rpy: _Vec3) -> list[list[float]]:
+    """Rotation matrix R = Rz(yaw) Ry(pitch) Rx(roll) of roll-pitch-yaw angles, rad (URDF convention)."""
+    (cr, sr), (cp, sp), (cy, sy) = ((math.cos(a), math.sin(a)) for a in rpy)
+    return [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
+
+
+class ArmConfig(_Strict):
+    """The 6-DOF arm that carries the EPM (``capsule_mpc.arm``): Ruckig smoothing and Pinocchio IK.
+
+    World frame: the capsule plane is z = 0 and the EPM centre's world z is its height above the
+    capsule (``plate.epm_height_m``). The default UR5 base stands beside the plate on the -y side,
+    facing +y, so the whole default workspace (``limits.workspace_min_m`` .. ``workspace_max_m``)
+    is reachable elbow-up with margin (``capsule_mpc.arm.check_workspace``).
+    """
+
+    robot: Literal["ur5"] = Field(
+        "ur5",
+        description=(
+            "Arm model from example-robot-data (loaded offline). Only 'ur5' ('ur3' in that registry "
+            "returns the UR5 model)."
+        ),
+    )
+    arm_rate_hz: float = Field(
+        500.0, ge=10, le=10000, description="Rate of the arm's setpoints, Hz, [10, 10000]. UR: 500 Hz."
+    )
+    max_velocity_mps: _Vec3 | None = Field(
+        None,
+        description="Ruckig per-axis EPM velocity limit (x, y, z), m/s, each > 0 and <= limits.speed_mps; "
+        "None uses limits.speed_mps.",
+    )
+    max_acceleration_mps2: _Vec3 | None = Field(
+        None,
+        description="Ruckig per-axis EPM acceleration limit, m/s^2, each > 0 and <= limits.accel_mps2; "
+        "None uses limits.accel_mps2.",
+    )
+    max_jerk_mps3: _Vec3 | None = Field(
+        None,
+        description="Ruckig per-axis EPM jerk limit, m/s^3, each > 0 and <= limits.jerk_mps3; "
+        "None uses limits.jerk_mps3.",
+    )
+    base_xyz_m: _Vec3 = Field(
+        (0.0, -0.45, 0.0), description="Position of the arm's base frame in the world, m."
+    )
+    base_rpy_rad: _Vec3 = Field(
+        (0.0, 0.0, math.pi / 2),
+        description="Orientation of the arm's base frame in the world (roll, pitch, yaw), rad.",
+    )
+    mount_xyz_m: _Vec3 = Field(
+        (0.0, 0.0, 0.06),
+        description=(
+            "EPM centre in the tool0 (flange) frame, m: 25 mm half EPM height + 35 mm adapter along "
+            "the flange axis."
+        ),
+    )
+    mount_rpy_rad: _Vec3 = Field(
+        (math.pi, 0.0, 0.0),
+        description=(
+            "Orientation of the EPM frame in the tool0 frame (roll, pitch, yaw), rad. Default: the "
+            "flange axis (tool0 z) points along the EPM's -z, i.e. at its strong face."
+        ),
+    )
+    epm_rpy_rad: _Vec3 = Field(
+        (0.0, 0.0, 0.0),
+        description=(
+            "World orientation of the EPM frame, held fixed along every trajectory (roll, pitch, "
+            "yaw), rad. Its z axis must point up (world +z), so the strong face (-z) faces the plate; "
+            "the magnetic models assume yaw 0 (array along world x)."
+        ),
+    )
+    q_seed_rad: tuple[float, float, float, float, float, float] = Field(
+        (-0.25, -1.43, 2.2, -2.34, -1.571, -0.25),
+        description=(
+            "Joint configuration the first IK solve starts from (selects the elbow-up, wrist-down "
+            "branch), rad, 6 values."
+        ),
+    )
+    ik_position_tolerance_m: float = Field(
+        1e-7, gt=0, le=1e-4, description="IK convergence: EPM centre position error, m, (0, 1e-4]."
+    )
+    ik_orientation_tolerance_rad: float = Field(
+        1e-6, gt=0, le=1e-2, description="IK convergence: EPM orientation error, rad, (0, 0.01]."
+    )
+    ik_damping: float = Field(
+        1e-8,
+        ge=0,
+        le=1.0,
+        description="Damped least squares: lambda in dq = J^T (J J^T + lambda I)^-1 e, [0, 1].",
+    )
+    ik_max_iterations: int = Field(
+        20, ge=1, le=1000, description="IK iterations per warm-started point along a trajectory."
+    )
+    ik_max_iterations_cold: int = Field(
+        300, ge=1, le=10000, description="IK iterations of the first (cold-started) solve."
+    )
+    joint_position_margin_rad: float = Field(
+        0.05, ge=0, le=0.5, description="Keep every joint this far inside its position limits, rad."
+    )
+    joint_velocity_fraction: float = Field(
+        0.8, gt=0, le=1, description="Allowed fraction of each joint's rated velocity, (0, 1]."
+    )
+
+    @field_validator("max_velocity_mps", "max_acceleration_mps2", "max_jerk_mps3")
+    @classmethod
+    def _positive_limits(cls, v: _Vec3 | None) -> _Vec3 | None:
+        if v is not None and any(not (c > 0) for c in v):
+            raise ValueError(f"every axis limit must be > 0, got {v}")
+        return v
+
+    @field_validator("epm_rpy_rad")
+    @classmethod
+    def _strong_face_down(cls, v: _Vec3) -> _Vec3:
+        z_up = _rpy_matrix(v)[2][2]
+        if z_up < 1.0 - 1e-9:
+            raise ValueError(
+                f"the EPM z axis must point up (strong face -z toward the plate): roll and pitch "
+                f"must be 0, got rpy {v} (z axis . world z = {z_up:.6g})"
+            )
+        return v
+
+    def cartesian_limits(self, limits: LimitsConfig) -> tuple[_Vec3, _Vec3, _Vec3]:
+        """Per-axis (velocity m/s, acceleration m/s^2, jerk m/s^3) limits of the EPM, defaults filled in."""
+        vel = self.max_velocity_mps or (limits.speed_mps,) * 3
+        acc = self.max_acceleration_mps2 or (limits.accel_mps2,) * 3
+        jerk = self.max_jerk_mps3 or (limits.jerk_mps3,) * 3
+        return vel, acc, jerk
+
+
 class Scenario(_Strict):
     """A whole scenario: the rig's physics and the models' settings."""
 
@@ -454,9 +597,32 @@ class Scenario(_Strict):
     camera: CameraConfig = Field(default_factory=CameraConfig, description="The camera.")
     sim: SimConfig = Field(default_factory=SimConfig, description="The simulated rig.")
     mpc: MPCConfig = Field(default_factory=MPCConfig, description="The MPC controller.")
+    arm: ArmConfig = Field(
+        default_factory=ArmConfig, description="The arm carrying the EPM (Ruckig + Pinocchio)."
+    )
     source_path: Path | None = Field(
         None, exclude=True, description="File this scenario was loaded from (not dumped)."
     )
+
+    @field_validator("arm")
+    @classmethod
+    def _arm_within_limits(cls, arm: ArmConfig, info: ValidationInfo) -> ArmConfig:
+        limits, camera = info.data.get("limits"), info.data.get("camera")
+        if limits is not None:
+            caps = {
+                "max_velocity_mps": ("limits.speed_mps", limits.speed_mps),
+                "max_acceleration_mps2": ("limits.accel_mps2", limits.accel_mps2),
+                "max_jerk_mps3": ("limits.jerk_mps3", limits.jerk_mps3),
+            }
+            for name, (cap_name, cap) in caps.items():
+                value = getattr(arm, name)
+                if value is not None and max(value) > cap:
+                    raise ValueError(f"{name}: every axis must be <= {cap_name} ({cap}), got {value}")
+        if camera is not None and arm.arm_rate_hz < camera.rate_hz:
+            raise ValueError(
+                f"arm_rate_hz: must be >= camera.rate_hz ({camera.rate_hz}), got {arm.arm_rate_hz}"
+            )
+        return arm
 
     def controller_friction(self) -> LearnedFrictionModel:
         """The steady-state friction law the controller uses: ``friction.learned`` or the paper's."""
