@@ -212,6 +212,14 @@ class LearnedFrictionModel(_Strict):
     sse: float | None = Field(None, ge=0, description="Sum of squared residuals of c.")
     r2: float | None = Field(None, description="Coefficient of determination of the fit.")
     rmse: float | None = Field(None, ge=0, description="Root-mean-square residual of c.")
+    force_model: Literal["dipole", "lookup"] | None = Field(
+        None, description="Force model that gave F and F_N in the fit (informational)."
+    )
+    robust: bool | None = Field(None, description="Whether the fit used the Huber loss (informational).")
+    excluded: dict[str, int] | None = Field(
+        None, description="Samples excluded from the fit, by reason (informational)."
+    )
+    sources: list[str] | None = Field(None, description="Files the samples came from (informational).")
 
     @model_validator(mode="after")
     def _check(self) -> LearnedFrictionModel:

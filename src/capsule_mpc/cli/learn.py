@@ -1,0 +1,179 @@
+"""``capsule-mpc learn-friction``: fit c(v) to run logs or samples and write the model YAML (paper §IV-C)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from ..config import load_config
+from ..learning import (
+    MIN_LOG_RATIO,
+    SPEED_FLOOR_MPS,
+    LearningDataError,
+    LearningResult,
+    LogOptions,
+    learn_from_logs,
+    learn_from_samples_csv,
+    write_model,
+    write_samples_csv,
+)
+from ..learning.fit import MAX_DEGREE
+
+__all__ = ["register", "run", "summary"]
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+def _degree(text: str) -> int:
+    value = int(text)
+    if not 0 <= value <= MAX_DEGREE:
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, {MAX_DEGREE}], got {text}")
+    return value
+
+
+def register(sub: Any) -> None:
+    """Add the ``learn-friction`` command."""
+    p = sub.add_parser(
+        "learn-friction",
+        help="learn the friction relation c(v) from run logs or samples (paper §IV-C)",
+        description=(
+            "Fit mu(v) = mu0 - c(v) ln(v*/|v|) with a polynomial c(v) to demonstrations and write the model "
+            "as YAML that a scenario loads with `friction: {learned: MODEL.yaml}`."
+        ),
+    )
+    p.add_argument("--config", default=None, help="scenario YAML giving m, mu0, v*, f_s, the force model")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--log", nargs="+", metavar="LOG", help="run log CSV file(s) or folder(s) of run logs")
+    src.add_argument(
+        "--samples", metavar="CSV", help="samples CSV with header v_mps,a_mps2,traction_n,normal_n"
+    )
+    p.add_argument("--out", required=True, metavar="MODEL.yaml", help="where to write the learned model")
+    p.add_argument("--degree", type=_degree, default=4, help="polynomial degree (default 4, as the paper)")
+    p.add_argument("--robust", action="store_true", help="Huber loss instead of least squares (outliers)")
+    p.add_argument("--speed-floor", type=_non_negative, default=SPEED_FLOOR_MPS,
+                   help=f"exclude samples slower than this, m/s (default {SPEED_FLOOR_MPS})")  # fmt: skip
+    p.add_argument("--min-log-ratio", type=_non_negative, default=MIN_LOG_RATIO,
+                   help=f"exclude samples with |ln(v*/v)| below this (default {MIN_LOG_RATIO})")  # fmt: skip
+    logs = p.add_argument_group("run logs (--log)")
+    logs.add_argument("--force-model", choices=("dipole", "lookup"), default=None,
+                      help="force model for F and F_N (default: the config's force_model)")  # fmt: skip
+    logs.add_argument("--truth", action="store_true",
+                      help="use the simulator's true capsule position instead of the camera's")  # fmt: skip
+    logs.add_argument("--window", type=_positive, default=LogOptions.window_s,
+                      help=f"Savitzky-Golay window, s (default {LogOptions.window_s})")  # fmt: skip
+    logs.add_argument("--polyorder", type=int, default=LogOptions.polyorder,
+                      help=f"Savitzky-Golay order, 2..5 (default {LogOptions.polyorder})")  # fmt: skip
+    logs.add_argument("--max-gap-frames", type=int, default=LogOptions.max_gap_frames,
+                      help="longest run of dropped camera frames to interpolate (default "
+                      f"{LogOptions.max_gap_frames}); longer gaps are cut out")  # fmt: skip
+    logs.add_argument("--speed-source", choices=("epm", "capsule"), default="epm",
+                      help="speed and direction: the EPM's (paper) or the capsule's")  # fmt: skip
+    logs.add_argument("--steady-tol", type=_positive, default=LogOptions.steady_tolerance,
+                      help="exclude samples where |v_capsule - v_EPM| > TOL |v_EPM| "
+                      f"(default {LogOptions.steady_tolerance})")  # fmt: skip
+    logs.add_argument("--keep-transients", action="store_true",
+                      help="do not exclude unsteady samples (as the paper)")  # fmt: skip
+    logs.add_argument(
+        "--samples-out", metavar="CSV", help="also write the extracted samples as a samples CSV"
+    )
+    p.add_argument("--figures", metavar="DIR", help="write Fig. 7b/7c-style PNGs to this folder")
+    p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
+    p.set_defaults(func=run)
+
+
+def summary(result: LearningResult, wall_s: float) -> dict[str, Any]:
+    """A JSON-able summary of a fit."""
+    fit = result.fit
+    return {
+        "coefficients": [float(c) for c in fit.coefficients],
+        "degree": fit.degree,
+        "validity_mps": list(fit.validity_mps),
+        "n_samples": fit.n_samples,
+        "n_input": len(result.samples),
+        "excluded": result.model.excluded,
+        "sse": fit.sse,
+        "r2": fit.r2,
+        "rmse": fit.rmse,
+        "robust": fit.robust,
+        "force_model": result.model.force_model,
+        "c_at_mps": {f"{v:g}": float(fit(v)) for v in np.linspace(*fit.validity_mps, 5)},
+        "notes": result.samples.notes,
+        "timings_s": {**result.timings_s, "total": wall_s},
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    """Fit and write the model; exit status 2 on unusable input."""
+    start = time.perf_counter()
+    scenario = load_config(args.config)
+    fit_kw = {
+        "degree": args.degree,
+        "robust": args.robust,
+        "speed_floor_mps": args.speed_floor,
+        "min_log_ratio": args.min_log_ratio,
+    }
+    try:
+        if args.samples:
+            result = learn_from_samples_csv(args.samples, scenario, **fit_kw)
+        else:
+            options = LogOptions(
+                window_s=args.window,
+                polyorder=args.polyorder,
+                max_gap_frames=args.max_gap_frames,
+                truth=args.truth,
+                force_model=args.force_model,
+                speed_source=args.speed_source,
+                steady_tolerance=None if args.keep_transients else args.steady_tol,
+            )
+            result = learn_from_logs(args.log, scenario, options, **fit_kw)
+            if args.samples_out:
+                write_samples_csv(result.samples, args.samples_out)
+    except (LearningDataError, ValueError) as exc:
+        print(f"capsule-mpc learn-friction: {exc}", file=sys.stderr)
+        return 2
+    path = write_model(result.model, args.out)
+    figures = []
+    if args.figures:
+        from ..learning.plots import save_figures
+
+        figures = [str(p) for p in save_figures(result, args.figures)]
+    info = summary(result, time.perf_counter() - start)
+    info["model"] = str(path)
+    info["figures"] = figures
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    fit = result.fit
+    print(f"learned c(v) from {len(result.samples)} samples -> {fit.n_samples} used; written to {path}")
+    excluded = {k: v for k, v in (result.model.excluded or {}).items() if v}
+    print(f"  excluded: {excluded if excluded else 'none'}")
+    for note in result.samples.notes:
+        print(f"  note: {note}")
+    coefs = ", ".join(f"p{i + 1} = {c:.4g}" for i, c in enumerate(fit.coefficients))
+    print(f"  c(v) = poly degree {fit.degree}{' (Huber)' if fit.robust else ''}: {coefs}")
+    lo, hi = fit.validity_mps
+    r2 = "n/a" if fit.r2 is None else f"{fit.r2:.4f}"
+    print(f"  valid for {lo:.4g} <= v <= {hi:.4g} m/s; SSE {fit.sse:.5g}, R^2 {r2}, RMSE {fit.rmse:.4g}")
+    print("  c at " + ", ".join(f"{k} m/s: {v:.4f}" for k, v in info["c_at_mps"].items()))
+    for fig in figures:
+        print(f"  figure: {fig}")
+    print(f"  time: fit {result.timings_s['fit']:.3f} s, total {info['timings_s']['total']:.2f} s")
+    return 0

@@ -1,0 +1,58 @@
+"""Learning the friction relation c(v) from demonstrations (paper §IV-C).
+
+Run logs (or per-sample CSVs) -> per-sample mu and c -> least-squares polynomial
+c(v) -> a :class:`~capsule_mpc.config.LearnedFrictionModel` YAML that a scenario
+loads as ``friction.learned``.
+
+Main entry points: :func:`learn_from_logs`, :func:`learn_from_samples_csv`,
+:func:`learn_friction`, :func:`write_model`, :func:`steady_lead`.
+"""
+
+from .core import LearningResult, learn_friction, learn_from_logs, learn_from_samples_csv, write_model
+from .data import (
+    EXCLUSION_REASONS,
+    MIN_LOG_RATIO,
+    SAMPLE_COLUMNS,
+    SPEED_FLOOR_MPS,
+    CSamples,
+    FrictionConstants,
+    FrictionSamples,
+    LearningDataError,
+    per_sample_c,
+    read_samples_csv,
+    write_samples_csv,
+)
+from .fit import PolynomialFit, fit_c_polynomial, synthetic_samples
+from .logs import LogOptions, RunLog, find_run_logs, log_samples, read_run_log, samples_from_logs
+from .predict import law_mu, plant_mu, steady_lead
+
+__all__ = [
+    "EXCLUSION_REASONS",
+    "MIN_LOG_RATIO",
+    "SAMPLE_COLUMNS",
+    "SPEED_FLOOR_MPS",
+    "CSamples",
+    "FrictionConstants",
+    "FrictionSamples",
+    "LearningDataError",
+    "LearningResult",
+    "LogOptions",
+    "PolynomialFit",
+    "RunLog",
+    "find_run_logs",
+    "fit_c_polynomial",
+    "law_mu",
+    "learn_friction",
+    "learn_from_logs",
+    "learn_from_samples_csv",
+    "log_samples",
+    "per_sample_c",
+    "plant_mu",
+    "read_run_log",
+    "read_samples_csv",
+    "samples_from_logs",
+    "steady_lead",
+    "synthetic_samples",
+    "write_model",
+    "write_samples_csv",
+]

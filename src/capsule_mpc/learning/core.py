@@ -1,0 +1,192 @@
+"""Learning c(v) end to end: samples -> c per sample -> polynomial -> a LearnedFrictionModel file."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import yaml
+
+from ..config import LearnedFrictionModel, Scenario
+from .data import (
+    MIN_LOG_RATIO,
+    SPEED_FLOOR_MPS,
+    CSamples,
+    FrictionConstants,
+    FrictionSamples,
+    LearningDataError,
+    per_sample_c,
+    read_samples_csv,
+)
+from .fit import PolynomialFit, fit_c_polynomial
+from .logs import LogOptions, samples_from_logs
+
+__all__ = [
+    "LearningResult",
+    "learn_friction",
+    "learn_from_logs",
+    "learn_from_samples_csv",
+    "write_model",
+]
+
+
+@dataclass(frozen=True)
+class LearningResult:
+    """Everything a friction fit produced.
+
+    Attributes
+    ----------
+    samples : FrictionSamples
+        The input samples (with extraction flags, drop counts and notes).
+    c_samples : CSamples
+        Speed, mu and c of the usable samples, and the exclusion counts.
+    fit : PolynomialFit
+        The polynomial and its statistics.
+    model : LearnedFrictionModel
+        What is written to the model YAML and loaded by a config.
+    constants : FrictionConstants
+        m, mu0, v*, f_s used.
+    timings_s : dict of str to float
+        Wall time of each stage, s (``samples``, ``c``, ``fit``).
+    """
+
+    samples: FrictionSamples
+    c_samples: CSamples
+    fit: PolynomialFit
+    model: LearnedFrictionModel
+    constants: FrictionConstants
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+
+def learn_friction(
+    samples: FrictionSamples,
+    scenario: Scenario,
+    degree: int = 4,
+    robust: bool = False,
+    speed_floor_mps: float = SPEED_FLOOR_MPS,
+    min_log_ratio: float = MIN_LOG_RATIO,
+    force_model: Literal["dipole", "lookup"] | None = None,
+) -> LearningResult:
+    """Fit c(v) to samples (paper §IV-C).
+
+    Parameters
+    ----------
+    samples : FrictionSamples
+        Speed, acceleration, traction and normal force per sample.
+    scenario : Scenario
+        m, mu0, v*, f_s (capsule and friction sections).
+    degree : int
+        Polynomial degree, in [0, 8] (paper: 4).
+    robust : bool
+        Huber loss instead of least squares.
+    speed_floor_mps : float
+        Samples slower than this are excluded, m/s.
+    min_log_ratio : float
+        Samples with |ln(v*/|v|)| below this are excluded.
+    force_model : str, optional
+        Force model that produced the samples' F and F_N (recorded in the model).
+
+    Returns
+    -------
+    LearningResult
+
+    Raises
+    ------
+    LearningDataError
+        Fewer usable samples (or distinct speeds) than the degree needs; the message lists
+        the exclusion counts.
+    """
+    constants = FrictionConstants.from_scenario(scenario)
+    t0 = time.perf_counter()
+    cs = per_sample_c(samples, constants, speed_floor_mps, min_log_ratio)
+    t1 = time.perf_counter()
+    try:
+        fit = fit_c_polynomial(cs.speed_mps, cs.c, degree=degree, robust=robust)
+    except ValueError as exc:
+        counts = ", ".join(f"{k} {v}" for k, v in cs.excluded.items() if v) or "none"
+        raise LearningDataError(
+            f"cannot fit c(v): {exc}; {len(cs.c)} usable of {len(samples)} samples (excluded: {counts})"
+        ) from None
+    t2 = time.perf_counter()
+    model = LearnedFrictionModel(
+        coefficients=[float(p) for p in fit.coefficients],
+        validity_mps=fit.validity_mps,
+        degree=fit.degree,
+        mu0=constants.mu0,
+        v_star_mps=constants.v_star_mps,
+        tether_drag_n=constants.tether_drag_n,
+        mass_kg=constants.mass_kg,
+        n_samples=fit.n_samples,
+        sse=fit.sse,
+        r2=fit.r2,
+        rmse=fit.rmse,
+        force_model=force_model,
+        robust=fit.robust,
+        excluded={**samples.dropped, **cs.excluded},
+        sources=list(samples.sources),
+    )
+    return LearningResult(samples, cs, fit, model, constants, {"c": t1 - t0, "fit": t2 - t1})
+
+
+def learn_from_samples_csv(path: str | Path, scenario: Scenario, **kwargs: object) -> LearningResult:
+    """Read a samples CSV (:func:`read_samples_csv`) and fit it.
+
+    Keyword arguments go to :func:`learn_friction`.
+    """
+    t0 = time.perf_counter()
+    samples = read_samples_csv(path, min_rows=1)
+    t1 = time.perf_counter()
+    result = learn_friction(samples, scenario, **kwargs)  # type: ignore[arg-type]
+    result.timings_s["samples"] = t1 - t0
+    return result
+
+
+def learn_from_logs(
+    paths: Sequence[str | Path],
+    scenario: Scenario,
+    log_options: LogOptions | None = None,
+    **kwargs: object,
+) -> LearningResult:
+    """Extract samples from run logs (:func:`samples_from_logs`) and fit them.
+
+    Keyword arguments go to :func:`learn_friction`; the force model is taken from
+    ``log_options`` (default ``scenario.force_model``).
+    """
+    log_options = log_options or LogOptions()
+    t0 = time.perf_counter()
+    samples = samples_from_logs(paths, scenario, log_options)
+    t1 = time.perf_counter()
+    kind = log_options.force_model or scenario.force_model
+    result = learn_friction(samples, scenario, force_model=kind, **kwargs)  # type: ignore[arg-type]
+    result.timings_s["samples"] = t1 - t0
+    return result
+
+
+def write_model(model: LearnedFrictionModel, path: str | Path) -> Path:
+    """Write a learned model as YAML that loads as ``friction.learned`` of a config.
+
+    Parameters
+    ----------
+    model : LearnedFrictionModel
+        The model.
+    path : str or Path
+        Output file (parent folders are created).
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = (
+        "# Learned steady-state friction mu(v) = mu0 - c(v) ln(v*/|v|), c a polynomial in v (m/s),\n"
+        "# coefficients highest power first (paper eq. 10, 12). Written by capsule-mpc learn-friction.\n"
+        "# Use it from a scenario with  friction: {learned: <this file>}\n"
+    )
+    body = yaml.safe_dump(model.model_dump(mode="json", exclude_none=True), sort_keys=False)
+    path.write_text(header + body)
+    return path
