@@ -392,6 +392,49 @@ class SimConfig(_Strict):
     tail_s: float = Field(
         5.0, ge=0, le=120, description="Time allowed after the nominal end before a run is cut off, s."
     )
+    actuator: Literal["simple", "robot"] = Field(
+        "simple",
+        description=(
+            "How the EPM follows commands: 'simple' (per-axis speed/acceleration-limited arm) or "
+            "'robot' (Ruckig + Pinocchio arm, when available)."
+        ),
+    )
+    decouple_lead_m: float = Field(
+        0.035,
+        gt=0,
+        le=0.1,
+        description=(
+            "The plant reports 'decoupled' when |lead - equilibrium lead| exceeds this, m, (0, 0.1] "
+            "(or when the lead leaves the force map)."
+        ),
+    )
+    friction_floor_speed_mps: float = Field(
+        1e-3,
+        gt=0,
+        le=0.01,
+        description=(
+            "Regularisation speed of the plant's rate-and-state law: the direct term uses "
+            "max(|v|, this), m/s, (0, 0.01] (mu -> -inf as |v| -> 0 otherwise)."
+        ),
+    )
+    completion_tol_m: float = Field(
+        0.002,
+        gt=0,
+        le=0.05,
+        description=(
+            "A run is complete when the capsule's progress reaches the path end and it is within "
+            "this distance of the final waypoint, m, (0, 0.05]."
+        ),
+    )
+    stall_s: float = Field(
+        1.0,
+        gt=0,
+        le=60,
+        description=(
+            "After the nominal end, a run stops early once the EPM and the capsule have both been "
+            "at rest for this long (nothing can change any more), s, (0, 60]."
+        ),
+    )
 
 
 class MPCConfig(_Strict):

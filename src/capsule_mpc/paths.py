@@ -1,0 +1,339 @@
+"""Reference paths: polylines on the plate, time-parameterised along arc length at a nominal speed.
+
+A :class:`ReferencePath` is what every controller is asked to make the capsule
+follow. Time ``t = 0`` is the start of the motion: before it the reference
+rests at the first point, after ``duration_s`` at the last one, both with zero
+velocity. Constructors: :func:`rectangle` (the paper's plate experiment),
+:func:`pipe` (a centreline with three bends, the paper's pipe experiment),
+:func:`from_waypoints_file` (a validated CSV) and :func:`path_from_scenario`.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .config import ConfigError, Scenario
+
+__all__ = [
+    "PIPE_BEND_RADIUS_M",
+    "PIPE_CORNERS_M",
+    "ReferencePath",
+    "from_waypoints_file",
+    "path_from_scenario",
+    "pipe",
+    "rectangle",
+    "scenario_workspace",
+]
+
+#: Corner points of the pipe centreline relative to its origin, m: a straight start segment and
+#: three 90 degree bends (the paper's pipe experiment, Fig. 9; the paper gives no dimensions, these
+#: fit a 400 x 300 mm plate and the EPM workspace).
+PIPE_CORNERS_M: tuple[tuple[float, float], ...] = (
+    (-0.12, -0.04),
+    (-0.04, -0.04),
+    (-0.04, 0.04),
+    (0.05, 0.04),
+    (0.05, -0.03),
+)
+#: Centreline radius of each pipe bend, m (a rounded elbow, as a pipe has).
+PIPE_BEND_RADIUS_M = 0.015
+#: Straight segments approximating each pipe bend (arc polyline).
+_BEND_SEGMENTS = 8
+
+
+def _as_points(points: Any, name: str) -> np.ndarray:
+    arr = np.asarray(points, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{name}: must have shape (N, 2), got {arr.shape}")
+    return arr
+
+
+@dataclass(frozen=True)
+class ReferencePath:
+    """A polyline path followed at a constant nominal speed.
+
+    Attributes
+    ----------
+    waypoints_m : numpy.ndarray (N, 2)
+        Waypoints on the plate, m. For a closed path the last point is *not* repeated:
+        the path returns from the last waypoint to the first.
+    closed : bool
+        Whether the path is a loop.
+    speed_mps : float
+        Nominal speed along the path, m/s, > 0.
+    """
+
+    waypoints_m: np.ndarray
+    closed: bool
+    speed_mps: float
+    _vertices: np.ndarray = field(init=False, repr=False, compare=False)
+    _arc_m: np.ndarray = field(init=False, repr=False, compare=False)
+    _directions: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        pts = _as_points(self.waypoints_m, "waypoints_m").copy()
+        if len(pts) < 2:
+            raise ValueError(f"waypoints_m: need at least 2 points, got {len(pts)}")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("waypoints_m: every coordinate must be finite")
+        if not (math.isfinite(self.speed_mps) and self.speed_mps > 0):
+            raise ValueError(f"speed_mps: must be > 0, got {self.speed_mps}")
+        pts.setflags(write=False)
+        object.__setattr__(self, "waypoints_m", pts)
+        vertices = np.vstack([pts, pts[:1]]) if self.closed else pts
+        seg = np.diff(vertices, axis=0)
+        seg_len = np.hypot(seg[:, 0], seg[:, 1])
+        if np.any(seg_len <= 0):
+            i = int(np.argmax(seg_len <= 0))
+            raise ValueError(f"waypoints_m: segment {i} -> {i + 1} has zero length")
+        object.__setattr__(self, "_vertices", vertices)
+        object.__setattr__(self, "_arc_m", np.concatenate([[0.0], np.cumsum(seg_len)]))
+        object.__setattr__(self, "_directions", seg / seg_len[:, None])
+
+    @property
+    def vertices_m(self) -> np.ndarray:
+        """The polyline's vertices (M, 2), m; for a closed path the first point is repeated at the end."""
+        return self._vertices
+
+    @property
+    def length_m(self) -> float:
+        """Total arc length, m."""
+        return float(self._arc_m[-1])
+
+    @property
+    def duration_s(self) -> float:
+        """Nominal time to run the path, s (= length / speed)."""
+        return self.length_m / self.speed_mps
+
+    @property
+    def start_m(self) -> np.ndarray:
+        """First point of the path, m."""
+        return self._vertices[0].copy()
+
+    @property
+    def end_m(self) -> np.ndarray:
+        """Last point of the path (the first one for a closed path), m."""
+        return self._vertices[-1].copy()
+
+    def with_speed(self, speed_mps: float) -> ReferencePath:
+        """The same path at another nominal speed, m/s."""
+        return ReferencePath(self.waypoints_m, self.closed, float(speed_mps))
+
+    def point_at_arc(self, s_m: Any) -> np.ndarray:
+        """Point(s) at arc length ``s_m`` (clipped to [0, length]), m; (2,) or (N, 2)."""
+        s = np.clip(np.asarray(s_m, dtype=float), 0.0, self.length_m)
+        x = np.interp(s, self._arc_m, self._vertices[:, 0])
+        y = np.interp(s, self._arc_m, self._vertices[:, 1])
+        return np.stack([x, y], axis=-1)
+
+    def position(self, t_s: Any) -> np.ndarray:
+        """Reference position at time(s) ``t_s`` (s), m: (2,) for a scalar, (N, 2) for an array."""
+        return self.point_at_arc(np.asarray(t_s, dtype=float) * self.speed_mps)
+
+    def velocity(self, t_s: Any) -> np.ndarray:
+        """Reference velocity at time(s) ``t_s`` (s), m/s; zero before 0 and from ``duration_s`` on.
+
+        At a vertex the velocity of the segment that starts there is returned.
+        """
+        t = np.asarray(t_s, dtype=float)
+        s = t * self.speed_mps
+        idx = np.clip(np.searchsorted(self._arc_m, s, side="right") - 1, 0, len(self._directions) - 1)
+        moving = (t >= 0) & (s < self.length_m)
+        vel = self._directions[idx] * (self.speed_mps * moving)[..., None]
+        return np.asarray(vel)
+
+    def project(self, points_m: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Closest point on the polyline to each point: (distance (N,), arc length (N,)), m."""
+        pts = _as_points(np.atleast_2d(np.asarray(points_m, dtype=float)), "points")
+        a = self._vertices[:-1]
+        d = self._directions
+        seg_len = np.diff(self._arc_m)
+        rel = pts[:, None, :] - a[None, :, :]
+        along = np.clip(np.einsum("nmk,mk->nm", rel, d), 0.0, seg_len[None, :])
+        closest = a[None, :, :] + along[..., None] * d[None, :, :]
+        dist = np.hypot(pts[:, None, 0] - closest[..., 0], pts[:, None, 1] - closest[..., 1])
+        best = np.argmin(dist, axis=1)
+        rows = np.arange(len(pts))
+        return dist[rows, best], self._arc_m[best] + along[rows, best]
+
+    def distance_to(self, points_m: Any) -> np.ndarray:
+        """Cross-track distance (N,) from each point (N, 2) to the polyline, m."""
+        return self.project(points_m)[0]
+
+
+def rectangle(
+    size_m: tuple[float, float] = (0.10, 0.06),
+    origin_m: tuple[float, float] = (0.0, 0.0),
+    speed_mps: float = 0.02,
+) -> ReferencePath:
+    """A closed rectangle centred on ``origin_m``, run counter-clockwise from its lower-left corner.
+
+    Parameters
+    ----------
+    size_m : (float, float)
+        Side lengths (x, y), m, each > 0. Default 100 x 60 mm.
+    origin_m : (float, float)
+        Centre, m.
+    speed_mps : float
+        Nominal speed, m/s.
+    """
+    w, h = (float(v) for v in size_m)
+    if not (w > 0 and h > 0):
+        raise ValueError(f"size_m: every side must be > 0, got {size_m}")
+    cx, cy = (float(v) for v in origin_m)
+    pts = np.array([[-w / 2, -h / 2], [w / 2, -h / 2], [w / 2, h / 2], [-w / 2, h / 2]]) + np.array([cx, cy])
+    return ReferencePath(pts, True, speed_mps)
+
+
+def _rounded_polyline(corners: np.ndarray, radius_m: float, n_arc: int) -> np.ndarray:
+    """Replace every interior corner of a polyline by a circular arc of ``radius_m`` (fillet)."""
+    out = [corners[0]]
+    for prev, here, nxt in zip(corners[:-2], corners[1:-1], corners[2:]):
+        d_in = (here - prev) / np.linalg.norm(here - prev)
+        d_out = (nxt - here) / np.linalg.norm(nxt - here)
+        turn = math.atan2(d_in[0] * d_out[1] - d_in[1] * d_out[0], float(d_in @ d_out))
+        setback = radius_m * math.tan(abs(turn) / 2)
+        start = here - d_in * setback
+        normal = np.array([-d_in[1], d_in[0]]) * math.copysign(1.0, turn)
+        centre = start + normal * radius_m
+        a0 = math.atan2(start[1] - centre[1], start[0] - centre[0])
+        for k in range(n_arc + 1):
+            a = a0 + turn * k / n_arc
+            out.append(centre + radius_m * np.array([math.cos(a), math.sin(a)]))
+    out.append(corners[-1])
+    return np.asarray(out)
+
+
+def pipe(origin_m: tuple[float, float] = (0.0, 0.0), speed_mps: float = 0.02) -> ReferencePath:
+    """The pipe centreline: a start segment and three rounded 90 degree bends (open path).
+
+    Corners :data:`PIPE_CORNERS_M` shifted by ``origin_m``, each bend a
+    :data:`PIPE_BEND_RADIUS_M` arc. Length ~0.29 m.
+    """
+    corners = np.asarray(PIPE_CORNERS_M) + np.asarray(origin_m, dtype=float)
+    return ReferencePath(_rounded_polyline(corners, PIPE_BEND_RADIUS_M, _BEND_SEGMENTS), False, speed_mps)
+
+
+def scenario_workspace(scenario: Scenario) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Where waypoints may lie: the plate intersected with the EPM workspace (x, y), m.
+
+    Returns ``((x_min, y_min), (x_max, y_max))``.
+    """
+    half = np.asarray(scenario.plate.size_m) / 2
+    lo = np.maximum(-half, scenario.limits.workspace_min_m[:2])
+    hi = np.minimum(half, scenario.limits.workspace_max_m[:2])
+    return (float(lo[0]), float(lo[1])), (float(hi[0]), float(hi[1]))
+
+
+def from_waypoints_file(
+    path: str | Path,
+    speed_mps: float,
+    workspace: tuple[tuple[float, float], tuple[float, float]],
+    *,
+    closed: bool = False,
+) -> ReferencePath:
+    """Read an open path from a CSV file with the header ``x_m,y_m``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file: a header line ``x_m,y_m``, then one waypoint per row, m.
+    speed_mps : float
+        Nominal speed, m/s.
+    workspace : ((x_min, y_min), (x_max, y_max))
+        Box every waypoint must lie in, m (see :func:`scenario_workspace`).
+    closed : bool
+        Whether the path returns to its first point.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the row (1-based line number in the file): missing/bad header, a row
+        without two numbers, a non-finite value, a point outside the workspace, a zero-length
+        segment, or fewer than 2 points.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"waypoints file {path}: cannot read: {exc}") from exc
+    rows = list(csv.reader(text.splitlines()))
+    if not rows or [c.strip() for c in rows[0]] != ["x_m", "y_m"]:
+        got = rows[0] if rows else "an empty file"
+        raise ConfigError(f"waypoints file {path}: line 1: header must be 'x_m,y_m', got {got!r}")
+    (x_lo, y_lo), (x_hi, y_hi) = workspace
+    points: list[tuple[float, float]] = []
+    lines: list[int] = []
+    for line, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != 2:
+            raise ConfigError(f"waypoints file {path}: line {line}: need 2 values x_m,y_m, got {row!r}")
+        try:
+            x, y = float(row[0]), float(row[1])
+        except ValueError:
+            raise ConfigError(f"waypoints file {path}: line {line}: not a number: {row!r}") from None
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ConfigError(f"waypoints file {path}: line {line}: values must be finite, got {row!r}")
+        if not (x_lo <= x <= x_hi and y_lo <= y <= y_hi):
+            raise ConfigError(
+                f"waypoints file {path}: line {line}: point ({x}, {y}) m is outside the workspace "
+                f"x in [{x_lo}, {x_hi}], y in [{y_lo}, {y_hi}] m"
+            )
+        if points and (x, y) == points[-1]:
+            raise ConfigError(
+                f"waypoints file {path}: line {line}: zero-length segment (same point as line {lines[-1]})"
+            )
+        points.append((x, y))
+        lines.append(line)
+    if len(points) < 2:
+        raise ConfigError(f"waypoints file {path}: need at least 2 waypoints, got {len(points)}")
+    if closed and points[0] == points[-1]:
+        raise ConfigError(
+            f"waypoints file {path}: line {lines[-1]}: zero-length closing segment (a closed path "
+            "must not repeat its first point)"
+        )
+    return ReferencePath(np.asarray(points), closed, speed_mps)
+
+
+def path_from_scenario(
+    scenario: Scenario, waypoints: str | Path | None = None, speed: float | None = None
+) -> ReferencePath:
+    """The scenario's reference path, optionally overridden.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Uses ``scenario.path`` (kind, size, origin, speed, waypoint file relative to the config file).
+    waypoints : str or Path, optional
+        A waypoint CSV that replaces the configured path.
+    speed : float, optional
+        Nominal speed that replaces ``path.speed_mps``, m/s, in (0, 0.1].
+
+    Raises
+    ------
+    ConfigError
+        Bad speed, missing waypoint file for ``kind: waypoints``, or an invalid waypoint file.
+    """
+    cfg = scenario.path
+    v = cfg.speed_mps if speed is None else float(speed)
+    if not (math.isfinite(v) and 0 < v <= 0.1):
+        raise ConfigError(f"speed: must be in (0, 0.1] m/s, got {speed}")
+    if waypoints is not None:
+        return from_waypoints_file(waypoints, v, scenario_workspace(scenario))
+    if cfg.kind == "rectangle":
+        return rectangle(cfg.rectangle_size_m, cfg.origin_m, v)
+    if cfg.kind == "pipe":
+        return pipe(cfg.origin_m, v)
+    if cfg.waypoints_file is None:
+        raise ConfigError("path.waypoints_file: required when path.kind is 'waypoints'")
+    file = cfg.waypoints_file
+    if not file.is_absolute() and scenario.source_path is not None:
+        file = scenario.source_path.parent / file
+    return from_waypoints_file(file, v, scenario_workspace(scenario))

@@ -1,0 +1,28 @@
+"""The simulated rig: plant, camera, actuator, closed-loop runner and run logs."""
+
+from .actuation import Actuator, SimpleArm, make_actuator, register_actuator
+from .log import LOG_COLUMNS, REQUIRED_COLUMNS, read_log, write_log, write_run
+from .plant import CapsulePlant, ForceField, MapForces, UniformForce
+from .runner import PathProgress, RunFlags, RunResult, simulate
+from .sensing import Camera
+
+__all__ = [
+    "LOG_COLUMNS",
+    "REQUIRED_COLUMNS",
+    "Actuator",
+    "Camera",
+    "CapsulePlant",
+    "ForceField",
+    "MapForces",
+    "PathProgress",
+    "RunFlags",
+    "RunResult",
+    "SimpleArm",
+    "UniformForce",
+    "make_actuator",
+    "read_log",
+    "register_actuator",
+    "simulate",
+    "write_log",
+    "write_run",
+]

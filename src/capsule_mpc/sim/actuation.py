@@ -1,0 +1,195 @@
+"""How the EPM follows the controller's velocity commands: the actuator interface and a simple arm.
+
+The simulator calls :meth:`Actuator.set_velocity_command` once per camera frame
+and :meth:`Actuator.step` once per plant step. Positions are ``(x, y, height)``
+in m, where height is the vertical EPM-IPM centre distance (the EPM's height
+above the capsule plane). :func:`make_actuator` picks the actuator named by
+``sim.actuator``; other modules (the Ruckig + Pinocchio arm) add theirs with
+:func:`register_actuator`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+
+import numpy as np
+
+from ..config import ConfigError, Scenario
+
+__all__ = [
+    "Actuator",
+    "SimpleArm",
+    "make_actuator",
+    "register_actuator",
+]
+
+
+class Actuator(ABC):
+    """The EPM carrier: follows velocity commands within its limits."""
+
+    @abstractmethod
+    def reset(self, position_m: np.ndarray) -> None:
+        """Put the EPM at rest at ``position_m`` (3,) = (x, y, height), m."""
+
+    @abstractmethod
+    def set_velocity_command(self, t_s: float, velocity_mps: np.ndarray) -> None:
+        """The commanded EPM velocity (3,), m/s, from time ``t_s`` (s) on; called once per frame."""
+
+    @abstractmethod
+    def step(self, dt_s: float) -> np.ndarray:
+        """Advance by ``dt_s`` (s); returns the EPM position (x, y, height), m."""
+
+    @property
+    @abstractmethod
+    def position_m(self) -> np.ndarray:
+        """Current EPM position (x, y, height), m."""
+
+    @property
+    @abstractmethod
+    def velocity_mps(self) -> np.ndarray:
+        """Current EPM velocity (3,), m/s."""
+
+    def step_xyz(self, dt_s: float) -> tuple[float, float, float]:
+        """:meth:`step` as three Python floats (the simulator's fast path; override for speed)."""
+        x, y, z = self.step(dt_s).tolist()
+        return x, y, z
+
+    def limit_counts(self) -> dict[str, int]:
+        """How often each limit changed the commanded motion (name -> count); {} if not tracked."""
+        return {}
+
+
+class SimpleArm(Actuator):
+    """A Cartesian arm: per-axis speed and acceleration limits, clamped to the workspace box.
+
+    Each step the velocity moves toward the (speed-clipped) command by at most
+    ``accel * dt`` per axis, then the position integrates it; a position that
+    would leave the workspace is held on its face and that axis' velocity zeroed.
+    Jerk is not limited (the Ruckig arm does that). Every intervention is counted
+    (:meth:`limit_counts`) and surfaced in the run result.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        ``limits.speed_mps``, ``limits.accel_mps2``, ``limits.workspace_min_m`` / ``workspace_max_m``.
+    """
+
+    def __init__(self, scenario: Scenario) -> None:
+        lim = scenario.limits
+        self.speed_mps = float(lim.speed_mps)
+        self.accel_mps2 = float(lim.accel_mps2)
+        self.lo = [float(v) for v in lim.workspace_min_m]
+        self.hi = [float(v) for v in lim.workspace_max_m]
+        self._pos = [0.0, 0.0, 0.0]
+        self._vel = [0.0, 0.0, 0.0]
+        self._cmd = [0.0, 0.0, 0.0]
+        self._counts = {"speed_clipped_frames": 0, "accel_limited_steps": 0, "workspace_clamped_steps": 0}
+
+    def reset(self, position_m: np.ndarray) -> None:
+        """Put the EPM at rest at ``position_m`` (x, y, height), m; must lie in the workspace."""
+        pos = [float(v) for v in np.asarray(position_m, dtype=float).ravel()]
+        if len(pos) != 3:
+            raise ValueError(f"position_m: must have 3 entries (x, y, height), got {len(pos)}")
+        for i, (p, lo, hi) in enumerate(zip(pos, self.lo, self.hi)):
+            if not lo <= p <= hi:
+                raise ValueError(
+                    f"position_m[{i}]: must lie in the workspace [{lo}, {hi}] m (limits.workspace_*), got {p}"
+                )
+        self._pos = pos
+        self._vel = [0.0, 0.0, 0.0]
+        self._cmd = [0.0, 0.0, 0.0]
+        self._counts = dict.fromkeys(self._counts, 0)
+
+    def set_velocity_command(self, t_s: float, velocity_mps: np.ndarray) -> None:
+        """Command a velocity (3,), m/s; each axis is clipped to +-``limits.speed_mps`` (counted)."""
+        v = [float(c) for c in np.asarray(velocity_mps, dtype=float).ravel()]
+        if len(v) != 3 or not all(np.isfinite(v)):
+            raise ValueError(f"velocity_mps: must be 3 finite values, got {velocity_mps!r}")
+        vmax = self.speed_mps
+        clipped = [min(max(c, -vmax), vmax) for c in v]
+        if clipped != v:
+            self._counts["speed_clipped_frames"] += 1
+        self._cmd = clipped
+
+    def step_xyz(self, dt_s: float) -> tuple[float, float, float]:
+        """Advance by ``dt_s`` (s); returns the new (x, y, height), m, as floats."""
+        dv_max = self.accel_mps2 * dt_s
+        pos, vel, cmd = self._pos, self._vel, self._cmd
+        for i in range(3):
+            dv = cmd[i] - vel[i]
+            if dv > dv_max:
+                dv = dv_max
+                self._counts["accel_limited_steps"] += 1
+            elif dv < -dv_max:
+                dv = -dv_max
+                self._counts["accel_limited_steps"] += 1
+            v = vel[i] + dv
+            p = pos[i] + v * dt_s
+            if p < self.lo[i] or p > self.hi[i]:
+                p = self.lo[i] if p < self.lo[i] else self.hi[i]
+                v = 0.0
+                self._counts["workspace_clamped_steps"] += 1
+            vel[i] = v
+            pos[i] = p
+        return pos[0], pos[1], pos[2]
+
+    def step(self, dt_s: float) -> np.ndarray:
+        """Advance by ``dt_s`` (s); returns the EPM position (x, y, height), m."""
+        return np.array(self.step_xyz(dt_s))
+
+    @property
+    def position_m(self) -> np.ndarray:
+        """Current EPM position (x, y, height), m."""
+        return np.array(self._pos)
+
+    @property
+    def velocity_mps(self) -> np.ndarray:
+        """Current EPM velocity (3,), m/s."""
+        return np.array(self._vel)
+
+    def limit_counts(self) -> dict[str, int]:
+        """Frames whose command exceeded the speed limit, and steps limited by acceleration or workspace."""
+        return dict(self._counts)
+
+
+_ACTUATORS: dict[str, Callable[[Scenario], Actuator]] = {"simple": SimpleArm}
+#: Modules that register further actuators when imported (e.g. the Ruckig + Pinocchio arm).
+_PROVIDERS = ("capsule_mpc.arm",)
+
+
+def register_actuator(
+    name: str,
+) -> Callable[[Callable[[Scenario], Actuator]], Callable[[Scenario], Actuator]]:
+    """Decorator: make an actuator factory ``f(scenario) -> Actuator`` available as ``sim.actuator: name``."""
+
+    def deco(factory: Callable[[Scenario], Actuator]) -> Callable[[Scenario], Actuator]:
+        _ACTUATORS[name] = factory
+        return factory
+
+    return deco
+
+
+def make_actuator(scenario: Scenario) -> Actuator:
+    """The actuator named by ``scenario.sim.actuator``.
+
+    Raises
+    ------
+    ConfigError
+        If no actuator of that name is available (e.g. 'robot' before the arm model exists).
+    """
+    name = scenario.sim.actuator
+    if name not in _ACTUATORS:
+        for mod in _PROVIDERS:
+            try:
+                importlib.import_module(mod)
+            except ModuleNotFoundError as exc:
+                if exc.name != mod:
+                    raise
+    if name not in _ACTUATORS:
+        raise ConfigError(
+            f"sim.actuator: {name!r} is not available (no module registered it; the Ruckig + Pinocchio "
+            f"arm lives in capsule_mpc.arm); available: {sorted(_ACTUATORS)}"
+        )
+    return _ACTUATORS[name](scenario)

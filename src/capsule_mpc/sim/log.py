@@ -1,0 +1,223 @@
+"""Run logs: one CSV row per camera frame, written atomically, and read back with validation.
+
+A run directory holds ``log.csv`` (the columns below), ``config.yaml`` (the
+scenario actually used, from :func:`capsule_mpc.dump_config`) and ``run.json``
+(seed, controller, path, metrics, failure flags, limit counts, timing). Every
+file is written to a temporary name and renamed into place, so an interrupted
+run leaves no half file.
+
+Columns (true states are sampled at the frame time; the EPM "z" is its height
+above the capsule plane, i.e. the vertical EPM-IPM centre distance; the capsule
+z is 0, the plane itself):
+
+========================  =====================================================
+``t_s``                   frame time, s (negative during the settle phase)
+``epm_{x,y,z}_m``         EPM position, m
+``epm_v{x,y,z}_mps``      EPM velocity, m/s
+``capsule_{x,y,z}_m``     true capsule position, m
+``capsule_v{x,y}_mps``    true capsule velocity, m/s
+``meas_{x,y}_m``          measurement delivered at this frame, m (NaN: dropped / none yet)
+``meas_capture_t_s``      when that measurement was captured, s (NaN: none yet)
+``ref_{x,y}_m``           reference position at ``t_s``, m
+``cmd_v{x,y,z}_mps``      EPM velocity command applied from this frame on, m/s
+``force_{x,y}_n``         true lateral magnetic force on the capsule (at the last plant step), N
+``force_att_n``           true attraction toward the EPM (at the last plant step), N
+``normal_force_n``        true normal force F_N (at the last plant step), N
+``plant_mu``              the plant's rate-and-state mu at the last step (NaN while stuck)
+``stuck``                 1 if the capsule is at rest (static friction), else 0
+``progress_m``            the capsule's arc-length progress along the path, m
+``solve_ms``              the controller's reported solve time, ms (NaN if none)
+``solver_status``         the controller's status text
+``solver_failed``         1 if the controller reported a failed solve, else 0
+``controller_ms``         wall time of the controller's step call, ms
+========================  =====================================================
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..config import dump_config
+
+if TYPE_CHECKING:
+    from .runner import RunResult
+
+__all__ = [
+    "INT_COLUMNS",
+    "LOG_COLUMNS",
+    "REQUIRED_COLUMNS",
+    "STR_COLUMNS",
+    "read_log",
+    "write_atomic",
+    "write_log",
+    "write_run",
+]
+
+#: Every column of a run log, in file order.
+LOG_COLUMNS: tuple[str, ...] = (
+    "t_s",
+    "epm_x_m", "epm_y_m", "epm_z_m",
+    "epm_vx_mps", "epm_vy_mps", "epm_vz_mps",
+    "capsule_x_m", "capsule_y_m", "capsule_z_m",
+    "capsule_vx_mps", "capsule_vy_mps",
+    "meas_x_m", "meas_y_m", "meas_capture_t_s",
+    "ref_x_m", "ref_y_m",
+    "cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps",
+    "force_x_n", "force_y_n", "force_att_n", "normal_force_n",
+    "plant_mu", "stuck", "progress_m",
+    "solve_ms", "solver_status", "solver_failed", "controller_ms",
+)  # fmt: skip
+#: Columns a log must have to be read (the interface other tools rely on).
+REQUIRED_COLUMNS: tuple[str, ...] = (
+    "t_s", "epm_x_m", "epm_y_m", "epm_z_m", "capsule_x_m", "capsule_y_m", "capsule_z_m",
+    "capsule_vx_mps", "capsule_vy_mps", "meas_x_m", "meas_y_m", "meas_capture_t_s",
+    "ref_x_m", "ref_y_m", "cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps", "normal_force_n",
+    "stuck", "solve_ms", "solver_status", "solver_failed",
+)  # fmt: skip
+#: Integer (0/1) columns.
+INT_COLUMNS: frozenset[str] = frozenset({"stuck", "solver_failed"})
+#: Text columns.
+STR_COLUMNS: frozenset[str] = frozenset({"solver_status"})
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same folder and an atomic rename."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        with tmp.open("w", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        tmp.replace(path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _cell(value: Any) -> str:
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))  # shortest text that reads back to the same float
+    return str(value)
+
+
+def write_log(log: Mapping[str, np.ndarray], path: str | Path) -> None:
+    """Write a run log (column name -> array, one entry per frame) as CSV, atomically.
+
+    Columns are written in :data:`LOG_COLUMNS` order, then any extra ones.
+    """
+    missing = [c for c in REQUIRED_COLUMNS if c not in log]
+    if missing:
+        raise ValueError(f"log: missing columns {missing}")
+    names = [c for c in LOG_COLUMNS if c in log] + [c for c in log if c not in LOG_COLUMNS]
+    n = len(log["t_s"])
+    for name in names:
+        if len(log[name]) != n:
+            raise ValueError(f"log column {name!r}: {len(log[name])} rows, expected {n}")
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(names)
+    cols = [log[name].tolist() for name in names]
+    for row in zip(*cols):
+        writer.writerow([_cell(v) for v in row])
+    write_atomic(Path(path), buf.getvalue())
+
+
+def read_log(path: str | Path) -> dict[str, np.ndarray]:
+    """Read a run log written by :func:`write_log`.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        One array per column: float for measurements, int for ``stuck`` / ``solver_failed``, str for
+        ``solver_status`` (and for any extra column that is not numeric).
+
+    Raises
+    ------
+    ValueError
+        If a required column is missing, a row has the wrong number of cells, or a numeric cell is
+        not a number (the message names the line and column).
+    """
+    path = Path(path)
+    with path.open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        raise ValueError(f"{path}: empty log (no header)")
+    header = rows[0]
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path}: missing required columns {missing}")
+    body = rows[1:]
+    for line, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            raise ValueError(f"{path}: line {line}: {len(row)} cells, header has {len(header)}")
+    out: dict[str, np.ndarray] = {}
+    for j, name in enumerate(header):
+        cells = [row[j] for row in body]
+        if name in STR_COLUMNS:
+            out[name] = np.array(cells, dtype=str)
+            continue
+        try:
+            values = np.array([float(c) for c in cells], dtype=float)
+        except ValueError:
+            if name in REQUIRED_COLUMNS:
+                bad = next(i for i, c in enumerate(cells) if not _is_float(c))
+                raise ValueError(
+                    f"{path}: line {bad + 2}: column {name!r}: not a number: {cells[bad]!r}"
+                ) from None
+            out[name] = np.array(cells, dtype=str)
+            continue
+        out[name] = values.astype(int) if name in INT_COLUMNS else values
+    return out
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def write_run(result: RunResult, out_dir: str | Path) -> Path:
+    """Write ``log.csv``, ``config.yaml`` and ``run.json`` of a run into ``out_dir`` (created).
+
+    Non-finite numbers are written to JSON as null.
+
+    Returns
+    -------
+    Path
+        The run directory.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_log(result.log, out / "log.csv")
+    write_atomic(out / "config.yaml", dump_config(result.scenario))
+    write_atomic(out / "run.json", json.dumps(_jsonable(result.summary()), indent=2) + "\n")
+    return out

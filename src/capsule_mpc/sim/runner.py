@@ -1,0 +1,369 @@
+"""The closed loop: plant + camera + controller + actuator, run to completion, logged and scored.
+
+Timeline of a run. The plant steps at ``sim.plant_rate_hz``; camera frames
+fall on the plant steps nearest ``j / camera.rate_hz`` (j integer, so frames
+are on the plant grid with at most half a step of jitter). Time 0 is the start
+of the path. The run starts ``sim.settle_s`` earlier with the capsule at rest at
+the path's first point and the EPM above it at the plant's true equilibrium
+lead (height ``plate.epm_height_m``). During the settle phase (t < 0) the
+controller is stepped on every frame (it sees the measurements, e.g. to
+calibrate) but the arm is held still: the applied command is zero.
+
+At each frame: the camera captures the true capsule position (delivered
+``camera.latency_frames`` later), the controller is called with the delivered
+measurement and the EPM's own position, its command goes to the actuator, and
+one log row is recorded (true states at the frame time).
+
+A run ends at the first of:
+
+* *completed*: t >= 0, the capsule's arc-length progress along the path has
+  reached ``length - sim.completion_tol_m`` and it is within
+  ``sim.completion_tol_m`` of the path's last point (completion time = that frame);
+* *decoupled* / *dropped*: the plant failed (see :mod:`.plant`); a last row is
+  logged at the failure time;
+* *stalled*: after the nominal duration, the EPM and the capsule have both been
+  at rest for ``sim.stall_s`` (nothing can change any more);
+* *timed out*: t reaches ``1.25 * nominal duration + sim.tail_s``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from ..config import Scenario
+from ..control import Command, Controller, StepStats, make_controller
+from ..metrics import MOVING_SPEED_MPS, run_metrics
+from ..paths import ReferencePath
+from .actuation import Actuator, make_actuator
+from .log import INT_COLUMNS, LOG_COLUMNS, STR_COLUMNS
+from .plant import OK, CapsulePlant
+from .sensing import Camera
+
+__all__ = [
+    "TIMEOUT_FACTOR",
+    "PathProgress",
+    "RunFlags",
+    "RunResult",
+    "simulate",
+]
+
+#: A run is cut off at TIMEOUT_FACTOR * nominal duration + sim.tail_s (issue #3).
+TIMEOUT_FACTOR = 1.25
+#: How far (m) along the path the progress tracker looks back / ahead of its last value per frame.
+_PROGRESS_WINDOW_M = (0.03, 0.03)
+
+
+class PathProgress:
+    """Monotone arc-length progress of a point moving along a path.
+
+    Each update projects the point onto the part of the path within a window
+    around the previous progress, so a closed path's start is never mistaken for
+    its end and a path passing near itself is not short-cut.
+    """
+
+    def __init__(self, path: ReferencePath) -> None:
+        self.path = path
+        v = path.vertices_m
+        self._a = v[:-1]
+        seg = np.diff(v, axis=0)
+        self._len = np.hypot(seg[:, 0], seg[:, 1])
+        self._dir = seg / self._len[:, None]
+        self._s0 = np.concatenate([[0.0], np.cumsum(self._len)])[:-1]
+        self.progress_m = 0.0
+
+    def update(self, point_m: np.ndarray) -> float:
+        """Advance the progress with a new position (2,), m; returns the progress, m."""
+        back, ahead = _PROGRESS_WINDOW_M
+        lo = self._s0 - (self.progress_m - back)  # window in each segment's own coordinate
+        hi = self.progress_m + ahead - self._s0
+        lo_c = np.clip(-lo, 0.0, self._len)
+        hi_c = np.clip(hi, 0.0, self._len)
+        usable = hi_c >= lo_c
+        rel = np.asarray(point_m, dtype=float) - self._a
+        along = np.clip(np.einsum("mk,mk->m", rel, self._dir), lo_c, hi_c)
+        closest = self._a + along[:, None] * self._dir
+        dist = np.where(usable, np.hypot(*(closest - point_m).T), np.inf)
+        best = int(np.argmin(dist))
+        self.progress_m = max(self.progress_m, float(self._s0[best] + along[best]))
+        return self.progress_m
+
+
+@dataclass
+class RunFlags:
+    """How a run ended."""
+
+    completed: bool = False
+    decoupled: bool = False
+    dropped: bool = False
+    stalled: bool = False
+    timed_out: bool = False
+    failure: str = ""
+    failure_t_s: float = math.nan
+    invalid_commands: int = 0
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced.
+
+    Attributes
+    ----------
+    scenario : Scenario
+        The scenario that was simulated.
+    controller : str
+        The controller's name.
+    seed : int
+        Seed of the run's random generator.
+    path : ReferencePath
+        The reference (nominal speed).
+    log : dict of str to numpy.ndarray
+        One entry per logged frame (columns in :data:`capsule_mpc.sim.log.LOG_COLUMNS`).
+    metrics : dict
+        :func:`capsule_mpc.metrics.run_metrics` plus the flags.
+    flags : RunFlags
+        How the run ended.
+    step_stats : list of StepStats
+        The controller's stats, one per frame.
+    limit_counts : dict of str to int
+        How often the actuator's limits changed the commanded motion.
+    wall_time_s : float
+        Wall-clock time of the loop, s.
+    sim_time_s : float
+        Simulated time (settle phase included), s.
+    plant_steps : int
+        Number of plant steps.
+    meta : dict
+        Free-form provenance (config path, waypoints file), written to run.json.
+    """
+
+    scenario: Scenario
+    controller: str
+    seed: int
+    path: ReferencePath
+    log: dict[str, np.ndarray]
+    metrics: dict[str, Any]
+    flags: RunFlags
+    step_stats: list[StepStats]
+    limit_counts: dict[str, int]
+    wall_time_s: float
+    sim_time_s: float
+    plant_steps: int
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated time per wall-clock time (> 1: faster than real time)."""
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
+
+    def summary(self) -> dict[str, Any]:
+        """What ``run.json`` holds: provenance, metrics, flags, limit counts and timing."""
+        return {
+            "controller": self.controller,
+            "seed": self.seed,
+            "config": self.meta.get("config"),
+            "waypoints_file": self.meta.get("waypoints_file"),
+            "speed_mps": self.path.speed_mps,
+            "path_length_m": self.path.length_m,
+            "metrics": self.metrics,
+            "flags": vars(self.flags),
+            "limit_counts": self.limit_counts,
+            "timing": {
+                "wall_time_s": self.wall_time_s,
+                "sim_time_s": self.sim_time_s,
+                "plant_steps": self.plant_steps,
+                "realtime_factor": self.realtime_factor,
+            },
+        }
+
+
+class _Log:
+    """Preallocated per-frame columns."""
+
+    def __init__(self, n_rows: int) -> None:
+        self.cols: dict[str, np.ndarray] = {}
+        for name in LOG_COLUMNS:
+            if name in STR_COLUMNS:
+                self.cols[name] = np.empty(n_rows, dtype=object)
+            elif name in INT_COLUMNS:
+                self.cols[name] = np.zeros(n_rows, dtype=int)
+            else:
+                self.cols[name] = np.full(n_rows, math.nan)
+        self.n = 0
+
+    def add(self, row: dict[str, Any]) -> None:
+        i = self.n
+        for name, value in row.items():
+            self.cols[name][i] = value
+        self.n += 1
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {name: col[: self.n].copy() for name, col in self.cols.items()}
+        for name in STR_COLUMNS:
+            out[name] = out[name].astype(str)
+        return out
+
+
+def _check_command(cmd: Any) -> np.ndarray | None:
+    if not isinstance(cmd, Command):
+        return None
+    v = np.asarray(cmd.epm_velocity_mps, dtype=float).ravel()
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        return None
+    return v
+
+
+def simulate(
+    scenario: Scenario,
+    controller: Controller | str,
+    path: ReferencePath,
+    seed: int,
+    *,
+    progress: bool = False,
+    actuator: Actuator | None = None,
+    plant: CapsulePlant | None = None,
+    meta: dict[str, Any] | None = None,
+) -> RunResult:
+    """Run one closed-loop simulation.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The rig (plant, camera, limits, sim settings) and the controller's settings.
+    controller : Controller or str
+        A controller instance or a registry name (:func:`capsule_mpc.control.make_controller`).
+    path : ReferencePath
+        The reference at its nominal speed.
+    seed : int
+        Seed of the run's random generator (camera noise and drops).
+    progress : bool
+        Show a progress bar (appears only if the run takes longer than a second).
+    actuator : Actuator, optional
+        The EPM carrier; default :func:`make_actuator` (``sim.actuator``).
+    plant : CapsulePlant, optional
+        The plant; default the finite-magnet plant of ``scenario``.
+    meta : dict, optional
+        Provenance copied into :attr:`RunResult.meta` (e.g. ``config``, ``waypoints_file``).
+
+    Returns
+    -------
+    RunResult
+        Log, metrics, flags, per-step stats, limit counts and timing. Failures (decoupled,
+        dropped, invalid commands) are values in the result, not exceptions.
+    """
+    ctrl = make_controller(controller) if isinstance(controller, str) else controller
+    name = controller if isinstance(controller, str) else (ctrl.name or type(ctrl).__name__)
+    rng = np.random.default_rng(seed)
+    sim, cam_cfg = scenario.sim, scenario.camera
+    dt = 1.0 / sim.plant_rate_hz
+    plant = plant if plant is not None else CapsulePlant(scenario)
+    act = actuator if actuator is not None else make_actuator(scenario)
+    camera = Camera(cam_cfg, rng)
+    tracker = PathProgress(path)
+
+    start = path.start_m
+    epm0 = np.array([*(start + plant.equilibrium_lead_m), scenario.plate.epm_height_m])
+    plant.reset(start)
+    act.reset(epm0)
+    plant.evaluate_forces(*epm0.tolist())
+    ctrl.reset(scenario, path, epm0.copy())
+
+    ratio = sim.plant_rate_hz / cam_cfg.rate_hz
+    j0 = math.ceil(-sim.settle_s * cam_cfg.rate_hz - 1e-9)
+    t_cut = TIMEOUT_FACTOR * path.duration_s + sim.tail_s
+    j_last = math.floor(t_cut * cam_cfg.rate_hz + 1e-9)
+    k = round(j0 * ratio)
+    k_first = k
+    log = _Log(j_last - j0 + 2)
+    flags = RunFlags()
+    stats: list[StepStats] = []
+    completion = math.nan
+    rest_s = 0.0
+    tol = sim.completion_tol_m
+    end = path.end_m
+    cmd_applied = np.zeros(3)
+    bar = tqdm(
+        total=round(t_cut + sim.settle_s, 1), unit="s", desc=f"simulate {name}",
+        disable=not progress, delay=1.0, leave=False,
+    )  # fmt: skip
+    step_plant, step_act = plant.step, act.step_xyz
+    wall0 = time.perf_counter()
+    for j in range(j0, j_last + 1):
+        status = OK
+        for _ in range(round(j * ratio) - k):
+            ex, ey, ez = step_act(dt)
+            status = step_plant(dt, ex, ey, ez)
+            if status != OK:
+                break
+            k += 1
+        t = k * dt
+        pos = plant.position_m
+        row: dict[str, Any] = {"t_s": t, "capsule_x_m": pos[0], "capsule_y_m": pos[1], "capsule_z_m": 0.0}
+        row["capsule_vx_mps"], row["capsule_vy_mps"] = plant.vx, plant.vy
+        epm, epm_v = act.position_m, act.velocity_mps
+        row.update(zip(("epm_x_m", "epm_y_m", "epm_z_m"), epm.tolist()))
+        row.update(zip(("epm_vx_mps", "epm_vy_mps", "epm_vz_mps"), epm_v.tolist()))
+        ref = path.position(t)
+        row["ref_x_m"], row["ref_y_m"] = float(ref[0]), float(ref[1])
+        row.update(zip(("force_x_n", "force_y_n", "force_att_n"), plant.force_n))
+        row["normal_force_n"], row["plant_mu"] = plant.normal_force_n, plant.mu
+        row["stuck"] = int(plant.stuck)
+        row["progress_m"] = tracker.update(pos)
+        if status != OK:
+            flags.decoupled = plant.failure.startswith("decoupled")
+            flags.dropped = not flags.decoupled
+            flags.failure, flags.failure_t_s = plant.failure, t
+            row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), cmd_applied.tolist()))
+            row["solver_status"], row["solver_failed"] = "", 0
+            log.add(row)
+            break
+        meas = camera.frame(t, pos)
+        c0 = time.perf_counter()
+        cmd = ctrl.step(t, meas, epm)
+        row["controller_ms"] = (time.perf_counter() - c0) * 1e3
+        vel = _check_command(cmd)
+        step_stats = cmd.stats if isinstance(cmd, Command) else StepStats(status="invalid", failed=True)
+        if vel is None:
+            flags.invalid_commands += 1
+            vel = np.zeros(3)
+        stats.append(step_stats)
+        cmd_applied = vel if t >= 0 else np.zeros(3)
+        act.set_velocity_command(t, cmd_applied)
+        if meas.position_m is not None:
+            row["meas_x_m"], row["meas_y_m"] = float(meas.position_m[0]), float(meas.position_m[1])
+        row["meas_capture_t_s"] = meas.capture_t_s
+        row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), cmd_applied.tolist()))
+        row["solve_ms"], row["solver_status"] = step_stats.solve_ms, step_stats.status
+        row["solver_failed"] = int(step_stats.failed)
+        log.add(row)
+        bar.update(1.0 / cam_cfg.rate_hz)
+        if t >= 0 and row["progress_m"] >= path.length_m - tol and math.hypot(*(pos - end)) <= tol:
+            flags.completed, completion = True, t
+            break
+        at_rest = plant.stuck and float(np.linalg.norm(epm_v)) < MOVING_SPEED_MPS
+        rest_s = rest_s + 1.0 / cam_cfg.rate_hz if (at_rest and t >= path.duration_s) else 0.0
+        if rest_s >= sim.stall_s:
+            flags.stalled = True
+            break
+    else:
+        flags.timed_out = True
+    wall = time.perf_counter() - wall0
+    bar.close()
+    arrays = log.arrays()
+    metrics = run_metrics(arrays, path, completion_time_s=completion, deadline_ms=1e3 / cam_cfg.rate_hz)
+    metrics.update(
+        completed=flags.completed, decoupled=flags.decoupled, dropped=flags.dropped,
+        stalled=flags.stalled, timed_out=flags.timed_out, invalid_commands=flags.invalid_commands,
+    )  # fmt: skip
+    limits = act.limit_counts()
+    metrics.update(limits)
+    return RunResult(
+        scenario=scenario, controller=name, seed=seed, path=path, log=arrays, metrics=metrics,
+        flags=flags, step_stats=stats, limit_counts=limits, wall_time_s=wall,
+        sim_time_s=(k - k_first) * dt, plant_steps=k - k_first, meta=dict(meta or {}),
+    )  # fmt: skip

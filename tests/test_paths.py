@@ -1,0 +1,136 @@
+"""Reference paths: geometry, time parameterisation, waypoint files."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from capsule_mpc import ConfigError
+from capsule_mpc.config import config_from_dict
+from capsule_mpc.paths import (
+    ReferencePath,
+    from_waypoints_file,
+    path_from_scenario,
+    pipe,
+    rectangle,
+    scenario_workspace,
+)
+
+WORKSPACE = ((-0.15, -0.1), (0.15, 0.1))
+
+
+def test_rectangle_geometry_and_timing():
+    r = rectangle((0.10, 0.06), (0.01, 0.0), 0.02)
+    assert r.closed
+    assert r.length_m == pytest.approx(0.32)
+    assert r.duration_s == pytest.approx(16.0)
+    np.testing.assert_allclose(r.position(0.0), [-0.04, -0.03])
+    np.testing.assert_allclose(r.position(2.5), [0.01, -0.03])  # 50 mm along the bottom side
+    np.testing.assert_allclose(r.position(16.0), [-0.04, -0.03])  # back at the start
+    np.testing.assert_allclose(r.velocity(2.5), [0.02, 0.0])
+    np.testing.assert_allclose(r.velocity(6.0), [0.0, 0.02])  # right side, going up
+
+
+def test_before_start_and_after_end_rest():
+    r = rectangle(speed_mps=0.02)
+    t = np.array([-3.0, -1e-9, r.duration_s, r.duration_s + 5])
+    pos, vel = r.position(t), r.velocity(t)
+    assert pos.shape == vel.shape == (4, 2)
+    np.testing.assert_allclose(pos[:2], [r.start_m, r.start_m])
+    np.testing.assert_allclose(pos[2:], [r.end_m, r.end_m], atol=1e-15)
+    np.testing.assert_array_equal(vel, 0.0)
+    assert r.position(1.0).shape == (2,)
+
+
+def test_distance_to_hand_computed():
+    path = ReferencePath(np.array([[0.0, 0.0], [0.1, 0.0], [0.1, 0.1]]), False, 0.01)
+    pts = np.array([[0.05, 0.02], [-0.03, 0.04], [0.13, 0.05], [0.12, -0.01]])
+    expected = [0.02, 0.05, 0.03, math.hypot(0.02, 0.01)]
+    np.testing.assert_allclose(path.distance_to(pts), expected, atol=1e-15)
+
+
+def test_with_speed_keeps_geometry():
+    r = rectangle(speed_mps=0.02)
+    slow = r.with_speed(0.016)
+    assert slow.length_m == r.length_m
+    assert slow.duration_s == pytest.approx(r.duration_s / 0.8)
+    np.testing.assert_allclose(slow.position(5.0), r.position(4.0))
+
+
+def test_pipe_has_three_bends():
+    p = pipe(speed_mps=0.005)
+    assert not p.closed
+    d = np.diff(p.vertices_m, axis=0)
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    turns = np.diff(heading)
+    assert np.sum(np.abs(turns)) == pytest.approx(3 * math.pi / 2)  # three 90 degree bends
+    straight = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) > 0.02)  # the rest are arc chords
+    assert len(straight) == 4
+    np.testing.assert_allclose(np.abs(np.diff(heading[straight])), math.pi / 2)  # each bend 90 deg
+    assert p.duration_s == pytest.approx(p.length_m / 0.005)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-5.0, 40.0), st.floats(0.001, 0.1))
+def test_reference_lies_on_the_path_and_moves_at_speed(t, v):
+    p = pipe(speed_mps=v)
+    assert p.distance_to(p.position(t)[None])[0] < 1e-12
+    speed = float(np.linalg.norm(p.velocity(t)))
+    assert speed == pytest.approx(v if 0 <= t < p.duration_s else 0.0)
+
+
+def _write(tmp_path, text):
+    f = tmp_path / "wp.csv"
+    f.write_text(text)
+    return f
+
+
+def test_waypoint_file_reads(tmp_path):
+    f = _write(tmp_path, "x_m,y_m\n0,0\n0.05,0\n\n0.05,0.04\n")
+    p = from_waypoints_file(f, 0.02, WORKSPACE)
+    assert p.length_m == pytest.approx(0.09)
+    assert not p.closed
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("x,y\n0,0\n1,1\n", "line 1: header must be 'x_m,y_m'"),
+        ("", "line 1: header must be 'x_m,y_m'"),
+        ("x_m,y_m\n0,0\n", "need at least 2 waypoints, got 1"),
+        ("x_m,y_m\n0,0\nnan,0.01\n", "line 3: values must be finite"),
+        ("x_m,y_m\n0,0\n0.01,abc\n", "line 3: not a number"),
+        ("x_m,y_m\n0,0\n0.01\n", "line 3: need 2 values"),
+        ("x_m,y_m\n0,0\n0.2,0.0\n", "line 3: point (0.2, 0.0) m is outside the workspace"),
+        ("x_m,y_m\n0,0\n0.01,0\n0.01,0\n", "line 4: zero-length segment (same point as line 3)"),
+    ],
+)
+def test_waypoint_file_errors_name_the_row(tmp_path, text, message):
+    with pytest.raises(ConfigError) as exc:
+        from_waypoints_file(_write(tmp_path, text), 0.02, WORKSPACE)
+    assert message in str(exc.value)
+
+
+def test_path_from_scenario_overrides(scenario, tmp_path):
+    assert path_from_scenario(scenario).closed
+    assert path_from_scenario(scenario, speed=0.005).speed_mps == 0.005
+    f = _write(tmp_path, "x_m,y_m\n0,0\n0.03,0.0\n")
+    assert path_from_scenario(scenario, waypoints=f).length_m == pytest.approx(0.03)
+    with pytest.raises(ConfigError, match=r"speed: must be in \(0, 0.1\]"):
+        path_from_scenario(scenario, speed=-1)
+    data = scenario.model_dump(mode="json", exclude_none=True)
+    data["path"] = {"kind": "waypoints"}
+    with pytest.raises(ConfigError, match=r"path\.waypoints_file: required"):
+        path_from_scenario(config_from_dict(data))
+    data["path"] = {"kind": "pipe", "speed_mps": 0.045}
+    assert path_from_scenario(config_from_dict(data)).length_m == pytest.approx(pipe().length_m)
+
+
+def test_scenario_workspace_is_plate_within_epm_reach(scenario):
+    (x0, y0), (x1, y1) = scenario_workspace(scenario)
+    assert (x0, x1) == (-0.18, 0.18)  # EPM reach is inside the 400 mm plate
+    assert (y0, y1) == (-0.13, 0.13)
