@@ -489,7 +489,13 @@ class MPCConfig(_Strict):
     estimator_accel_std_mps2: float = Field(
         0.3, gt=0, description="Kalman filter process noise: capsule acceleration std, m/s^2."
     )
-    jit: bool = Field(False, description="JIT-compile the NLP functions (needs a C compiler).")
+    compile_c: bool = Field(
+        True,
+        description=(
+            "Compile the SQP's NLP functions to C (gcc) once, cached on disk by a hash of the "
+            "problem; about 0.6 ms faster per frame at N = 20. Falls back, with a warning, if gcc fails."
+        ),
+    )
 
 
 _Vec3 = tuple[float, float, float]
