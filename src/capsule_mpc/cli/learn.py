@@ -27,6 +27,9 @@ from ..learning.fit import MAX_DEGREE
 
 __all__ = ["register", "run", "summary"]
 
+#: Notes printed in the text summary (all of them are in the --json output).
+_MAX_NOTES = 4
+
 
 def _positive(text: str) -> float:
     value = float(text)
@@ -114,7 +117,7 @@ def summary(result: LearningResult, wall_s: float) -> dict[str, Any]:
         "rmse": fit.rmse,
         "robust": fit.robust,
         "force_model": result.model.force_model,
-        "c_at_mps": {f"{v:g}": float(fit(v)) for v in np.linspace(*fit.validity_mps, 5)},
+        "c_at_mps": {f"{v:.4g}": float(fit(v)) for v in np.linspace(*fit.validity_mps, 5)},
         "notes": result.samples.notes,
         "timings_s": {**result.timings_s, "total": wall_s},
     }
@@ -165,8 +168,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"learned c(v) from {len(result.samples)} samples -> {fit.n_samples} used; written to {path}")
     excluded = {k: v for k, v in (result.model.excluded or {}).items() if v}
     print(f"  excluded: {excluded if excluded else 'none'}")
-    for note in result.samples.notes:
+    notes = result.samples.notes
+    for note in notes[:_MAX_NOTES]:
         print(f"  note: {note}")
+    if len(notes) > _MAX_NOTES:
+        print(f"  ... {len(notes) - _MAX_NOTES} more note(s) (--json lists them all)")
     coefs = ", ".join(f"p{i + 1} = {c:.4g}" for i, c in enumerate(fit.coefficients))
     print(f"  c(v) = poly degree {fit.degree}{' (Huber)' if fit.robust else ''}: {coefs}")
     lo, hi = fit.validity_mps

@@ -5,7 +5,9 @@ c(v) -> a :class:`~capsule_mpc.config.LearnedFrictionModel` YAML that a scenario
 loads as ``friction.learned``.
 
 Main entry points: :func:`learn_from_logs`, :func:`learn_from_samples_csv`,
-:func:`learn_friction`, :func:`write_model`, :func:`steady_lead`.
+:func:`learn_friction`, :func:`write_model`, :func:`steady_lead`. Demonstrations in the
+simulator are in :mod:`capsule_mpc.learning.demonstrations` (not imported here: the fit
+itself does not depend on the simulator).
 """
 
 from .core import LearningResult, learn_friction, learn_from_logs, learn_from_samples_csv, write_model
@@ -23,6 +25,7 @@ from .data import (
     write_samples_csv,
 )
 from .fit import PolynomialFit, fit_c_polynomial, synthetic_samples
+from .heldout import SteadyLead, measured_steady_lead, predicted_steady_lead
 from .logs import LogOptions, RunLog, find_run_logs, log_samples, read_run_log, samples_from_logs
 from .predict import law_mu, plant_mu, steady_lead
 
@@ -39,6 +42,7 @@ __all__ = [
     "LogOptions",
     "PolynomialFit",
     "RunLog",
+    "SteadyLead",
     "find_run_logs",
     "fit_c_polynomial",
     "law_mu",
@@ -46,8 +50,10 @@ __all__ = [
     "learn_from_logs",
     "learn_from_samples_csv",
     "log_samples",
+    "measured_steady_lead",
     "per_sample_c",
     "plant_mu",
+    "predicted_steady_lead",
     "read_run_log",
     "read_samples_csv",
     "samples_from_logs",

@@ -61,13 +61,15 @@ def plot_c_fit(result: LearningResult, ax: Axes | None = None, paper: bool = Tru
     r2 = "n/a" if fit.r2 is None else f"{fit.r2:.3f}"
     ax.plot(v * 1e3, fit(v), color="tab:red", lw=2,
             label=f"fit, degree {fit.degree}{' (Huber)' if fit.robust else ''}, R$^2$ = {r2}")  # fmt: skip
+    lo_c, hi_c = np.percentile(cs.c, [0.5, 99.5]) if len(cs.c) else (0.0, 1.0)
+    lo_c, hi_c = min(lo_c, float(fit(v).min())), max(hi_c, float(fit(v).max()))
     if paper:
         vp = np.linspace(*PAPER_C_VALIDITY_MPS, 300)
-        ax.plot(vp * 1e3, np.polyval(PAPER_C_COEFFICIENTS, vp), color="k", ls="--", lw=1.2,
-                label="paper's c(v) (eq. 12)")  # fmt: skip
-    lo_c, hi_c = np.percentile(cs.c, [0.5, 99.5]) if len(cs.c) else (0.0, 1.0)
-    pad = 0.25 * (hi_c - lo_c) + 1e-3
-    ax.set_ylim(min(lo_c, float(fit(v).min())) - pad, max(hi_c, float(fit(v).max())) + pad)
+        cp = np.polyval(PAPER_C_COEFFICIENTS, vp)
+        ax.plot(vp * 1e3, cp, color="k", ls="--", lw=1.2, label="paper's c(v) (eq. 12)")
+        lo_c, hi_c = min(lo_c, float(cp.min())), max(hi_c, float(cp.max()))
+    pad = 0.1 * (hi_c - lo_c) + 1e-3
+    ax.set_ylim(lo_c - pad, hi_c + pad)
     ax.set_xlabel("speed v (mm/s)")
     ax.set_ylabel("c")
     ax.set_title("Learned friction relation c(v)  (cf. paper Fig. 7b)")
