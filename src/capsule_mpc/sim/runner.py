@@ -55,6 +55,8 @@ __all__ = [
 
 #: A run is cut off at TIMEOUT_FACTOR * nominal duration + sim.tail_s (issue #3).
 TIMEOUT_FACTOR = 1.25
+#: Progress bar layout: simulated seconds out of the cut-off time.
+_BAR_FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s simulated [{elapsed}]"
 #: How far (m) along the path the progress tracker looks back / ahead of its last value per frame.
 _PROGRESS_WINDOW_M = (0.03, 0.03)
 
@@ -288,8 +290,8 @@ def simulate(
     end = path.end_m
     cmd_applied = np.zeros(3)
     bar = tqdm(
-        total=round(t_cut + sim.settle_s, 1), unit="s", desc=f"simulate {name}",
-        disable=not progress, delay=1.0, leave=False,
+        total=round(t_cut + sim.settle_s, 1), desc=f"simulate {name}", disable=not progress, delay=1.0,
+        leave=False, bar_format=_BAR_FORMAT,
     )  # fmt: skip
     step_plant, step_act = plant.step, act.step_xyz
     wall0 = time.perf_counter()
