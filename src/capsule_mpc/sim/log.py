@@ -6,6 +6,9 @@ scenario actually used, from :func:`capsule_mpc.dump_config`) and ``run.json``
 file is written to a temporary name and renamed into place, so an interrupted
 run leaves no half file.
 
+Two columns are wall-clock timings (``solve_ms``, ``controller_ms``); every other
+column is a deterministic function of the scenario, controller and seed.
+
 Columns (true states are sampled at the frame time; the EPM "z" is its height
 above the capsule plane, i.e. the vertical EPM-IPM centre distance; the capsule
 z is 0, the plane itself):
