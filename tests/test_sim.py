@@ -233,7 +233,11 @@ def test_simple_arm_property(scenario, commands):
             prev_v = v
 
 
-def test_robot_actuator_not_available_is_a_clear_error(scenario):
+def test_unavailable_actuator_is_a_clear_error(scenario, monkeypatch):
+    # As before the Ruckig + Pinocchio arm registers 'robot': no provider module defines it.
+    monkeypatch.setattr("capsule_mpc.sim.actuation._ACTUATORS", {"simple": SimpleArm})
+    monkeypatch.setattr("capsule_mpc.sim.actuation._PROVIDERS", ("capsule_mpc._no_such_arm",))
+    assert isinstance(make_actuator(scenario), SimpleArm)
     with pytest.raises(ConfigError, match=r"sim\.actuator: 'robot' is not available"):
         make_actuator(tweak(scenario, "sim", actuator="robot"))
 
