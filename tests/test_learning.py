@@ -398,7 +398,7 @@ def test_steady_lead_balances_the_forces(scenario, table, kind):
     h = scenario.plate.epm_height_m
     prev = None
     for mu in (0.1, 0.15, 0.2):
-        lead = steady_lead(scenario, mu, (1.0, 0.0), force_model=kind)
+        lead = steady_lead(scenario, mu, (1.0, 0.0), force_fn=fn)
         f = np.asarray(fn(lead, h)).ravel()
         f_n = normal_force_expr(scenario, f[2])
         assert f[0] == pytest.approx(0.03 + mu * f_n, abs=1e-9)

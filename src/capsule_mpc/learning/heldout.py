@@ -10,12 +10,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 from scipy.signal import savgol_filter
 
 from ..config import LearnedFrictionModel, Scenario
 from .data import LearningDataError
-from .logs import LogOptions, RunLog
+from .logs import LogOptions, RunLog, frame_period
 from .predict import law_mu, steady_lead
 
 __all__ = ["SteadyLead", "measured_steady_lead", "predicted_steady_lead"]
@@ -75,12 +76,16 @@ def measured_steady_lead(
     if not 0 <= trim_fraction <= 0.45:
         raise ValueError(f"trim_fraction: must be in [0, 0.45], got {trim_fraction}")
     options = options or LogOptions()
-    dt = float(np.median(np.diff(log.t_s)))
+    dt = frame_period(log.t_s)
     sg = {"window_length": options.window_frames(dt), "polyorder": options.polyorder, "delta": dt, "axis": 0}
-    if len(log.t_s) < sg["window_length"]:
+    # Savitzky-Golay needs uniform samples: resample the (jittered) frames onto a uniform grid.
+    t = log.t_s[0] + dt * np.arange(int((log.t_s[-1] - log.t_s[0]) / dt + 1e-6) + 1)
+    if len(t) < sg["window_length"]:
         raise LearningDataError(f"{log.path}: shorter than the {sg['window_length']}-frame filter window")
-    v_e = savgol_filter(log.epm_m[:, :2], deriv=1, **sg)
-    v_i = savgol_filter(log.capsule_m, deriv=1, **sg)
+    epm = np.column_stack([np.interp(t, log.t_s, log.epm_m[:, k]) for k in range(2)])
+    capsule = np.column_stack([np.interp(t, log.t_s, log.capsule_m[:, k]) for k in range(2)])
+    v_e = savgol_filter(epm, deriv=1, **sg)
+    v_i = savgol_filter(capsule, deriv=1, **sg)
     speed_e = np.linalg.norm(v_e, axis=1)
     cruise = float(np.median(speed_e[speed_e > 0.5 * speed_e.max()]))
     steady = (np.abs(speed_e - cruise) <= _STEADY_SPEED_TOL * cruise) & (
@@ -91,7 +96,7 @@ def measured_steady_lead(
     idx = idx[cut : len(idx) - cut]
     if len(idx) < 10:
         raise LearningDataError(f"{log.path}: only {len(idx)} steady frame(s), need at least 10")
-    lead = log.epm_m[idx, :2] - log.capsule_m[idx]
+    lead = epm[idx] - capsule[idx]
     direction = np.mean(v_e[idx] / speed_e[idx, None], axis=0)
     return SteadyLead(
         lead_m=lead.mean(axis=0),
@@ -109,13 +114,15 @@ def predicted_steady_lead(
     direction: np.ndarray | tuple[float, float],
     force_model: str | None = None,
     height_m: float | None = None,
+    force_fn: ca.Function | None = None,
 ) -> np.ndarray:
     """The steady lead (m) a learned model predicts at ``speed_mps`` along ``direction``.
 
     mu from the model's law (paper eq. 10, c held at its end values outside the validity
     range), then :func:`~capsule_mpc.learning.predict.steady_lead` with ``force_model``
-    (default: the one the model was learned with, else ``scenario.force_model``).
+    (default: the one the model was learned with, else ``scenario.force_model``);
+    ``force_fn`` is that model if already built.
     """
     kind = force_model or model.force_model or scenario.force_model
     mu = law_mu(model, scenario)(speed_mps)
-    return steady_lead(scenario, mu, direction, force_model=kind, height_m=height_m)
+    return steady_lead(scenario, mu, direction, force_model=kind, height_m=height_m, force_fn=force_fn)

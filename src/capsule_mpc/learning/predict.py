@@ -43,6 +43,7 @@ def steady_lead(
     direction: tuple[float, float] | np.ndarray = (1.0, 0.0),
     force_model: str | None = None,
     height_m: float | None = None,
+    force_fn: ca.Function | None = None,
 ) -> np.ndarray:
     """The lead (EPM - capsule, m) at which a capsule slides steadily with friction ``mu``.
 
@@ -58,6 +59,9 @@ def steady_lead(
         Default ``scenario.force_model``.
     height_m : float, optional
         EPM-IPM height, m; default ``scenario.plate.epm_height_m``.
+    force_fn : casadi.Function, optional
+        The force model of ``force_model``, if already built (the 'lookup' B-spline takes
+        about a second to build).
 
     Returns
     -------
@@ -76,7 +80,7 @@ def steady_lead(
         raise ValueError(f"direction: must be a non-zero 2-vector, got {direction!r}")
     u = u / np.linalg.norm(u)
     h = scenario.plate.epm_height_m if height_m is None else float(height_m)
-    fn = capsule_force_function(scenario, force_model)
+    fn = capsule_force_function(scenario, force_model) if force_fn is None else force_fn
     lead = ca.MX.sym("lead", 2)
     force = fn(lead, h)
     f_n = cast(ca.MX, normal_force_expr(scenario, force[2]))
