@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import Scenario, config_from_dict, load_config
+from ..magnetics import force_map
 from ..paths import ReferencePath, path_from_scenario
 
 __all__ = ["add_run_arguments", "prepare_run", "register", "run"]
@@ -37,8 +38,9 @@ def prepare_run(
 ) -> tuple[Scenario, ReferencePath, dict[str, Any]]:
     """Load a scenario, apply the ``--waypoints`` / ``--speed`` overrides, and build the path.
 
-    The returned scenario carries the overrides (``path.kind: waypoints`` with the absolute file,
-    ``path.speed_mps``), so its dump beside the results reproduces the run.
+    Also makes sure the finite-magnet force map is cached (computing it, with a progress bar,
+    on first use). The returned scenario carries the overrides (``path.kind: waypoints`` with
+    the absolute file, ``path.speed_mps``), so its dump beside the results reproduces the run.
 
     Returns
     -------
@@ -56,6 +58,7 @@ def prepare_run(
             data["path"]["waypoints_file"] = str(Path(waypoints).resolve())
         scenario = config_from_dict(data)
         scenario.source_path = base.source_path
+    force_map(scenario, progress=True)  # computed once and cached: show progress on a fresh machine
     meta = {
         "config": str(base.source_path) if base.source_path else None,
         "waypoints_file": str(Path(waypoints).resolve()) if waypoints is not None else None,
