@@ -452,3 +452,19 @@ def test_figures_are_written(tmp_path, scenario, constants):
         warnings.simplefilter("error")
         paths = save_figures(result, tmp_path, prefix="x")
     assert [p.name for p in paths] == ["x_c_fit.png", "x_residuals.png"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    rows=st.lists(
+        st.tuples(st.floats(-0.3, 0.3), st.floats(-1.0, 1.0), st.booleans()), min_size=1, max_size=60
+    )
+)
+def test_every_sample_is_used_or_excluded_exactly_once(rows, constants):
+    speed, normal, flag = (np.array(c) for c in zip(*rows))
+    samples = FrictionSamples(
+        speed, np.zeros(len(rows)), np.full(len(rows), 0.1), normal, flags={"unsteady": flag.astype(bool)}
+    )
+    cs = per_sample_c(samples, constants)
+    assert cs.used.sum() + sum(cs.excluded.values()) == len(rows)
+    assert np.all(np.isfinite(cs.c)) and np.all(cs.speed_mps > 0)

@@ -235,7 +235,7 @@ def per_sample_c(
     if not min_log_ratio >= 0:
         raise ValueError(f"min_log_ratio: must be >= 0, got {min_log_ratio}")
     speed = np.abs(np.asarray(samples.speed_mps, dtype=float))
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", over="ignore"):  # v = 0 (or subnormal): excluded below
         log_ratio = np.log(constants.v_star_mps / speed)
     reasons = {
         "below_speed_floor": ~(speed > speed_floor_mps),
