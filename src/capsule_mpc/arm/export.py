@@ -1,0 +1,423 @@
+"""Export of arm trajectories for a real robot: CSV, ROS ``JointTrajectory`` YAML and a figure.
+
+Files written to an output directory (each atomically: temp file, then rename):
+
+``epm_trajectory.csv``
+    ``t_s, epm_x_m, epm_y_m, epm_z_m, epm_vx_mps, ..., epm_az_mps2`` at the arm rate.
+``joint_trajectory.csv``
+    ``t_s, q1_rad..q6_rad, dq1_radps..dq6_radps``.
+``joint_trajectory.yaml``
+    The same points laid out as ROS ``trajectory_msgs/JointTrajectory`` (header, joint_names,
+    points with positions, velocities, accelerations [], effort [], time_from_start
+    {sec, nanosec} relative to the first point).
+``joint_trajectory.png``
+    Joint positions and velocities against time, with their limits.
+``arm_summary.json``
+    Smoothing and IK figures (deviation from the plan, IK error, joint-limit use).
+
+Floats are written with ``repr`` (shortest round-trip form), so the YAML and the CSV hold the
+same numbers exactly.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import yaml
+
+from ..config import Scenario
+from .kinematics import ArmKinematics, JointTrajectory, solve_trajectory
+from .smoothing import CartesianLimits, CartesianTrajectory, smooth_waypoints
+
+__all__ = [
+    "EPM_CSV",
+    "JOINT_CSV",
+    "JOINT_PNG",
+    "JOINT_YAML",
+    "SUMMARY_JSON",
+    "ArmExport",
+    "arm_summary",
+    "export_arm_trajectory",
+    "plot_joint_trajectory",
+    "read_epm_plan_csv",
+    "read_joint_trajectory_csv",
+    "read_joint_trajectory_yaml",
+    "thin_waypoints",
+    "write_arm_outputs",
+]
+
+EPM_CSV = "epm_trajectory.csv"
+JOINT_CSV = "joint_trajectory.csv"
+JOINT_YAML = "joint_trajectory.yaml"
+JOINT_PNG = "joint_trajectory.png"
+SUMMARY_JSON = "arm_summary.json"
+
+#: Column sets accepted for a plan's EPM position (x, y, z), first match wins.
+_PLAN_POSITION_COLUMNS = (
+    ("epm_x_m", "epm_y_m", "epm_z_m"),
+    ("epm_x_m", "epm_y_m", "epm_height_m"),
+    ("x_m", "y_m", "z_m"),
+    ("epm_x_m", "epm_y_m"),
+    ("x_m", "y_m"),
+)
+_NS_PER_S = 1_000_000_000
+#: Points per line in the joint figure (longer trajectories are strided; the limits are unaffected).
+_PLOT_MAX_POINTS = 3000
+
+
+def _float_text(x: float) -> str:
+    """Shortest round-trip text of a float that YAML 1.1 (PyYAML) also reads as a float."""
+    s = repr(float(x))
+    if "e" in s and "." not in s:
+        mantissa, exponent = s.split("e")
+        s = f"{mantissa}.0e{exponent}"
+    return s
+
+
+def _temp_beside(path: Path) -> Path:
+    """A temporary name in the directory of ``path`` (same file system, so the rename is atomic)."""
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+def _atomic_write(path: Path, writer: Callable[[IO[str]], None]) -> Path:
+    """Write a text file through ``writer(file)`` into a temp file beside ``path``, then rename it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _temp_beside(path)
+    try:
+        with tmp.open("w", newline="") as f:
+            writer(f)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def _write_csv(path: Path, header: list[str], columns: np.ndarray) -> Path:
+    def writer(f: IO[str]) -> None:
+        f.write(",".join(header) + "\n")
+        for row in columns:
+            f.write(",".join(_float_text(x) for x in row) + "\n")
+
+    return _atomic_write(path, writer)
+
+
+def _write_epm_csv(path: Path, cart: CartesianTrajectory) -> Path:
+    header = ["t_s"]
+    for quantity, unit in (("", "m"), ("v", "mps"), ("a", "mps2")):
+        header += [f"epm_{quantity}{ax}_{unit}" for ax in "xyz"]
+    data = np.column_stack([cart.t_s, cart.position_m, cart.velocity_mps, cart.acceleration_mps2])
+    return _write_csv(path, header, data)
+
+
+def _write_joint_csv(path: Path, joints: JointTrajectory) -> Path:
+    n = joints.q_rad.shape[1]
+    header = ["t_s"] + [f"q{i + 1}_rad" for i in range(n)] + [f"dq{i + 1}_radps" for i in range(n)]
+    return _write_csv(path, header, np.column_stack([joints.t_s, joints.q_rad, joints.dq_radps]))
+
+
+def _duration(seconds: float) -> tuple[int, int]:
+    """(sec, nanosec) of a non-negative duration, as builtin_interfaces/Duration."""
+    ns = round(seconds * _NS_PER_S)
+    return ns // _NS_PER_S, ns % _NS_PER_S
+
+
+def _write_joint_yaml(path: Path, joints: JointTrajectory) -> Path:
+    def flow(values: np.ndarray) -> str:
+        return "[" + ", ".join(_float_text(x) for x in values) + "]"
+
+    t0 = float(joints.t_s[0])
+
+    def writer(f: IO[str]) -> None:
+        f.write("# trajectory_msgs/JointTrajectory: EPM carried by the arm (capsule_mpc.arm)\n")
+        f.write(f"# {len(joints)} points; time_from_start is relative to t_s = {_float_text(t0)} s\n")
+        f.write("header:\n  stamp: {sec: 0, nanosec: 0}\n  frame_id: world\n")
+        f.write("joint_names: [" + ", ".join(joints.joint_names) + "]\n")
+        f.write("points:\n")
+        for t, q, dq in zip(joints.t_s, joints.q_rad, joints.dq_radps):
+            sec, nsec = _duration(float(t) - t0)
+            f.write(f"- positions: {flow(q)}\n  velocities: {flow(dq)}\n")
+            f.write(
+                f"  accelerations: []\n  effort: []\n  time_from_start: {{sec: {sec}, nanosec: {nsec}}}\n"
+            )
+
+    return _atomic_write(path, writer)
+
+
+def arm_summary(
+    cart: CartesianTrajectory, joints: JointTrajectory, limits: CartesianLimits
+) -> dict[str, Any]:
+    """Figures of an arm trajectory: duration, Cartesian limit use, IK accuracy, joint-limit use."""
+    dt = float(np.median(np.diff(cart.t_s))) if len(cart) > 1 else math.nan
+    jerk = np.diff(cart.position_m, 3, axis=0) / dt**3 if len(cart) > 3 else np.zeros((0, 3))
+    q_margin = np.minimum(joints.q_rad - joints.rated_lower_rad, joints.rated_upper_rad - joints.q_rad)
+    summary: dict[str, Any] = {
+        "n_setpoints": len(cart),
+        "duration_s": float(cart.t_s[-1] - cart.t_s[0]),
+        "arm_rate_hz": 1.0 / dt if math.isfinite(dt) and dt > 0 else math.nan,
+        "max_speed_mps": np.abs(cart.velocity_mps).max(axis=0).tolist(),
+        "max_accel_mps2": np.abs(cart.acceleration_mps2).max(axis=0).tolist(),
+        "max_fd_jerk_mps3": (np.abs(jerk).max(axis=0) if len(jerk) else np.zeros(3)).tolist(),
+        "limits": {
+            "velocity_mps": limits.velocity_mps.tolist(),
+            "acceleration_mps2": limits.acceleration_mps2.tolist(),
+            "jerk_mps3": limits.jerk_mps3.tolist(),
+        },
+        "ik": asdict(joints.stats),
+        "max_fk_error_m": float(np.abs(joints.epm_position_m - cart.position_m).max()),
+        "joint_names": list(joints.joint_names),
+        "min_joint_margin_rad": q_margin.min(axis=0).tolist(),
+        "max_joint_speed_radps": np.abs(joints.dq_radps).max(axis=0).tolist(),
+        "joint_speed_limit_radps": joints.velocity_limit_radps.tolist(),
+    }
+    if cart.stats is not None:
+        summary["smoothing"] = asdict(cart.stats)
+    return summary
+
+
+def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
+    """Figure of joint positions (left) and velocities (right) against time, with their limits.
+
+    Each panel's title gives the closest approach to the limit; limit lines are drawn where they
+    fall near the data (URDF limit solid, enforced limit with margin dashed).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = joints.q_rad.shape[1]
+    fig, axes = plt.subplots(n, 2, figsize=(11, 1.7 * n + 0.8), sharex=True, squeeze=False)
+    stride = max(1, math.ceil(len(joints) / _PLOT_MAX_POINTS))
+    t = joints.t_s[::stride]
+    for j in range(n):
+        q_limits = (
+            (joints.rated_lower_rad[j], joints.rated_upper_rad[j]),
+            (joints.lower_rad[j], joints.upper_rad[j]),
+        )
+        v_rated, v_allowed = joints.rated_velocity_radps[j], joints.velocity_limit_radps[j]
+        v_limits = ((-v_rated, v_rated), (-v_allowed, v_allowed))
+        panels = (
+            (axes[j, 0], joints.q_rad[:, j], *q_limits, "rad"),
+            (axes[j, 1], joints.dq_radps[:, j], *v_limits, "rad/s"),
+        )
+        for ax, y, rated, allowed, unit in panels:
+            ax.plot(t, y[::stride], lw=1.0, color="C0")
+            lo, hi = float(y.min()), float(y.max())
+            span = max(hi - lo, 1e-3)
+            view = [lo - 0.1 * span, hi + 0.1 * span]
+            for value, style in ((rated[0], "-"), (rated[1], "-"), (allowed[0], "--"), (allowed[1], "--")):
+                if lo - 2 * span <= value <= hi + 2 * span:
+                    ax.axhline(value, color="C3", ls=style, lw=0.8)
+                    view = [min(view[0], value - 0.05 * span), max(view[1], value + 0.05 * span)]
+            ax.set_ylim(*view)
+            margin = min(lo - allowed[0], allowed[1] - hi)
+            ax.set_title(
+                f"{joints.joint_names[j]}: [{lo:+.3f}, {hi:+.3f}] {unit}, "
+                f"limit [{allowed[0]:+.2f}, {allowed[1]:+.2f}], margin {margin:.2f}",
+                fontsize=8,
+            )
+            ax.tick_params(labelsize=7)
+            ax.ticklabel_format(axis="y", useOffset=False)
+    axes[0, 0].set_ylabel("q", fontsize=8)
+    axes[0, 1].set_ylabel("dq", fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("t (s)", fontsize=8)
+    fig.suptitle("Joint trajectories (red: URDF limit solid, enforced limit dashed)", fontsize=10)
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _temp_beside(out)
+    try:
+        fig.savefig(tmp, dpi=110, format="png")
+        tmp.replace(out)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
+    return out
+
+
+def write_arm_outputs(
+    out_dir: str | Path,
+    cart: CartesianTrajectory,
+    joints: JointTrajectory,
+    limits: CartesianLimits,
+    *,
+    plot: bool = True,
+) -> dict[str, Path]:
+    """Write the export files of an already computed arm trajectory; returns their paths by kind."""
+    out = Path(out_dir)
+    paths = {
+        "epm_csv": _write_epm_csv(out / EPM_CSV, cart),
+        "joint_csv": _write_joint_csv(out / JOINT_CSV, joints),
+        "joint_yaml": _write_joint_yaml(out / JOINT_YAML, joints),
+    }
+    summary = arm_summary(cart, joints, limits)
+    text = json.dumps(summary, indent=2)
+
+    def write_summary(f: IO[str]) -> None:
+        f.write(text + "\n")
+
+    paths["summary"] = _atomic_write(out / SUMMARY_JSON, write_summary)
+    if plot:
+        paths["joint_png"] = plot_joint_trajectory(joints, out / JOINT_PNG)
+    return paths
+
+
+@dataclass(frozen=True)
+class ArmExport:
+    """The result of :func:`export_arm_trajectory`.
+
+    Attributes
+    ----------
+    paths : dict of str to Path
+        ``epm_csv``, ``joint_csv``, ``joint_yaml``, ``summary`` and ``joint_png`` (if plotted).
+    cartesian : CartesianTrajectory
+        The EPM setpoints at the arm rate.
+    joints : JointTrajectory
+        The joint commands.
+    summary : dict
+        The figures written to ``arm_summary.json``.
+    """
+
+    paths: dict[str, Path]
+    cartesian: CartesianTrajectory
+    joints: JointTrajectory
+    summary: dict[str, Any]
+
+
+def thin_waypoints(t_s: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Indices of samples at most ``rate_hz`` apart in time (the first and last always kept)."""
+    t = np.asarray(t_s, dtype=float)
+    if t.shape[0] <= 2:
+        return np.arange(t.shape[0])
+    keep = [0]
+    min_dt = 1.0 / rate_hz - 1e-9
+    for i in range(1, t.shape[0] - 1):
+        if t[i] - t[keep[-1]] >= min_dt:
+            keep.append(i)
+    keep.append(t.shape[0] - 1)
+    return np.array(keep)
+
+
+def export_arm_trajectory(
+    scenario: Scenario,
+    t_s: np.ndarray,
+    epm_positions: np.ndarray,
+    out_dir: str | Path,
+    *,
+    plot: bool = True,
+) -> ArmExport:
+    """EPM Cartesian trajectory -> Ruckig setpoints at the arm rate -> IK -> files for the robot.
+
+    Everything is computed and checked (reach, joint position and velocity limits) before the
+    first file is written.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        ``arm`` (rate, Ruckig limits, robot placement, IK, look-ahead), ``limits``, ``camera``.
+    t_s : array_like (N,)
+        Times of the EPM positions, s, strictly increasing (a plan at the camera rate, or a log;
+        samples faster than ``arm.plan_waypoint_rate_hz`` -- default the camera rate -- are thinned).
+    epm_positions : array_like (N, 3)
+        EPM centre (x, y, height) in the world, m.
+    out_dir : str or Path
+        Directory for the files (created if needed).
+    plot : bool, optional
+        Also write ``joint_trajectory.png`` (default True).
+
+    Returns
+    -------
+    ArmExport
+        Paths, trajectories and the summary.
+
+    Raises
+    ------
+    ValueError
+        Malformed input (the row is named).
+    UnreachableTargetError, SmoothingError
+        The arm cannot follow (time and position named); nothing is written.
+    """
+    arm = scenario.arm
+    t = np.asarray(t_s, dtype=float)
+    p = np.asarray(epm_positions, dtype=float)
+    if t.ndim != 1 or p.shape != (t.shape[0], 3):
+        raise ValueError(f"epm_positions: must have shape ({t.shape[0]}, 3) to match t_s, got {p.shape}")
+    rate = arm.plan_waypoint_rate_hz or scenario.camera.rate_hz
+    keep = thin_waypoints(t, rate) if np.all(np.isfinite(t)) else np.arange(t.shape[0])
+    limits = CartesianLimits.from_scenario(scenario)
+    cart = smooth_waypoints(t[keep], p[keep], limits, arm.arm_rate_hz, arm.plan_lookahead_s)
+    kin = ArmKinematics(arm)
+    joints = solve_trajectory(kin, cart.t_s, cart.position_m, cart.velocity_mps)
+    paths = write_arm_outputs(out_dir, cart, joints, limits, plot=plot)
+    return ArmExport(paths, cart, joints, arm_summary(cart, joints, limits))
+
+
+def read_epm_plan_csv(
+    path: str | Path, default_height_m: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Times and EPM positions of a plan CSV (``t_s`` and ``epm_x_m, epm_y_m, epm_z_m``).
+
+    Also accepted: ``epm_height_m`` for z, ``x_m, y_m[, z_m]``, and ``t`` for the time. Without a
+    z column every z is ``default_height_m``.
+
+    Returns
+    -------
+    t_s : numpy.ndarray (N,)
+    positions_m : numpy.ndarray (N, 3)
+
+    Raises
+    ------
+    ValueError
+        Missing columns, or a row with a non-numeric value (the row is named).
+    """
+    path = Path(path)
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        fields = reader.fieldnames or []
+        rows = list(reader)
+    t_col = next((c for c in ("t_s", "t") if c in fields), None)
+    pos_cols = next((cols for cols in _PLAN_POSITION_COLUMNS if all(c in fields for c in cols)), None)
+    if t_col is None or pos_cols is None:
+        raise ValueError(
+            f"{path}: needs a time column (t_s) and EPM position columns (epm_x_m, epm_y_m[, epm_z_m]); "
+            f"has {fields}"
+        )
+    if len(pos_cols) == 2 and default_height_m is None:
+        raise ValueError(f"{path}: has no z column ({pos_cols}) and no default height was given")
+    t = np.empty(len(rows))
+    p = np.empty((len(rows), 3))
+    for i, row in enumerate(rows):
+        try:
+            t[i] = float(row[t_col])
+            xyz = [float(row[c]) for c in pos_cols]
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: row {i + 2} (line {i + 2}): not a number ({exc})") from None
+        p[i] = xyz if len(xyz) == 3 else [*xyz, default_height_m]
+    return t, p
+
+
+def read_joint_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
+    """``joint_trajectory.csv`` as arrays: ``t_s`` (N,), ``q_rad`` (N, 6), ``dq_radps`` (N, 6)."""
+    with Path(path).open() as f:
+        header = f.readline().strip().split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    q_idx = [i for i, c in enumerate(header) if c.startswith("q")]
+    dq_idx = [i for i, c in enumerate(header) if c.startswith("dq")]
+    return {"t_s": data[:, 0], "q_rad": data[:, q_idx], "dq_radps": data[:, dq_idx]}
+
+
+def read_joint_trajectory_yaml(path: str | Path) -> dict[str, Any]:
+    """Parse ``joint_trajectory.yaml`` (uses libyaml's C loader when available)."""
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    with Path(path).open() as f:
+        data: dict[str, Any] = yaml.load(f, Loader=loader)
+    return data

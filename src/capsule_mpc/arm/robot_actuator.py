@@ -1,0 +1,176 @@
+"""The EPM carried by the robot arm in the simulated loop (``sim.actuator: robot``).
+
+Per camera frame the controller's velocity command becomes Ruckig's target
+(velocity interface, workspace guard); every arm tick (``arm.arm_rate_hz``) makes
+one Ruckig update and one warm-started IK solve. The EPM position the plant sees
+is the forward kinematics of the joint positions of the latest arm tick (held
+between ticks, as a joint-position-controlled robot does), so the capsule feels
+only what the arm can do. The joint trajectory is recorded and can be exported
+(:meth:`RobotArmActuator.joint_trajectory`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..config import Scenario
+from ..sim.actuation import Actuator, register_actuator
+from .kinematics import ArmKinematics, IKTracker, JointTrajectory, joint_trajectory
+from .smoothing import CartesianLimits, CartesianTrajectory, VelocitySmoother
+
+__all__ = ["RobotArmActuator"]
+
+#: Slack when deciding whether an arm tick falls within a plant step, s (float rounding of k * dt).
+_TICK_EPS_S = 1e-9
+
+
+class RobotArmActuator(Actuator):
+    """Velocity commands -> Ruckig at the arm rate -> Pinocchio IK -> joint positions -> FK.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        ``arm`` (rate, limits, robot placement, IK), ``limits`` (defaults of the Ruckig limits
+        and the workspace box).
+    record : bool, optional
+        Keep every arm tick's setpoint and joint state for export (default True).
+
+    Raises
+    ------
+    UnreachableTargetError
+        From :meth:`reset` or :meth:`step` when the arm cannot follow (time and position named);
+        the offending tick is not applied.
+    """
+
+    def __init__(self, scenario: Scenario, *, record: bool = True) -> None:
+        arm = scenario.arm
+        lim = scenario.limits
+        self.kin = ArmKinematics(arm)
+        self.tracker = IKTracker(self.kin)
+        workspace = (
+            np.asarray(lim.workspace_min_m, dtype=float),
+            np.asarray(lim.workspace_max_m, dtype=float),
+        )
+        self.smoother = VelocitySmoother(CartesianLimits.from_scenario(scenario), arm.arm_rate_hz, workspace)
+        self.tick_s = 1.0 / arm.arm_rate_hz
+        self.record = record
+        self._t = 0.0
+        self._ticks = 0
+        self._t_offset = math.nan
+        self._xyz = (0.0, 0.0, 0.0)
+        self._log: dict[str, list[np.ndarray]] = {}
+        self.reset(np.asarray(self.smoother.position_m))
+
+    def reset(self, position_m: np.ndarray) -> None:
+        """Put the EPM at rest at ``position_m`` (x, y, height), m: inside the workspace and reachable."""
+        p = np.asarray(position_m, dtype=float).ravel()
+        if p.shape != (3,):
+            raise ValueError(f"position_m: must have 3 entries (x, y, height), got {p.shape[0]}")
+        self.smoother.reset(p)
+        q, dq = self.tracker.reset(0.0, p)
+        self._t, self._ticks, self._t_offset = 0.0, 0, math.nan
+        self._log = {k: [] for k in ("t", "p", "v", "a", "q", "dq", "fk")}
+        self._store(0.0, p, np.zeros(3), np.zeros(3), q, dq)
+
+    def _store(
+        self, t: float, p: np.ndarray, v: np.ndarray, a: np.ndarray, q: np.ndarray, dq: np.ndarray
+    ) -> None:
+        fk = self.tracker.position_m
+        self._xyz = (float(fk[0]), float(fk[1]), float(fk[2]))
+        self._q, self._dq, self._v = q, dq, v
+        if self.record:
+            log = self._log
+            log["t"].append(np.array(t))
+            log["p"].append(p)
+            log["v"].append(v)
+            log["a"].append(a)
+            log["q"].append(q)
+            log["dq"].append(dq)
+            log["fk"].append(fk)
+
+    def set_velocity_command(self, t_s: float, velocity_mps: np.ndarray) -> None:
+        """The commanded EPM velocity (3,), m/s, from ``t_s`` on; clipped per axis to the arm's limit."""
+        if math.isnan(self._t_offset):
+            self._t_offset = float(t_s) - self._t
+        self.smoother.set_target_velocity(np.asarray(velocity_mps, dtype=float).ravel())
+
+    def step_xyz(self, dt_s: float) -> tuple[float, float, float]:
+        """Advance by ``dt_s`` (s): run every arm tick due; returns the EPM position (FK), m."""
+        self._t += dt_s
+        tick = self.tick_s
+        while (self._ticks + 1) * tick <= self._t + _TICK_EPS_S:
+            t_tick = (self._ticks + 1) * tick
+            p, v, a = self.smoother.step()
+            q, dq = self.tracker.track(t_tick, p, v)
+            self._ticks += 1
+            self._store(t_tick, p, v, a, q, dq)
+        return self._xyz
+
+    def step(self, dt_s: float) -> np.ndarray:
+        """Advance by ``dt_s`` (s); returns the EPM position (x, y, height), m."""
+        return np.array(self.step_xyz(dt_s))
+
+    @property
+    def position_m(self) -> np.ndarray:
+        """EPM centre (x, y, height), m: forward kinematics of the latest joint positions."""
+        return np.array(self._xyz)
+
+    @property
+    def velocity_mps(self) -> np.ndarray:
+        """EPM velocity (3,), m/s, of the latest setpoint (= J dq of the joint command)."""
+        return np.array(self._v)
+
+    @property
+    def q_rad(self) -> np.ndarray:
+        """Latest joint positions (6,), rad."""
+        return np.array(self._q)
+
+    @property
+    def dq_radps(self) -> np.ndarray:
+        """Latest joint velocities (6,), rad/s."""
+        return np.array(self._dq)
+
+    def limit_counts(self) -> dict[str, int]:
+        """Frames whose command exceeded the speed limit, and arm ticks braked at the workspace box."""
+        return {
+            "speed_clipped_frames": self.smoother.clipped_commands,
+            "workspace_braking_ticks": self.smoother.braking_ticks,
+        }
+
+    def _times(self) -> np.ndarray:
+        offset = 0.0 if math.isnan(self._t_offset) else self._t_offset
+        return np.array(self._log["t"], dtype=float) + offset
+
+    def cartesian_trajectory(self) -> CartesianTrajectory:
+        """The EPM setpoints of every arm tick since :meth:`reset` (times on the simulator's clock)."""
+        if not self.record:
+            raise RuntimeError("RobotArmActuator(record=False) keeps no trajectory")
+        log = self._log
+        return CartesianTrajectory(
+            t_s=self._times(),
+            position_m=np.array(log["p"]).reshape(-1, 3),
+            velocity_mps=np.array(log["v"]).reshape(-1, 3),
+            acceleration_mps2=np.array(log["a"]).reshape(-1, 3),
+        )
+
+    def joint_trajectory(self) -> JointTrajectory:
+        """The joint commands of every arm tick since :meth:`reset` (times on the simulator's clock)."""
+        if not self.record:
+            raise RuntimeError("RobotArmActuator(record=False) keeps no trajectory")
+        log = self._log
+        return joint_trajectory(
+            self.kin,
+            self._times(),
+            np.array(log["q"]),
+            np.array(log["dq"]),
+            np.array(log["fk"]).reshape(-1, 3),
+            self.tracker.stats,
+        )
+
+
+@register_actuator("robot")
+def _make_robot_actuator(scenario: Scenario) -> Actuator:
+    """Factory of ``sim.actuator: robot``."""
+    return RobotArmActuator(scenario)
