@@ -601,10 +601,10 @@ class ArmConfig(_Strict):
         ),
     )
     ik_position_tolerance_m: float = Field(
-        1e-7, gt=0, le=1e-4, description="IK convergence: EPM centre position error, m, (0, 1e-4]."
+        1e-9, gt=0, le=1e-4, description="IK convergence: EPM centre position error, m, (0, 1e-4]."
     )
     ik_orientation_tolerance_rad: float = Field(
-        1e-6, gt=0, le=1e-2, description="IK convergence: EPM orientation error, rad, (0, 0.01]."
+        1e-8, gt=0, le=1e-2, description="IK convergence: EPM orientation error, rad, (0, 0.01]."
     )
     ik_damping: float = Field(
         1e-8,

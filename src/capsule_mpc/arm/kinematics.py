@@ -24,12 +24,14 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import example_robot_data
 import numpy as np
 import pinocchio as pin
 from example_robot_data import robots_loader
 from scipy.linalg import lapack
+from scipy.spatial.transform import Rotation
 
 from ..config import ArmConfig, Scenario
 from .errors import UnreachableTargetError
@@ -541,6 +543,8 @@ def solve_trajectory(
     position_m: np.ndarray,
     velocity_mps: np.ndarray,
     q_seed: np.ndarray | None = None,
+    *,
+    method: Literal["batch", "sequential"] = "batch",
 ) -> JointTrajectory:
     """Joint positions and velocities for a whole EPM trajectory, checked before anything is sent.
 
@@ -549,13 +553,19 @@ def solve_trajectory(
     kin : ArmKinematics
         The arm.
     t_s : array_like (N,)
-        Times, s, increasing.
+        Times, s, strictly increasing.
     position_m : array_like (N, 3)
         EPM centre positions in the world, m.
     velocity_mps : array_like (N, 3)
         EPM velocities, m/s (the joint velocities are J^-1 (v, 0)).
     q_seed : array_like (6,), optional
         Start of the first solve; default ``ArmConfig.q_seed_rad``.
+    method : {"batch", "sequential"}, optional
+        ``sequential``: :class:`IKTracker` point by point (as online). ``batch`` (default, ~4x
+        faster): the tracker on every ``10``-th point, cubic Hermite interpolation of the joints
+        in between, then Newton steps on all points at once (one 6 x 6 solve per point in a single
+        NumPy call); a point that does not converge falls back to the tracker. Both give the same
+        solution within the IK tolerance.
 
     Returns
     -------
@@ -576,6 +586,28 @@ def solve_trajectory(
         raise ValueError(
             f"position_m and velocity_mps: must have shape ({n}, 3) to match t_s, got {p.shape}, {v.shape}"
         )
+    if method == "sequential":
+        q, dq, epm, stats = _solve_sequential(kin, t, p, v, q_seed)
+    elif method == "batch":
+        q, dq, epm, stats = _solve_batch(kin, t, p, v, q_seed)
+    else:
+        raise ValueError(f"method: must be 'batch' or 'sequential', got {method!r}")
+    stats.wall_s = time.perf_counter() - wall0
+    return joint_trajectory(kin, t, q, dq, epm, stats)
+
+
+_Solved = tuple[np.ndarray, np.ndarray, np.ndarray, IKStats]
+#: Every this many points the batch method solves sequentially (20 ms at 500 Hz); the joints
+#: in between are interpolated, ~1e-6 rad off, and one batched Newton step converges them.
+_COARSE_STEP = 10
+#: Batched Newton steps before a point is handed to the one-by-one fallback (one is the rule).
+_BATCH_STEPS = 3
+
+
+def _solve_sequential(
+    kin: ArmKinematics, t: np.ndarray, p: np.ndarray, v: np.ndarray, q_seed: np.ndarray | None
+) -> _Solved:
+    n = t.shape[0]
     tracker = IKTracker(kin)
     q = np.empty((n, kin.nq))
     dq = np.empty((n, kin.nq))
@@ -585,8 +617,113 @@ def solve_trajectory(
     for k in range(1, n):
         q[k], dq[k] = tracker.track(float(t[k]), p[k], v[k])
         epm[k] = tracker.position_m
-    tracker.stats.wall_s = time.perf_counter() - wall0
-    return joint_trajectory(kin, t, q, dq, epm, tracker.stats)
+    return q, dq, epm, tracker.stats
+
+
+def _first_failure(
+    kin: ArmKinematics, t: np.ndarray, p: np.ndarray, v: np.ndarray, k0: int, q0: np.ndarray, k1: int
+) -> None:
+    """Track points k0..k1 one by one from the solution q0 at k0: raises at the first that fails."""
+    tracker = IKTracker(kin)
+    tracker.reset(float(t[k0]), p[k0], v[k0], q0)
+    for k in range(k0 + 1, k1 + 1):
+        tracker.track(float(t[k]), p[k], v[k])
+
+
+def _hermite(t: np.ndarray, idx: np.ndarray, qc: np.ndarray, dqc: np.ndarray) -> np.ndarray:
+    """Cubic Hermite interpolation of joint positions known (with velocities) at t[idx]."""
+    if idx.shape[0] == 1:
+        return np.repeat(qc, t.shape[0], axis=0)
+    tc = t[idx]
+    seg = np.clip(np.searchsorted(tc, t, side="right") - 1, 0, idx.shape[0] - 2)
+    h = (tc[seg + 1] - tc[seg])[:, None]
+    s = (t - tc[seg])[:, None] / h
+    s2, s3 = s * s, s * s * s
+    return (
+        (2 * s3 - 3 * s2 + 1) * qc[seg]
+        + (s3 - 2 * s2 + s) * h * dqc[seg]
+        + (3 * s2 - 2 * s3) * qc[seg + 1]
+        + (s3 - s2) * h * dqc[seg + 1]
+    )
+
+
+def _evaluate(
+    kin: ArmKinematics, q: np.ndarray, which: np.ndarray, J: np.ndarray, P: np.ndarray, R: np.ndarray
+) -> None:
+    """Jacobian, EPM position and rotation at q[k] for every k in ``which`` (into J, P, R)."""
+    model, data, fid = kin.model, kin.data, kin.frame_id
+    for k in which.tolist():
+        J[k] = pin.computeFrameJacobian(model, data, q[k], fid, _LWA)  # also the FK of q[k]
+        placement = pin.updateFramePlacement(model, data, fid)
+        P[k] = placement.translation
+        R[k] = placement.rotation
+
+
+def _solve_batch(
+    kin: ArmKinematics, t: np.ndarray, p: np.ndarray, v: np.ndarray, q_seed: np.ndarray | None
+) -> _Solved:
+    n, arm = t.shape[0], kin.config
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("t_s: must be strictly increasing")
+    idx = np.unique(np.r_[np.arange(0, n, _COARSE_STEP), n - 1])
+    tracker = IKTracker(kin)
+    qc = np.empty((idx.shape[0], kin.nq))
+    dqc = np.empty((idx.shape[0], kin.nq))
+    qc[0], dqc[0] = tracker.reset(float(t[0]), p[0], v[0], q_seed)
+    for m in range(1, idx.shape[0]):
+        k = int(idx[m])
+        try:
+            qc[m], dqc[m] = tracker.track(float(t[k]), p[k], v[k])
+        except UnreachableTargetError:
+            _first_failure(kin, t, p, v, int(idx[m - 1]), qc[m - 1], k)
+            raise
+    q = _hermite(t, idx, qc, dqc)
+    J, P, R = np.empty((n, 6, kin.nq)), np.empty((n, 3)), np.empty((n, 3, 3))
+    steps = np.zeros(n, dtype=int)
+    todo = np.arange(n)
+    ep = ew = np.zeros(n)
+    for it in range(_BATCH_STEPS + 1):
+        _evaluate(kin, q, todo, J, P, R)
+        e = np.empty((todo.shape[0], 6))
+        e[:, :3] = p[todo] - P[todo]
+        e[:, 3:] = Rotation.from_matrix(kin.epm_rotation @ R[todo].transpose(0, 2, 1)).as_rotvec()
+        ep_t, ew_t = np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1)
+        ep, ew = ep.copy(), ew.copy()
+        ep[todo], ew[todo] = ep_t, ew_t
+        late = (ep_t > arm.ik_position_tolerance_m) | (ew_t > arm.ik_orientation_tolerance_rad)
+        todo, e = todo[late], e[late]
+        if todo.size == 0 or it == _BATCH_STEPS:
+            break
+        Jt = J[todo]
+        step = np.linalg.solve(Jt @ Jt.transpose(0, 2, 1) + kin._damping, e[:, :, None])
+        q[todo] += (Jt.transpose(0, 2, 1) @ step)[:, :, 0]
+        steps[todo] += 1
+    # Where the interpolated guess was not good enough, solve from the previous (solved) point.
+    for k in todo.tolist():
+        sol = kin.solve(p[k], q[k - 1] if k > 0 else q[k], arm.ik_max_iterations_cold)
+        tracker._check(float(t[k]), p[k], sol)
+        q[k] = sol.q
+        steps[k] += sol.iterations
+        ep[k], ew[k] = sol.position_error_m, sol.orientation_error_rad
+        _evaluate(kin, q, np.array([k]), J, P, R)
+    over = np.maximum(kin.lower_rad - q, q - kin.upper_rad).max(axis=1) > 0
+    if over.any():
+        k = int(np.argmax(over))
+        raise UnreachableTargetError(float(t[k]), p[k], str(kin.limit_violation(q[k])))
+    twist = np.zeros((n, 6, 1))
+    twist[:, :3, 0] = v
+    dq = np.linalg.solve(J, twist)[:, :, 0]
+    fast = (np.abs(dq) > kin.velocity_limit_radps).any(axis=1)
+    if fast.any():
+        k = int(np.argmax(fast))
+        raise UnreachableTargetError(float(t[k]), p[k], str(kin.velocity_violation(dq[k])))
+    stats = tracker.stats
+    stats.n_points = n
+    stats.total_iterations += int(steps.sum())
+    stats.max_iterations = max(stats.max_iterations, int(steps.max()))
+    stats.max_position_error_m = max(stats.max_position_error_m, float(ep.max()))
+    stats.max_orientation_error_rad = max(stats.max_orientation_error_rad, float(ew.max()))
+    return q, dq, P, stats
 
 
 @dataclass(frozen=True)
