@@ -454,7 +454,20 @@ class MPCConfig(_Strict):
     max_sqp_iter: int = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
     max_ipopt_iter: int = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
     position_tol_m: float = Field(
-        1e-3, gt=0, description="Tracking weight as a tolerance: (p - r) / tol is one cost unit, m."
+        1e-3,
+        gt=0,
+        description=(
+            "Tracking weight as a tolerance, m: the error along the path (and the whole error "
+            "where the reference stands still) divided by this is one cost unit."
+        ),
+    )
+    lateral_tol_m: float = Field(
+        2e-4,
+        gt=0,
+        description=(
+            "Tolerance of the error across the path (cross-track), m; smaller than position_tol_m "
+            "so the capsule rather lags than cuts a corner."
+        ),
     )
     velocity_tol_mps: float = Field(
         0.01, gt=0, description="Capsule velocity tracking tolerance, m/s (weight 1/tol^2)."
@@ -475,7 +488,15 @@ class MPCConfig(_Strict):
         False, description="Let the MPC move the EPM height (else the height command is 0)."
     )
     deadline_ms: float | None = Field(
-        None, gt=0, description="Solve deadline, ms; None = one frame period. Late -> shifted plan."
+        None, gt=0, description="Solve deadline, ms; None = one frame period."
+    )
+    enforce_deadline: bool = Field(
+        False,
+        description=(
+            "Treat a late solve as failed (use the shifted plan). On for wall-clock-paced runs "
+            "(`simulate --realtime`, a real rig); off in simulation so runs stay deterministic "
+            "(late solves are still counted)."
+        ),
     )
     disturbance_gain: float = Field(
         0.15,

@@ -1,0 +1,259 @@
+"""The MPC controller: estimation, the receding-horizon solve, and a safety layer.
+
+Every frame:
+
+1. fuse the camera frame in the Kalman filter, predict over the latency;
+2. update the force-disturbance estimate (offset-free MPC): the velocity the
+   last plan predicted for now vs the estimate;
+3. solve the NLP warm-started from the shifted previous solution;
+4. take the first command, or -- on a failed, non-finite or late solve -- the
+   shifted previous plan, or else a braking command;
+5. pass it through the safety layer: speed, acceleration and workspace limits
+   are enforced on the command actually sent (and any clipping is counted).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config import Scenario
+from ..control import Command, Controller, Measurement, StepStats, register_controller
+from ..dynamics import capsule_model
+from ..estimation import CapsuleEstimator
+from ..magnetics import cache_directory, capsule_force_function, equilibrium_lead
+from ..paths import ReferencePath
+from .problem import N_DIST, OCP, build_ocp, n_slacks
+from .solver import MPCSolver, SolveResult
+
+__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "safe_command"]
+
+
+#: Speed above which the velocity innovation is attributed to friction along the motion, m/s.
+_MOVING_MPS = 2e-3
+
+
+@dataclass
+class MPCStack:
+    """The built problem and solver, reusable across runs of the same scenario."""
+
+    ocp: OCP
+    solver: MPCSolver
+    build_s: float
+
+
+_STACKS: dict[str, MPCStack] = {}
+
+
+def build_mpc_stack(scenario: Scenario) -> MPCStack:
+    """Build (or reuse, within the process) the OCP and solver for ``scenario``."""
+    key = scenario.model_dump_json(exclude={"sim", "camera", "path", "name"})
+    if key in _STACKS:
+        return _STACKS[key]
+    t0 = time.perf_counter()
+    cfg = scenario.mpc
+    dt = cfg.dt_s if cfg.dt_s is not None else 1.0 / scenario.camera.rate_hz
+    model = capsule_model(scenario)
+    h = scenario.plate.epm_height_m
+    force = capsule_force_function(scenario)
+    lead_eq = equilibrium_lead(lambda lead: np.asarray(force(lead, h)).ravel())
+    ocp = build_ocp(model, dt, lead_eq)
+    compile_dir = cache_directory(scenario) / "mpc" if cfg.compile_c else None
+    try:
+        solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, compile_dir)
+    except (OSError, RuntimeError) as exc:  # no C compiler, or it failed: run uncompiled
+        if compile_dir is None:
+            raise
+        warnings.warn(f"mpc.compile_c: compiling the NLP failed ({exc}); running uncompiled", stacklevel=2)
+        solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, None)
+    stack = MPCStack(ocp, solver, time.perf_counter() - t0)
+    _STACKS[key] = stack
+    return stack
+
+
+def safe_command(
+    u: np.ndarray,
+    u_prev: np.ndarray,
+    epm_position_m: np.ndarray,
+    scenario: Scenario,
+    dt_s: float,
+) -> tuple[np.ndarray, bool]:
+    """Enforce speed, acceleration and workspace limits on a command; returns (command, clipped).
+
+    A non-finite command becomes the braking command. Acceleration is limited relative to
+    ``u_prev`` per axis; near a workspace face the velocity toward it is reduced so the
+    EPM stops on the face (within the acceleration limit when possible).
+    """
+    lim = scenario.limits
+    u = np.asarray(u, dtype=float).copy()
+    u_prev = np.asarray(u_prev, dtype=float)
+    if not np.all(np.isfinite(u)):
+        u = np.zeros(3)
+    if not scenario.mpc.height_control:
+        u[2] = 0.0
+    target = u.copy()
+    da = lim.accel_mps2 * dt_s
+    u = np.clip(u, u_prev - da, u_prev + da)
+    u = np.clip(u, -lim.speed_mps, lim.speed_mps)
+    lo, hi = np.asarray(lim.workspace_min_m), np.asarray(lim.workspace_max_m)
+    pos = np.asarray(epm_position_m, dtype=float)
+    nxt = pos + u * dt_s
+    over = (nxt > hi) & (u > 0) | (nxt < lo) & (u < 0)
+    u[over] = np.clip((np.where(u > 0, hi, lo) - pos)[over] / dt_s, -lim.speed_mps, lim.speed_mps)
+    return u, bool(np.any(np.abs(u - target) > 1e-12))
+
+
+@dataclass
+class _Plan:
+    w: np.ndarray
+    lam_x: np.ndarray | None
+    lam_g: np.ndarray | None
+    xs: np.ndarray
+    us: np.ndarray
+    age: int = 0
+    history: list[float] = field(default_factory=list)
+
+
+@register_controller("mpc")
+class MPCController(Controller):
+    """Receding-horizon control of the EPM velocity (see the module docstring)."""
+
+    name = "mpc"
+
+    def __init__(self) -> None:
+        self.stack: MPCStack | None = None
+
+    def reset(self, scenario: Scenario, path: ReferencePath, epm_position_m: np.ndarray) -> None:
+        """Build (or reuse) the problem for ``scenario`` and forget the previous run."""
+        self.scenario = scenario
+        self.path = path
+        self.stack = build_mpc_stack(scenario)
+        cfg = scenario.mpc
+        self.dt_s = self.stack.ocp.dt_s
+        self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * self.dt_s
+        self.estimator = CapsuleEstimator(scenario.camera.noise_std_m, cfg.estimator_accel_std_mps2)
+        self.disturbance_n = np.zeros(N_DIST)
+        self.u_prev = np.zeros(3)
+        self.plan: _Plan | None = None
+        self.last_prediction: np.ndarray | None = None
+        self.clipped_steps = 0
+        self.fallback_steps = 0
+        self.deadline_misses = 0
+
+    # ------------------------------------------------------------------ helpers
+    def _reference(self, t_s: float) -> np.ndarray:
+        times = t_s + self.dt_s * np.arange(1, self.stack.ocp.horizon + 1)  # type: ignore[union-attr]
+        return np.vstack([self.path.position(times).T, self.path.velocity(times).T])
+
+    def _update_disturbance(self, v_est: np.ndarray) -> None:
+        cfg = self.scenario.mpc
+        if self.plan is None or cfg.disturbance_gain == 0:
+            return
+        v_pred = self.plan.xs[2:4, 0]
+        mass = self.scenario.capsule.mass_kg
+        # Force that would explain the velocity innovation over one frame.
+        innov = cfg.disturbance_gain * mass * (v_est - v_pred) / self.dt_s
+        speed = float(np.linalg.norm(v_pred))
+        d = self.disturbance_n.copy()
+        if speed > _MOVING_MPS:
+            # Along the motion: extra friction (opposes v); across it: a constant force.
+            v_hat = v_pred / speed
+            along = float(innov @ v_hat)
+            d[2] -= along
+            d[0:2] += innov - along * v_hat
+        else:
+            d[0:2] += innov
+        self.disturbance_n = np.clip(d, -cfg.disturbance_max_n, cfg.disturbance_max_n)
+
+    def _initial_guess(self, x0: np.ndarray) -> np.ndarray:
+        ocp = self.stack.ocp  # type: ignore[union-attr]
+        n = ocp.horizon
+        return ocp.pack_variables(np.tile(x0[:, None], (1, n)), np.zeros((3, n)), np.zeros((n_slacks, n)))
+
+    def _shifted(self) -> np.ndarray:
+        ocp = self.stack.ocp  # type: ignore[union-attr]
+        xs, us, ss = ocp.unpack(self.plan.w)  # type: ignore[union-attr]
+
+        def shift(a: np.ndarray) -> np.ndarray:
+            return np.hstack([a[:, 1:], a[:, -1:]])
+
+        return ocp.pack_variables(shift(xs), shift(us), shift(ss))
+
+    def _solve(self, x0: np.ndarray, ref: np.ndarray) -> SolveResult:
+        stack = self.stack
+        assert stack is not None
+        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, self.disturbance_n)
+        if self.plan is None:
+            return stack.solver.solve_converged(p, self._initial_guess(x0))
+        return stack.solver.solve(p, self._shifted(), self.plan.lam_x, self.plan.lam_g)
+
+    # ------------------------------------------------------------------ step
+    def step(self, t_s: float, measurement: Measurement, epm_position_m: np.ndarray) -> Command:
+        """One frame: estimate, solve, fall back if needed, and enforce the limits."""
+        epm = np.asarray(epm_position_m, dtype=float)
+        if measurement.position_m is not None:
+            self.estimator.update(measurement.capture_t_s, measurement.position_m)
+        if not self.estimator.initialised:  # nothing seen yet: hold still
+            return self._emit(np.zeros(3), epm, StepStats(status="no_measurement"))
+        pos, vel = self.estimator.estimate(t_s)
+        self._update_disturbance(vel)
+        x0 = np.concatenate([pos, vel, epm])
+        res = self._solve(x0, self._reference(t_s))
+        late = res.solve_ms > self.deadline_ms and self.plan is not None
+        self.deadline_misses += int(late)
+        late = late and self.scenario.mpc.enforce_deadline
+        stats = StepStats(
+            solve_ms=res.solve_ms, status=res.status, iterations=res.iterations,
+            extra={"disturbance_x_n": float(self.disturbance_n[0]),
+                   "disturbance_y_n": float(self.disturbance_n[1]),
+                   "disturbance_friction_n": float(self.disturbance_n[2])},
+        )  # fmt: skip
+        if res.success and not late:
+            xs, us, _ = self.stack.ocp.unpack(res.w)  # type: ignore[union-attr]
+            keep_duals = res.solver in ("rti", "sqp")  # IPOPT's barrier duals mislead the QP
+            self.plan = _Plan(
+                res.w, res.lam_x if keep_duals else None, res.lam_g if keep_duals else None, xs, us
+            )
+            self.last_prediction = xs[0:2].T.copy()
+            return self._emit(us[:, 0], epm, stats)
+        stats.failed = True
+        stats.status = ("late: " if late else "failed: ") + res.status
+        self.fallback_steps += 1
+        return self._emit(self._fallback_command(), epm, stats)
+
+    def _fallback_command(self) -> np.ndarray:
+        """The shifted previous plan while it lasts, else brake; the next solve starts cold."""
+        plan = self.plan
+        if plan is not None and plan.age + 1 < plan.us.shape[1]:
+            plan.age += 1
+            u = plan.us[:, plan.age]
+            plan.xs = np.hstack([plan.xs[:, 1:], plan.xs[:, -1:]])
+            plan.us = np.hstack([plan.us[:, 1:], plan.us[:, -1:]])
+            plan.w = self.stack.ocp.pack_variables(  # type: ignore[union-attr]
+                plan.xs, plan.us, np.zeros((n_slacks, plan.us.shape[1]))
+            )
+            plan.lam_x = plan.lam_g = None
+            return np.asarray(u, dtype=float)
+        self.plan = None
+        return np.zeros(3)  # braking target; the safety layer limits the deceleration
+
+    def _emit(self, u: np.ndarray, epm: np.ndarray, stats: StepStats) -> Command:
+        cmd, clipped = safe_command(u, self.u_prev, epm, self.scenario, self.dt_s)
+        if clipped:
+            self.clipped_steps += 1
+            stats.extra["clipped"] = 1.0
+        self.u_prev = cmd
+        return Command(epm_velocity_mps=cmd, stats=stats)
+
+    def predicted_capsule_path(self) -> np.ndarray | None:
+        """The capsule positions (N, 2) predicted by the last successful solve."""
+        return None if self.last_prediction is None else self.last_prediction.copy()
+
+    @property
+    def build_s(self) -> float:
+        """Time it took to build the problem and solver, s (0 when reused)."""
+        return math.nan if self.stack is None else self.stack.build_s
