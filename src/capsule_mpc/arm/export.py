@@ -188,13 +188,14 @@ def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
     Each panel's title gives the closest approach to the limit; limit lines are drawn where they
     fall near the data (URDF limit solid, enforced limit with margin dashed).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # A Figure with its own Agg canvas: no pyplot, no global backend switch (safe in notebooks).
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     n = joints.q_rad.shape[1]
-    fig, axes = plt.subplots(n, 2, figsize=(11, 1.7 * n + 0.8), sharex=True, squeeze=False)
+    fig = Figure(figsize=(11, 1.7 * n + 0.8))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(n, 2, sharex=True, squeeze=False)
     stride = max(1, math.ceil(len(joints) / _PLOT_MAX_POINTS))
     t = joints.t_s[::stride]
     for j in range(n):
@@ -239,7 +240,6 @@ def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
         fig.savefig(tmp, dpi=110, format="png")
         tmp.replace(out)
     finally:
-        plt.close(fig)
         tmp.unlink(missing_ok=True)
     return out
 
