@@ -210,8 +210,13 @@ class VelocitySmoother:
                     f"workspace_m: must be two (3,) corners with lower < upper, got {workspace_m!r}"
                 )
             self.workspace_m = (lo, hi)
-        a, j = limits.acceleration_mps2, limits.jerk_mps3
-        self._a_max, self._j_max = a, j
+        self._a_list = limits.acceleration_mps2.tolist()
+        self._j_list = limits.jerk_mps3.tolist()
+        self._box = (
+            ([0.0] * 3, [0.0] * 3)
+            if self.workspace_m is None
+            else tuple(c.tolist() for c in self.workspace_m)
+        )
         self._target = np.zeros(3)
         self.clipped_commands = 0
         self.braking_ticks = 0
@@ -272,15 +277,18 @@ class VelocitySmoother:
 
     def _overrun_axes(self, pos: list[float], vel: list[float], acc: list[float]) -> list[int]:
         """Axes that, braking to rest from this state under the limits, would stop outside the box."""
-        assert self.workspace_m is not None
-        lo, hi = self.workspace_m
-        p, v, a = np.array(pos), np.abs(vel), np.abs(acc)
+        lo, hi = self._box
         # Generous bound of the braking distance: peak speed while the acceleration is removed,
-        # held for the longest braking time. Only near a face is the exact check needed.
-        v_peak = v + a * a / (2 * self._j_max)
-        reach = v_peak * (a / self._j_max + v_peak / self._a_max + self._a_max / self._j_max)
-        near = np.minimum(p - lo, hi - p) <= reach + 1e-12
-        if not near.any():
+        # held for the longest braking time. Only near a face is the exact check needed (plain
+        # floats: this runs every arm tick).
+        near = []
+        for i in range(3):
+            v, a, j, a_max = abs(vel[i]), abs(acc[i]), self._j_list[i], self._a_list[i]
+            v_peak = v + a * a / (2.0 * j)
+            reach = v_peak * (a / j + v_peak / a_max + a_max / j)
+            if min(pos[i] - lo[i], hi[i] - pos[i]) <= reach + 1e-12:
+                near.append(i)
+        if not near:
             return []
         bi = self._brake_inp
         bi.current_position, bi.current_velocity, bi.current_acceleration = pos, vel, acc
@@ -290,7 +298,7 @@ class VelocitySmoother:
         if res not in _OK:
             raise SmoothingError(self.t_s, np.array(pos), f"Ruckig braking check returned {res}")
         ext = self._brake_traj.position_extrema
-        return [i for i in range(3) if near[i] and (ext[i].min < lo[i] or ext[i].max > hi[i])]
+        return [i for i in near if ext[i].min < lo[i] or ext[i].max > hi[i]]
 
     def step(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Advance one arm period with one Ruckig update (two when the workspace guard brakes).
