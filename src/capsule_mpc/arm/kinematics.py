@@ -9,12 +9,14 @@ task is the full 6-D pose: 6 joints, no redundancy.
 
 IK is damped least squares (Newton steps dq = J^T (J J^T + lambda I)^-1 e on the
 world-aligned pose error e = (p* - p, log3(R* R^T))), warm-started along a
-trajectory by extrapolating the previous three solutions in time, so most points
-converge without a single correction. Joint velocities are J^-1 (v, 0): exact for
-the Cartesian velocity of the setpoints. Every point is checked against the joint
-position limits (with a margin) and the joint velocity limits (a fraction of the
-rated ones); a point that fails raises :class:`UnreachableTargetError` naming its
-time and position.
+trajectory. Online (:class:`IKTracker`, one point per arm tick) the start is the
+extrapolation of the previous three solutions and one Newton step converges it.
+Offline (:func:`solve_trajectory`) the tracker solves every 10th point, the joints
+in between are interpolated (cubic Hermite) and converged by Newton steps batched
+over all points. Joint velocities are J^-1 (v, 0) for the setpoints' Cartesian
+velocity. Every point is checked against the joint position limits (with a margin)
+and the joint velocity limits (a fraction of the rated ones); a point that fails
+raises :class:`UnreachableTargetError` naming its time and position.
 """
 
 from __future__ import annotations
