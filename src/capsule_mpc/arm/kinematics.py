@@ -563,7 +563,7 @@ def solve_trajectory(
     q_seed : array_like (6,), optional
         Start of the first solve; default ``ArmConfig.q_seed_rad``.
     method : {"batch", "sequential"}, optional
-        ``sequential``: :class:`IKTracker` point by point (as online). ``batch`` (default, ~4x
+        ``sequential``: :class:`IKTracker` point by point (as online). ``batch`` (default, ~3x
         faster): the tracker on every ``10``-th point, cubic Hermite interpolation of the joints
         in between, then Newton steps on all points at once (one 6 x 6 solve per point in a single
         NumPy call); a point that does not converge falls back to the tracker. Both give the same
