@@ -7,8 +7,8 @@ Two cases, each repeated (median and best wall time reported):
   :func:`solve_trajectory` (the path of ``capsule-mpc arm-export`` / ``export_arm_trajectory``,
   without the files);
 * ``online``: the simulator's robot actuator for 30 s of MPC-like velocity commands (one per
-  camera frame, random but seeded) stepped at the 1 kHz plant rate: one Ruckig update and one IK
-  solve per arm tick.
+  camera frame: the same Lissajous figure's velocity plus feedback on the EPM position) stepped
+  at the 1 kHz plant rate: one Ruckig update and one IK solve per arm tick.
 
 Reported per case: wall time, microseconds per setpoint, worst IK position error (FK(IK(x)) - x),
 worst finite-difference jerk against its limit, worst velocity/acceleration against theirs,
@@ -41,6 +41,8 @@ from capsule_mpc.arm import (
 
 DURATION_S = 30.0
 PLANT_DT_S = 1e-3
+#: Proportional gain of the online case's commands on the EPM position error, 1/s.
+FEEDBACK_GAIN_PER_S = 2.0
 
 
 def lissajous_plan(camera_hz: float, height_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -110,22 +112,22 @@ def bench_plan(scenario, repeats: int) -> dict[str, Any]:
     return out
 
 
-def bench_online(scenario, repeats: int, seed: int = 0) -> dict[str, Any]:
+def bench_online(scenario, repeats: int) -> dict[str, Any]:
     limits = CartesianLimits.from_scenario(scenario)
-    frames = int(DURATION_S * scenario.camera.rate_hz)
-    steps_per_frame = round(1.0 / (scenario.camera.rate_hz * PLANT_DT_S))
-    rng = np.random.default_rng(seed)
-    # MPC-like commands: a smooth random walk of the velocity, 0.03 m/s typical, limited.
-    cmds = np.cumsum(rng.normal(0.0, 0.004, (frames, 3)), axis=0)
-    cmds[:, 2] *= 0.2
-    cmds = np.clip(cmds, -0.06, 0.06)
+    camera_hz = scenario.camera.rate_hz
+    frames = int(DURATION_S * camera_hz)
+    steps_per_frame = round(1.0 / (camera_hz * PLANT_DT_S))
+    t_ref, p_ref = lissajous_plan(camera_hz, scenario.plate.epm_height_m)
+    v_ref = np.gradient(p_ref, t_ref, axis=0)
     walls = []
     for _ in range(repeats):
         act = RobotArmActuator(scenario)
-        act.reset(np.array([0.0, 0.0, scenario.plate.epm_height_m]))
+        act.reset(p_ref[0])
         w0 = time.perf_counter()
         for j in range(frames):
-            act.set_velocity_command(j / scenario.camera.rate_hz, cmds[j])
+            # MPC-like commands: the path's velocity plus feedback on the EPM position (gain 2 1/s).
+            cmd = v_ref[j] + FEEDBACK_GAIN_PER_S * (p_ref[j] - act.position_m)
+            act.set_velocity_command(t_ref[j], cmd)
             for _ in range(steps_per_frame):
                 act.step_xyz(PLANT_DT_S)
         walls.append(time.perf_counter() - w0)
@@ -156,7 +158,7 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=5, help="repetitions per case (median reported)")
     args = parser.parse_args()
     scenario = load_config(args.config)
-    results = {
+    results: dict[str, Any] = {
         "machine": {
             "python": platform.python_version(),
             "processor": platform.processor() or platform.machine(),
