@@ -505,7 +505,7 @@ class MPCConfig(_Strict):
         description=("Gain of the force-disturbance estimator (offset-free MPC), [0, 1]; 0 disables it."),
     )
     disturbance_max_n: float = Field(
-        0.3, ge=0, description="Bound on the estimated disturbance force per axis, N."
+        0.15, ge=0, description="Bound on each estimated disturbance force component, N."
     )
     estimator_accel_std_mps2: float = Field(
         0.3, gt=0, description="Kalman filter process noise: capsule acceleration std, m/s^2."

@@ -159,6 +159,10 @@ class MPCController(Controller):
         innov = cfg.disturbance_gain * mass * (v_est - v_pred) / self.dt_s
         speed = float(np.linalg.norm(v_pred))
         d = self.disturbance_n.copy()
+        if float(np.linalg.norm(v_est)) < _MOVING_MPS:
+            # The capsule is (nearly) at rest: static friction holds it, which is neither the
+            # sliding friction nor a steady force -- learn nothing from a stuck capsule.
+            return
         if speed > _MOVING_MPS:
             # Along the motion: extra friction (opposes v); across it: a constant force.
             v_hat = v_pred / speed
@@ -189,7 +193,16 @@ class MPCController(Controller):
         p = stack.ocp.pack_parameters(x0, ref, self.u_prev, self.disturbance_n)
         if self.plan is None:
             return stack.solver.solve_converged(p, self._initial_guess(x0))
-        return stack.solver.solve(p, self._shifted(), self.plan.lam_x, self.plan.lam_g)
+        guess = self._shifted()
+        res = stack.solver.solve(p, guess, self.plan.lam_x, self.plan.lam_g)
+        if res.success or stack.solver.scheme == "ipopt":
+            return res
+        # The fast step failed: recover with a converged solve from the same guess (counted
+        # in the time, so in a paced loop it is usually late and the shifted plan is used).
+        rec = stack.solver.solve_converged(p, guess)
+        status = f"recovered ({res.status})" if rec.success else f"{res.status}; {rec.status}"
+        return SolveResult(rec.success, status, res.iterations + rec.iterations,
+                           res.solve_ms + rec.solve_ms, rec.solver, rec.w, rec.lam_x, rec.lam_g)  # fmt: skip
 
     # ------------------------------------------------------------------ step
     def step(self, t_s: float, measurement: Measurement, epm_position_m: np.ndarray) -> Command:

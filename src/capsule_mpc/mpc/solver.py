@@ -31,6 +31,14 @@ __all__ = ["MPCSolver", "SolveResult"]
 
 #: SQP statuses that mean "a usable step was taken" (RTI stops after one iteration by design).
 _SQP_OK = {"Solve_Succeeded", "Maximum_Iterations_Exceeded"}
+#: Active-set iteration cap of qrqp: a QP needing more is treated as failed (its step is then
+#: checked for infeasibility), not waited for.
+_QP_MAX_ITER = 200
+#: Largest constraint violation (scaled NLP units: mm, cm/s, 0.1 N) an SQP step may leave.
+#: One Gauss-Newton step across the smoothed friction's sign change (the capsule starting or
+#: stopping) routinely leaves a few units, which the next frames absorb; tens of units mean the
+#: linearisation broke down, and the step is rejected (measured on the pipe at 5-45 mm/s).
+MAX_STEP_VIOLATION = 20.0
 #: IPOPT statuses that give a usable (if not fully converged) point.
 _IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded"}
 
@@ -77,7 +85,12 @@ def _sqp_options(ocp: OCP, max_iter: int, expand: bool) -> dict:
         "print_time": False,
         "print_status": False,
         "error_on_fail": False,
-        "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False},
+        "qpsol_options": {
+            "print_iter": False,
+            "print_header": False,
+            "error_on_fail": False,
+            "max_iter": _QP_MAX_ITER,
+        },
     }
 
 
@@ -184,6 +197,8 @@ class MPCSolver:
             "mpc_ipopt_warm", "ipopt", ocp.nlp, lambda e: _ipopt_warm_options(max_ipopt_iter, e)
         )
         self._sqp: ca.Function | None = None
+        w, p = ocp.nlp["x"], ocp.nlp["p"]
+        self._g = ca.Function("g", [w, p], [ocp.nlp["g"]]).expand()
         if scheme in ("rti", "sqp"):
             iters = 1 if scheme == "rti" else max_sqp_iter
             if compile_dir is not None:
@@ -216,6 +231,10 @@ class MPCSolver:
         status = str(stats.get("return_status", "unknown"))
         ok_set = _IPOPT_OK if kind.startswith("ipopt") else _SQP_OK
         success = status in ok_set and bool(np.all(np.isfinite(w)))
+        if success:
+            viol = self.violation(w, p)
+            if viol > MAX_STEP_VIOLATION:
+                success, status = False, f"infeasible step (violation {viol:.3g})"
         return SolveResult(
             success=success,
             status=status,
@@ -226,6 +245,13 @@ class MPCSolver:
             lam_x=np.asarray(sol["lam_x"]).ravel(),
             lam_g=np.asarray(sol["lam_g"]).ravel(),
         )
+
+    def violation(self, w: np.ndarray, p: np.ndarray) -> float:
+        """Largest bound or constraint violation of ``w`` (scaled NLP units)."""
+        ocp = self.ocp
+        g = np.asarray(self._g(w, p)).ravel()
+        parts = [ocp.lbg - g, g - ocp.ubg, ocp.lbw - w, w - ocp.ubw]
+        return float(max(np.max(np.nan_to_num(v, nan=np.inf, neginf=0.0)) for v in parts))
 
     def solve_converged(self, p: np.ndarray, w0: np.ndarray, lam_x0=None, lam_g0=None) -> SolveResult:
         """A converged IPOPT solve (cold, or primal-dual warm when multipliers are given)."""
