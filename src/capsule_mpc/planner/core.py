@@ -1,0 +1,379 @@
+"""Solve the whole-path problems and check the result: :func:`plan_path`, :class:`Plan`.
+
+The plan is computed on the controller's model (``capsule_model(scenario)``: the
+configured force model and the learned friction law if configured), never the
+plant. Every solve reports status, iterations and wall time; a failed solve is
+a :class:`Plan` with ``success = False``, not an exception. Two independent
+checks come with it:
+
+* :func:`dynamics_residual` -- re-integrates every step with
+  :func:`capsule_mpc.dynamics.discrete_step` (implicit Euler solved by KINSOL,
+  independently of the NLP) and compares with the planned next state;
+* :func:`constraint_report` -- the planned speeds, accelerations, workspace
+  margins, coupling, normal forces and path errors, to compare with the limits.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import casadi as ca
+import numpy as np
+
+from ..config import Scenario
+from ..dynamics import capsule_model, discrete_step
+from ..magnetics import capsule_force_function, equilibrium_lead
+from ..paths import ReferencePath
+from .problem import PlannerOptions, PlanNLP, build_fixed_nlp, build_min_time_nlp
+
+__all__ = [
+    "VARIANTS",
+    "Plan",
+    "PlanResidual",
+    "cached_plan",
+    "constraint_report",
+    "dynamics_residual",
+    "model_equilibrium_lead",
+    "plan_path",
+]
+
+#: The planner's problem variants.
+VARIANTS = ("fixed", "min_time")
+#: IPOPT return statuses that give a converged plan.
+_IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
+#: Scales of the residual's dimensionless maximum: 1 mm for positions, 1 cm/s for velocities.
+_RESIDUAL_POSITION_SCALE_M = 1e-3
+_RESIDUAL_VELOCITY_SCALE_MPS = 1e-2
+
+
+@dataclass(frozen=True)
+class PlanResidual:
+    """Largest difference between the plan and an independent integration of each step.
+
+    Attributes
+    ----------
+    position_m : float
+        Capsule position, m.
+    velocity_mps : float
+        Capsule velocity, m/s.
+    epm_m : float
+        EPM position (x, y, height), m.
+    """
+
+    position_m: float
+    velocity_mps: float
+    epm_m: float
+
+    @property
+    def scaled(self) -> float:
+        """The largest of the three in units of 1 mm and 1 cm/s (dimensionless)."""
+        return max(
+            self.position_m / _RESIDUAL_POSITION_SCALE_M,
+            self.velocity_mps / _RESIDUAL_VELOCITY_SCALE_MPS,
+            self.epm_m / _RESIDUAL_POSITION_SCALE_M,
+        )
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A planned EPM trajectory and the capsule motion the model predicts for it.
+
+    Knot k is at ``t_s[k] = k dt_s``; the EPM velocity ``epm_velocity_mps[k]`` is applied over
+    ``[t_k, t_{k+1})`` (zero after the last knot: the EPM ends at rest).
+
+    Attributes
+    ----------
+    variant : {'fixed', 'min_time'}
+        Which problem was solved.
+    t_s : numpy.ndarray (N+1,)
+        Knot times from the start of the motion, s.
+    epm_position_m : numpy.ndarray (N+1, 3)
+        EPM (x, y, height), m.
+    epm_velocity_mps : numpy.ndarray (N, 3)
+        EPM velocity per step, m/s.
+    capsule_position_m, capsule_velocity_mps : numpy.ndarray (N+1, 2)
+        Predicted capsule position (m) and velocity (m/s).
+    slack : numpy.ndarray (N, 2)
+        Coupling (fraction of max_lead^2) and normal-force (N) slacks; zero when the
+        constraints hold exactly.
+    progress_m : numpy.ndarray (N+1,) or None
+        Arc-length progress variable of the minimum-time plan, m.
+    dt_s : float
+        Step, s.
+    nominal_duration_s : float
+        The path's length over its nominal speed, s.
+    lead_eq_m : numpy.ndarray (2,)
+        The model's equilibrium lead (the coupling constraint's centre), m.
+    force_model : str
+        The controller model's force model ('dipole' or 'lookup').
+    success : bool
+        Whether IPOPT converged to a finite solution.
+    status : str
+        IPOPT's return status.
+    iterations : int
+        IPOPT iterations.
+    build_s, solve_s : float
+        Wall time to build the NLP and solver, and to solve it, s.
+    residual : PlanResidual or None
+        :func:`dynamics_residual` of the plan (None if not checked).
+    """
+
+    variant: str
+    t_s: np.ndarray
+    epm_position_m: np.ndarray
+    epm_velocity_mps: np.ndarray
+    capsule_position_m: np.ndarray
+    capsule_velocity_mps: np.ndarray
+    slack: np.ndarray
+    progress_m: np.ndarray | None
+    dt_s: float
+    nominal_duration_s: float
+    lead_eq_m: np.ndarray
+    force_model: str
+    success: bool
+    status: str
+    iterations: int
+    build_s: float
+    solve_s: float
+    residual: PlanResidual | None = field(default=None)
+
+    @property
+    def n_steps(self) -> int:
+        """N, the number of steps."""
+        return int(self.epm_velocity_mps.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        """The plan's end time T, s."""
+        return float(self.t_s[-1])
+
+    @property
+    def max_residual(self) -> float:
+        """:attr:`PlanResidual.scaled` (1 mm / 1 cm/s units); NaN if not checked."""
+        return math.nan if self.residual is None else self.residual.scaled
+
+    def states(self) -> np.ndarray:
+        """The model's states ``(p, v, e_xy, h)`` at every knot, (7, N+1)."""
+        return np.vstack([self.capsule_position_m.T, self.capsule_velocity_mps.T, self.epm_position_m.T])
+
+    def epm_position_at(self, t_s: float | np.ndarray) -> np.ndarray:
+        """EPM position at time(s) ``t_s`` (linear between knots, held outside), m; (3,) or (M, 3)."""
+        t = np.asarray(t_s, dtype=float)
+        cols = [np.interp(t, self.t_s, self.epm_position_m[:, i]) for i in range(3)]
+        return np.stack(cols, axis=-1)
+
+    def epm_velocity_at(self, t_s: float) -> np.ndarray:
+        """Planned EPM velocity at ``t_s`` (zero outside the plan), m/s (3,)."""
+        if not 0.0 <= t_s < self.duration_s:
+            return np.zeros(3)
+        k = min(int(t_s / self.dt_s), self.n_steps - 1)
+        return np.asarray(self.epm_velocity_mps[k], dtype=float).copy()
+
+
+def model_equilibrium_lead(scenario: Scenario) -> np.ndarray:
+    """The controller model's equilibrium lead at the configured height, m (2,)."""
+    force = capsule_force_function(scenario)
+    h = scenario.plate.epm_height_m
+    return equilibrium_lead(lambda lead: np.asarray(force(lead, h)).ravel())
+
+
+def _ipopt_solver(pnlp: PlanNLP, options: PlannerOptions) -> ca.Function:
+    ipopt = {"print_level": 0, "sb": "yes", "max_iter": options.max_iter, "tol": options.tol}
+    opts = {"print_time": False, "error_on_fail": False, "ipopt": ipopt}
+    try:  # SX expansion: ~3x faster evaluations; a model that cannot be expanded stays MX
+        return ca.nlpsol("plan", "ipopt", pnlp.nlp, opts | {"expand": True})
+    except RuntimeError:
+        return ca.nlpsol("plan", "ipopt", pnlp.nlp, opts)
+
+
+def plan_path(
+    scenario: Scenario,
+    path: ReferencePath,
+    variant: Literal["fixed", "min_time"] = "fixed",
+    options: PlannerOptions | None = None,
+    *,
+    check: bool = True,
+) -> Plan:
+    """Plan the EPM trajectory for the whole path as one optimal-control problem (IPOPT).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Model (``force_model``, friction via :meth:`Scenario.controller_friction`), limits,
+        camera rate (the fixed-time step is ``1 / camera.rate_hz``), tracking weights
+        (``mpc.*_tol_*``, ``mpc.slack_weight``) and ``mpc.height_control``.
+    path : ReferencePath
+        The path at its nominal speed; the capsule starts at rest at its start.
+    variant : {'fixed', 'min_time'}
+        'fixed': track the time-parameterised reference, then stop at the end
+        (duration = nominal + ``options.tail_s``). 'min_time': free final time within a
+        cross-track tube of ``options.tube_m``.
+    options : PlannerOptions, optional
+        Planner settings (defaults: :class:`PlannerOptions`).
+    check : bool
+        Compute :func:`dynamics_residual` of the solution (a few ms per 100 steps).
+
+    Returns
+    -------
+    Plan
+        With ``success``, ``status``, ``iterations`` and the wall times; a failed solve still
+        returns the last iterate (check ``success``).
+
+    Raises
+    ------
+    ValueError
+        An unknown variant.
+    """
+    if variant not in VARIANTS:
+        raise ValueError(f"variant: must be one of {list(VARIANTS)}, got {variant!r}")
+    options = options if options is not None else PlannerOptions()
+    t0 = time.perf_counter()
+    model = capsule_model(scenario)
+    lead_eq = model_equilibrium_lead(scenario)
+    if variant == "fixed":
+        pnlp = build_fixed_nlp(model, path, lead_eq, 1.0 / scenario.camera.rate_hz, options)
+    else:
+        pnlp = build_min_time_nlp(model, path, lead_eq, options)
+    solver = _ipopt_solver(pnlp, options)
+    build_s = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    sol = solver(x0=pnlp.w0, lbx=pnlp.lbw, ubx=pnlp.ubw, lbg=pnlp.lbg, ubg=pnlp.ubg)
+    solve_s = time.perf_counter() - t1
+    stats = solver.stats()
+    w = np.asarray(sol["x"]).ravel()
+    status = str(stats.get("return_status", "unknown"))
+    parts = pnlp.unpack(w)
+    xs, us, ss = (np.asarray(parts[k]) for k in ("X", "U", "S"))
+    n = pnlp.n_steps
+    dt = float(parts["T"]) / n
+    plan = Plan(
+        variant=variant,
+        t_s=dt * np.arange(n + 1),
+        epm_position_m=xs[4:7].T.copy(),
+        epm_velocity_mps=us.T.copy(),
+        capsule_position_m=xs[0:2].T.copy(),
+        capsule_velocity_mps=xs[2:4].T.copy(),
+        slack=ss.T.copy(),
+        progress_m=np.asarray(parts["sigma"]) if "sigma" in parts else None,
+        dt_s=dt,
+        nominal_duration_s=path.duration_s,
+        lead_eq_m=lead_eq,
+        force_model=model.force_model,
+        success=status in _IPOPT_OK and bool(np.all(np.isfinite(w))),
+        status=status,
+        iterations=int(stats.get("iter_count", 0)),
+        build_s=build_s,
+        solve_s=solve_s,
+    )
+    if check and np.all(np.isfinite(w)):
+        plan = replace(plan, residual=dynamics_residual(scenario, plan))
+    return plan
+
+
+def dynamics_residual(scenario: Scenario, plan: Plan) -> PlanResidual:
+    """Re-integrate every step of ``plan`` independently and compare with its next state.
+
+    Each step ``x_{k+1} = step(x_k, u_k)`` is solved with
+    :func:`capsule_mpc.dynamics.discrete_step` (implicit Euler, KINSOL root finding) over the
+    plan's ``dt_s`` on ``capsule_model(scenario)``, starting from the plan's own ``x_k``.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario the plan was computed for.
+    plan : Plan
+        The plan to check.
+
+    Returns
+    -------
+    PlanResidual
+        Largest absolute differences of capsule position (m), velocity (m/s) and EPM position (m).
+    """
+    model = capsule_model(scenario)
+    step = discrete_step(model, plan.dt_s, "implicit_euler").map(plan.n_steps)
+    xs = plan.states()
+    nxt = np.asarray(step(xs[:, :-1], plan.epm_velocity_mps.T))
+    diff = np.abs(nxt - xs[:, 1:])
+    return PlanResidual(
+        position_m=float(diff[0:2].max()),
+        velocity_mps=float(diff[2:4].max()),
+        epm_m=float(diff[4:7].max()),
+    )
+
+
+def constraint_report(scenario: Scenario, plan: Plan, path: ReferencePath) -> dict[str, float]:
+    """The plan's figures that the limits bound, to compare with ``scenario.limits``.
+
+    Returns
+    -------
+    dict of str to float
+        ``max_speed_mps`` (largest per-axis EPM speed), ``max_accel_mps2`` (largest per-axis
+        velocity change per step over dt, from rest at the start and to rest at the end),
+        ``workspace_violation_m`` (largest distance outside the workspace box, 0 inside),
+        ``max_coupling_m`` (largest ``|lead - lead_eq|``), ``min_normal_force_n``,
+        ``max_normal_force_n``, ``max_slack`` (largest slack), ``cross_track_max_m`` and
+        ``cross_track_rms_m`` (capsule knots to the path), ``end_error_m`` and
+        ``end_speed_mps`` (capsule at the last knot), ``arrival_s`` (first knot from which the
+        capsule stays within ``sim.completion_tol_m`` of the path's end, the runner's completion
+        tolerance) and ``duration_s``.
+    """
+    lim = scenario.limits
+    u = plan.epm_velocity_mps
+    du = np.diff(np.vstack([np.zeros(3), u, np.zeros(3)]), axis=0)
+    e = plan.epm_position_m
+    lo, hi = np.asarray(lim.workspace_min_m), np.asarray(lim.workspace_max_m)
+    outside = np.maximum(np.maximum(lo - e, e - hi), 0.0)
+    outputs = capsule_model(scenario).outputs.map(plan.n_steps + 1)
+    lead, _force, f_n, _mu = (np.asarray(v) for v in outputs(plan.states()))
+    coupling = np.linalg.norm(lead - plan.lead_eq_m[:, None], axis=0)
+    cross = path.distance_to(plan.capsule_position_m)
+    near_end = np.linalg.norm(plan.capsule_position_m - path.end_m, axis=1) <= scenario.sim.completion_tol_m
+    away = np.flatnonzero(~near_end)
+    if away.size == 0:
+        arrival = 0.0
+    elif away[-1] == plan.n_steps:  # not at the end at the last knot
+        arrival = math.nan
+    else:
+        arrival = float(plan.t_s[away[-1] + 1])
+    return {
+        "max_speed_mps": float(np.abs(u).max()),
+        "max_accel_mps2": float(np.abs(du).max() / plan.dt_s),
+        "workspace_violation_m": float(outside.max()),
+        "max_coupling_m": float(coupling.max()),
+        "min_normal_force_n": float(f_n.min()),
+        "max_normal_force_n": float(f_n.max()),
+        "max_slack": float(plan.slack.max()),
+        "cross_track_max_m": float(cross.max()),
+        "cross_track_rms_m": float(np.sqrt(np.mean(cross**2))),
+        "end_error_m": float(np.linalg.norm(plan.capsule_position_m[-1] - path.end_m)),
+        "end_speed_mps": float(np.linalg.norm(plan.capsule_velocity_mps[-1])),
+        "arrival_s": arrival,
+        "duration_s": plan.duration_s,
+    }
+
+
+_CACHE: dict[tuple[Any, ...], Plan] = {}
+
+
+def cached_plan(
+    scenario: Scenario,
+    path: ReferencePath,
+    variant: Literal["fixed", "min_time"] = "fixed",
+    options: PlannerOptions | None = None,
+) -> Plan:
+    """:func:`plan_path`, memoised in this process by scenario, path, variant and options."""
+    options = options if options is not None else PlannerOptions()
+    key = (
+        scenario.model_dump_json(exclude={"sim", "name"}),
+        path.waypoints_m.tobytes(),
+        path.closed,
+        path.speed_mps,
+        variant,
+        options,
+    )
+    if key not in _CACHE:
+        _CACHE[key] = plan_path(scenario, path, variant, options)
+    return _CACHE[key]
