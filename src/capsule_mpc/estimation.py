@@ -13,7 +13,12 @@ import math
 
 import numpy as np
 
-__all__ = ["CapsuleEstimator"]
+__all__ = ["NOISE_FLOOR_M", "CapsuleEstimator"]
+
+#: Smallest measurement noise the filter assumes, m (about a camera pixel's quantisation at
+#: this field of view). With r -> 0 the constant-velocity filter's velocity gain tends to
+#: 2/dt and the estimate rings from frame to frame.
+NOISE_FLOOR_M = 2e-5
 
 
 class CapsuleEstimator:
@@ -22,7 +27,7 @@ class CapsuleEstimator:
     Parameters
     ----------
     noise_std_m : float
-        Camera noise per axis, m (> 0; a floor of 1e-6 m is used for a noiseless camera).
+        Camera noise per axis, m (>= 0; floored at :data:`NOISE_FLOOR_M`).
     accel_std_mps2 : float
         Process noise: std of the capsule's unmodelled acceleration, m/s^2 (> 0).
     """
@@ -30,7 +35,7 @@ class CapsuleEstimator:
     def __init__(self, noise_std_m: float, accel_std_mps2: float) -> None:
         if not accel_std_mps2 > 0:
             raise ValueError(f"accel_std_mps2: must be > 0, got {accel_std_mps2}")
-        self.r = max(float(noise_std_m), 1e-6) ** 2
+        self.r = max(float(noise_std_m), NOISE_FLOOR_M) ** 2
         self.q = float(accel_std_mps2) ** 2
         self.reset()
 

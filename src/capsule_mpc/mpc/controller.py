@@ -19,6 +19,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 
+import casadi as ca
 import numpy as np
 
 from ..config import Scenario
@@ -44,6 +45,7 @@ class MPCStack:
     ocp: OCP
     solver: MPCSolver
     build_s: float
+    force: ca.Function
 
 
 _STACKS: dict[str, MPCStack] = {}
@@ -70,7 +72,7 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
             raise
         warnings.warn(f"mpc.compile_c: compiling the NLP failed ({exc}); running uncompiled", stacklevel=2)
         solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, None)
-    stack = MPCStack(ocp, solver, time.perf_counter() - t0)
+    stack = MPCStack(ocp, solver, time.perf_counter() - t0, force)
     _STACKS[key] = stack
     return stack
 
@@ -99,6 +101,8 @@ def safe_command(
     da = lim.accel_mps2 * dt_s
     u = np.clip(u, u_prev - da, u_prev + da)
     u = np.clip(u, -lim.speed_mps, lim.speed_mps)
+    if not scenario.mpc.height_control:
+        u[2] = 0.0
     lo, hi = np.asarray(lim.workspace_min_m), np.asarray(lim.workspace_max_m)
     pos = np.asarray(epm_position_m, dtype=float)
     nxt = pos + u * dt_s
@@ -141,12 +145,16 @@ class MPCController(Controller):
         self.plan: _Plan | None = None
         self.last_prediction: np.ndarray | None = None
         self.clipped_steps = 0
+        self._rest_leads: list[np.ndarray] = []
+        self._calibrated = False
         self.fallback_steps = 0
         self.deadline_misses = 0
 
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
         times = t_s + self.dt_s * np.arange(1, self.stack.ocp.horizon + 1)  # type: ignore[union-attr]
+        if t_s < 0:  # settle phase: the rig holds the EPM, so plan to stay at the start
+            times = np.zeros_like(times)
         return np.vstack([self.path.position(times).T, self.path.velocity(times).T])
 
     def _update_disturbance(self, v_est: np.ndarray) -> None:
@@ -172,6 +180,25 @@ class MPCController(Controller):
         else:
             d[0:2] += innov
         self.disturbance_n = np.clip(d, -cfg.disturbance_max_n, cfg.disturbance_max_n)
+
+    def _calibrate_rest_offset(self, t_s: float, epm: np.ndarray, meas: Measurement) -> None:
+        """Settle phase: where the capsule rests under the still EPM tells the model's force bias.
+
+        While t < 0 the measured rest leads are collected; at t = 0 the constant disturbance
+        is set to cancel the model's lateral force at their mean (the model then has its
+        equilibrium where the capsule really rests). Runs without a settle phase skip this.
+        """
+        if t_s < 0:
+            if meas.position_m is not None:
+                self._rest_leads.append(epm[:2] - meas.position_m)
+            return
+        if self._calibrated or not self._rest_leads:
+            return
+        self._calibrated = True
+        lead = np.mean(self._rest_leads, axis=0)
+        force = np.asarray(self.stack.force(lead, epm[2])).ravel()  # type: ignore[union-attr]
+        limit = self.scenario.mpc.disturbance_max_n
+        self.disturbance_n[0:2] = np.clip(-force[0:2], -limit, limit)
 
     def _initial_guess(self, x0: np.ndarray) -> np.ndarray:
         ocp = self.stack.ocp  # type: ignore[union-attr]
@@ -213,6 +240,7 @@ class MPCController(Controller):
         if not self.estimator.initialised:  # nothing seen yet: hold still
             return self._emit(np.zeros(3), epm, StepStats(status="no_measurement"))
         pos, vel = self.estimator.estimate(t_s)
+        self._calibrate_rest_offset(t_s, epm, measurement)
         self._update_disturbance(vel)
         x0 = np.concatenate([pos, vel, epm])
         res = self._solve(x0, self._reference(t_s))
@@ -232,11 +260,11 @@ class MPCController(Controller):
                 res.w, res.lam_x if keep_duals else None, res.lam_g if keep_duals else None, xs, us
             )
             self.last_prediction = xs[0:2].T.copy()
-            return self._emit(us[:, 0], epm, stats)
+            return self._emit(us[:, 0], epm, stats, hold=t_s < 0)
         stats.failed = True
         stats.status = ("late: " if late else "failed: ") + res.status
         self.fallback_steps += 1
-        return self._emit(self._fallback_command(), epm, stats)
+        return self._emit(self._fallback_command(), epm, stats, hold=t_s < 0)
 
     def _fallback_command(self) -> np.ndarray:
         """The shifted previous plan while it lasts, else brake; the next solve starts cold."""
@@ -254,7 +282,11 @@ class MPCController(Controller):
         self.plan = None
         return np.zeros(3)  # braking target; the safety layer limits the deceleration
 
-    def _emit(self, u: np.ndarray, epm: np.ndarray, stats: StepStats) -> Command:
+    def _emit(self, u: np.ndarray, epm: np.ndarray, stats: StepStats, hold: bool = False) -> Command:
+        """Send ``u`` through the safety layer; ``hold``: the settle phase (t < 0), in which the
+        rig keeps the EPM still whatever is commanded, so the controller sends (and assumes) 0."""
+        if hold:
+            u = np.zeros(3)
         cmd, clipped = safe_command(u, self.u_prev, epm, self.scenario, self.dt_s)
         if clipped:
             self.clipped_steps += 1
