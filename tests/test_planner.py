@@ -155,19 +155,42 @@ def test_bad_arguments_are_named():
         PlannerOptions(tube_m=0.0)
     with pytest.raises(ValueError, match="max_iter"):
         PlannerOptions(max_iter=0)
+    with pytest.raises(ValueError, match="path_smoothing_m"):
+        PlannerOptions(tube_m=1e-4, path_smoothing_m=2e-4)
     with pytest.raises(ValueError, match="position_gain_per_s"):
         PlanReplay(position_gain_per_s=-1.0)
+
+
+def _gamma(path, smoothing_m):
+    import casadi as ca
+
+    s = ca.SX.sym("s")
+    return ca.Function("gamma", [s], [path_point_expr(path, s, smoothing_m)])
 
 
 @settings(max_examples=50, deadline=None)
 @given(st.floats(-0.01, 0.07))
 def test_path_point_expression_matches_the_polyline(sigma):
-    import casadi as ca
-
     path = ReferencePath(L_POINTS, False, 0.02)
-    s = ca.SX.sym("s")
-    fn = ca.Function("gamma", [s], [path_point_expr(path, s)])
-    np.testing.assert_allclose(np.asarray(fn(sigma)).ravel(), path.point_at_arc(sigma), atol=1e-15)
+    point = np.asarray(_gamma(path, 0.0)(sigma)).ravel()
+    np.testing.assert_allclose(point, path.point_at_arc(sigma), atol=1e-15)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(0.0, 0.05), st.floats(1e-5, 1e-3))
+def test_smoothed_path_stays_within_half_the_smoothing_of_the_polyline(sigma, delta):
+    path = ReferencePath(L_POINTS, False, 0.02)
+    point = np.asarray(_gamma(path, delta)(sigma)).ravel()
+    assert path.distance_to(point)[0] <= delta / 2 + 1e-12
+    if 20 * delta < sigma < 0.03 - 20 * delta:  # far from the vertices: (almost) the exact point
+        np.testing.assert_allclose(point, path.point_at_arc(sigma), atol=delta / 20)
+
+
+def test_min_time_does_not_depend_on_the_nominal_speed(scenario, path, min_time):
+    slow = cached_plan(scenario, path.with_speed(0.01), "min_time")
+    assert slow.success, slow.status
+    assert slow.duration_s == pytest.approx(min_time.duration_s, rel=1e-4)
+    assert slow.nominal_duration_s == pytest.approx(2 * min_time.nominal_duration_s)
 
 
 def test_plan_controller_is_registered_and_replays_open_loop(scenario, path):

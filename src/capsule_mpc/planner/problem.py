@@ -21,7 +21,9 @@ EPM standing still.
 * ``min_time`` -- the final time T is free (``dt = T / N``); a progress variable
   sigma_k (arc length, non-decreasing from 0 to the path length) keeps every
   predicted capsule position within a tube of radius ``tube_m`` around the
-  path point ``gamma(sigma_k)``; the cost is T plus a small smoothness term.
+  path point ``gamma(sigma_k)`` (the polyline with slightly rounded vertices, the
+  tube narrowed to match); the cost is T plus small smoothness and tube-centring
+  terms.
 """
 
 from __future__ import annotations
@@ -60,13 +62,26 @@ class PlannerOptions:
         Extra time after the nominal duration in the fixed-time plan, s (default 1.5): the
         reference rests at the end point while the capsule comes to rest there.
     min_time_dt_s : float
-        Target step of the minimum-time grid, s (default 1/15): N = ceil(nominal duration /
-        this); the actual step is T / N.
+        Step of the minimum-time grid at the initial guess of T, s (default 1/30): N =
+        ceil(T0 / this); the solution's step is T / N.
+    min_time_guess_speed_fraction : float
+        The initial guess of T is the path length over this fraction of ``limits.speed_mps``
+        (default 0.5), whatever the nominal speed; T is scaled by it in the NLP.
     tube_m : float
         Cross-track tube radius of the minimum-time plan, m (default 0.5 mm).
+    path_smoothing_m : float
+        Smoothing length of the path's vertices in the minimum-time tube, m (default 0.2 mm,
+        < 2 tube_m; see :func:`path_point_expr`); the tube around the smoothed path is narrowed
+        by half of it, so the capsule stays within ``tube_m`` of the true polyline.
+    tube_centering_weight : float
+        Weight of the squared tube residual ``|p - gamma(sigma)|^2 / tube^2`` per knot in the
+        minimum-time cost (default 0.1): it pins each progress variable to the capsule's
+        closest path point (otherwise free inside the tube, a singular direction that made
+        IPOPT chatter near the optimum); at most ~N/20 cost units against ``time_weight``.
     time_weight : float
-        Weight of T / T_nominal in the minimum-time cost (default 1e3); the smoothness term,
-        ``(dU / mpc.input_rate_tol_mps)^2`` per step, has weight 1.
+        Weight of T / T0 in the minimum-time cost (default 1e3; T0 the initial guess, which
+        depends on the path and the limits only, so the plan does not depend on the nominal
+        speed); the smoothness term, ``(dU / mpc.input_rate_tol_mps)^2 / 2`` per step, has weight 1.
     end_tol_m : float
         Half-width of the box around the path's end the capsule must stop in, m (default 0.1 mm).
     max_iter : int
@@ -76,8 +91,11 @@ class PlannerOptions:
     """
 
     tail_s: float = 1.5
-    min_time_dt_s: float = 1.0 / 15.0
+    min_time_dt_s: float = 1.0 / 30.0
+    min_time_guess_speed_fraction: float = 0.5
     tube_m: float = 5e-4
+    path_smoothing_m: float = 2e-4
+    tube_centering_weight: float = 0.1
     time_weight: float = 1e3
     end_tol_m: float = 1e-4
     max_iter: int = 500
@@ -85,18 +103,20 @@ class PlannerOptions:
 
     def __post_init__(self) -> None:
         checks = {
-            "tail_s": self.tail_s >= 0,
-            "min_time_dt_s": self.min_time_dt_s > 0,
-            "tube_m": self.tube_m > 0,
-            "time_weight": self.time_weight > 0,
-            "end_tol_m": self.end_tol_m > 0,
-            "max_iter": self.max_iter >= 1,
-            "tol": self.tol > 0,
+            "tail_s": (self.tail_s >= 0, ">= 0"),
+            "min_time_dt_s": (self.min_time_dt_s > 0, "> 0"),
+            "min_time_guess_speed_fraction": (0 < self.min_time_guess_speed_fraction <= 1, "in (0, 1]"),
+            "tube_m": (self.tube_m > 0, "> 0"),
+            "path_smoothing_m": (0 <= self.path_smoothing_m < 2 * self.tube_m, "in [0, 2 tube_m)"),
+            "time_weight": (self.time_weight > 0, "> 0"),
+            "tube_centering_weight": (self.tube_centering_weight >= 0, ">= 0"),
+            "end_tol_m": (self.end_tol_m > 0, "> 0"),
+            "max_iter": (self.max_iter >= 1, ">= 1"),
+            "tol": (self.tol > 0, "> 0"),
         }
-        for name, ok in checks.items():
+        for name, (ok, bound) in checks.items():
             value = getattr(self, name)
             if not (ok and math.isfinite(value)):
-                bound = ">= 0" if name == "tail_s" else (">= 1" if name == "max_iter" else "> 0")
                 raise ValueError(f"PlannerOptions.{name}: must be finite and {bound}, got {value}")
 
 
@@ -116,8 +136,9 @@ class PlanNLP:
         N.
     dt_s : float
         The step (fixed variant), or the initial guess T0 / N (minimum time), s.
-    t_nominal_s : float
-        The path's nominal duration, s (the scale of T in the minimum-time problem).
+    t_scale_s : float
+        The scale of T in the minimum-time problem (its initial guess), s; the fixed-time
+        problem's duration.
     lead_eq_m : numpy.ndarray (2,)
         The model's equilibrium lead, m.
     expanded : bool
@@ -133,7 +154,7 @@ class PlanNLP:
     w0: np.ndarray
     n_steps: int
     dt_s: float
-    t_nominal_s: float
+    t_scale_s: float
     lead_eq_m: np.ndarray
     expanded: bool
 
@@ -151,24 +172,37 @@ class PlanNLP:
         out: dict[str, np.ndarray | float] = {"X": xs, "U": us, "S": ss}
         if self.variant == "min_time":
             out["sigma"] = w[i : i + n + 1] * SIGMA_SCALE
-            out["T"] = float(w[i + n + 1]) * self.t_nominal_s
+            out["T"] = float(w[i + n + 1]) * self.t_scale_s
         else:
             out["T"] = self.n_steps * self.dt_s
         return out
 
 
-def path_point_expr(path: ReferencePath, sigma_m: ca.SX | ca.MX) -> ca.SX | ca.MX:
+def path_point_expr(path: ReferencePath, sigma_m: ca.SX | ca.MX, smoothing_m: float = 0.0) -> ca.SX | ca.MX:
     """The path point at arc length ``sigma_m`` (m) as a CasADi expression (2,), m.
 
     The polyline is ``v_0 + sum_i d_i clip(sigma - s_i, 0, l_i)`` (d_i the unit direction,
     s_i the start arc and l_i the length of segment i): exact, and piecewise linear in sigma.
+    With ``smoothing_m = delta > 0`` the clip is smooth, ``sp(z) - sp(z - l)`` with
+    ``sp(z) = (z + sqrt(z^2 + delta^2)) / 2``: the point then rounds each vertex, at most about
+    ``delta / 2`` off the polyline, and its derivatives are continuous (IPOPT converges without
+    chattering at the vertices).
     """
+    if not smoothing_m >= 0:
+        raise ValueError(f"smoothing_m: must be >= 0, got {smoothing_m}")
     verts = path.vertices_m
     seg = np.diff(verts, axis=0)
     lengths = np.hypot(seg[:, 0], seg[:, 1])
     starts = np.concatenate([[0.0], np.cumsum(lengths)[:-1]])
+
+    def clip(z: ca.SX | ca.MX, length: float) -> ca.SX | ca.MX:
+        if smoothing_m == 0:
+            return ca.fmin(ca.fmax(z, 0.0), length)
+        d2 = smoothing_m**2
+        return 0.5 * (ca.sqrt(z**2 + d2) - ca.sqrt((z - length) ** 2 + d2) + length)
+
     terms = [
-        ca.DM(d) * ca.fmin(ca.fmax(sigma_m - float(s0), 0.0), float(length))
+        ca.DM(d) * clip(sigma_m - float(s0), float(length))
         for d, s0, length in zip(seg / lengths[:, None], starts, lengths)
     ]
     return ca.DM(verts[0]) + ca.sum2(ca.horzcat(*terms))
@@ -365,32 +399,39 @@ def build_min_time_nlp(
     model : CapsuleModel
         The controller's model.
     path : ReferencePath
-        The path; its nominal duration sets N (``ceil(duration / min_time_dt_s)``), the initial
-        guess of T and the scale of T.
+        The path (its nominal speed plays no part: the guess of T is the length over
+        ``min_time_guess_speed_fraction * limits.speed_mps``, and N = ceil(T0 / min_time_dt_s)).
     lead_eq_m : numpy.ndarray (2,)
         The model's equilibrium lead, m.
     options : PlannerOptions
-        ``min_time_dt_s``, ``tube_m``, ``time_weight`` and ``end_tol_m`` are used.
+        The ``min_time_*``, ``tube_*``, ``path_smoothing_m``, ``time_weight`` and ``end_tol_m``
+        settings are used.
     """
     sc = model.scenario
     lim = sc.limits
-    t_nom = path.duration_s
-    n = max(2, math.ceil(t_nom / options.min_time_dt_s - 1e-9))
+    t0 = path.length_m / (options.min_time_guess_speed_fraction * lim.speed_mps)
+    n = max(2, math.ceil(t0 / options.min_time_dt_s - 1e-9))
     nx, nu = model.n_x, model.n_u
     stage, expanded = _stage_function(model, lead_eq_m)
     w, xs, us, ss, rest = _symbols(n, nx, nu, n + 2)
     sigma = rest[0 : n + 1] * SIGMA_SCALE
-    t_final = rest[n + 1] * t_nom
-    dt = t_final / n
+    dt = rest[n + 1] * t0 / n
     g_dyn, coupling, fn, du, _ = _stage_constraints(stage, xs, us, ss, dt, n)
     s_sym = ca.SX.sym("sigma")
-    gamma = ca.Function("path_point", [s_sym], [path_point_expr(path, s_sym)]).map(n)
-    tube = ca.sum1((xs[0:2, 1:] - gamma(sigma[1:].T)) ** 2) / options.tube_m**2
+    smoothing = options.path_smoothing_m
+    gamma = ca.Function("path_point", [s_sym], [path_point_expr(path, s_sym, smoothing)]).map(n)
+    # The smoothed path rounds the vertices by up to smoothing / 2: the tube is narrowed by it.
+    tube = ca.sum1((xs[0:2, 1:] - gamma(sigma[1:].T)) ** 2) / (options.tube_m - smoothing / 2) ** 2
     da = lim.accel_mps2 * dt
     acc = ca.vertcat(ca.vec(du) - da, ca.vec(du) + da) / U_SCALE[0]
     progress = (sigma[1:] - sigma[:-1]) / SIGMA_SCALE
     smooth = ca.vec(du) / sc.mpc.input_rate_tol_mps
-    f = options.time_weight * rest[n + 1] + 0.5 * ca.sumsqr(smooth) + _slack_penalty(sc, ss, n)
+    f = (
+        options.time_weight * rest[n + 1]
+        + 0.5 * ca.sumsqr(smooth)
+        + 0.5 * options.tube_centering_weight * ca.sum2(tube)
+        + _slack_penalty(sc, ss, n)
+    )
     g = ca.vertcat(ca.vec(g_dyn), ca.vec(coupling), ca.vec(fn), acc, ca.vec(tube), progress)
     lbg = np.concatenate([
         np.zeros(nx * n), np.full(n, -np.inf), np.tile([lim.normal_force_min_n / FN_SCALE, -np.inf], n),
@@ -407,12 +448,12 @@ def build_min_time_nlp(
     s_lo[-1] = s_hi[-1]
     lbw = np.concatenate([lbw, s_lo, [1e-3]])
     ubw = np.concatenate([ubw, s_hi, [np.inf]])
-    t_guess = np.linspace(0.0, t_nom, n + 1)
-    x_guess, u_guess = _reference_guess(sc, path, lead_eq_m, t_guess)
-    arc = np.clip(t_guess * path.speed_mps, 0.0, path.length_m)
+    t_guess = np.linspace(0.0, t0, n + 1)
+    x_guess, u_guess = _reference_guess(sc, path.with_speed(path.length_m / t0), lead_eq_m, t_guess)
+    arc = np.linspace(0.0, path.length_m, n + 1)
     w0 = np.concatenate([_pack(x_guess, u_guess, np.zeros((n_slacks, n))), arc / SIGMA_SCALE, [1.0]])
     w0 = np.clip(w0, lbw, ubw)
     return PlanNLP(
-        "min_time", {"x": w, "f": f, "g": g}, lbw, ubw, lbg, ubg, w0, n, t_nom / n, t_nom,
+        "min_time", {"x": w, "f": f, "g": g}, lbw, ubw, lbg, ubg, w0, n, t0 / n, t0,
         np.asarray(lead_eq_m, dtype=float), expanded,
     )  # fmt: skip
