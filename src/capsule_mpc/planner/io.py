@@ -180,11 +180,14 @@ def plot_plan(plan: Plan, path: ReferencePath, out: str | Path) -> Path:
     )
     t_mid = plan.t_s[:-1]
     ax_v.step(t_mid, np.linalg.norm(plan.epm_velocity_mps[:, :2], axis=1) * 1e3, where="post",
-              color="C1", lw=1.0, label="EPM speed")  # fmt: skip
+              color="C1", lw=1.0, label="EPM speed |v_xy|")  # fmt: skip
     ax_v.plot(plan.t_s, np.linalg.norm(plan.capsule_velocity_mps, axis=1) * 1e3, color="C0", lw=1.0,
               label="capsule speed")  # fmt: skip
-    ax_v.plot(plan.t_s, np.linalg.norm(path.velocity(plan.t_s), axis=1) * 1e3, "k--", lw=0.8,
-              label="reference speed")  # fmt: skip
+    if plan.variant == "fixed":
+        ref_speed = np.linalg.norm(path.velocity(plan.t_s), axis=1) * 1e3
+        ax_v.plot(plan.t_s, ref_speed, "k--", lw=0.8, label="reference speed")
+    else:
+        ax_v.axhline(path.speed_mps * 1e3, color="k", ls="--", lw=0.8, label="nominal speed")
     ax_v.set_xlabel("t (s)")
     ax_v.set_ylabel("speed (mm/s)")
     ax_v.legend(fontsize=8)
