@@ -7,7 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from capsule_mpc.metrics import motion_end_s, paper_std_m, run_metrics, solver_metrics
+from capsule_mpc.metrics import (
+    motion_end_s,
+    paper_std_m,
+    prediction_errors,
+    run_metrics,
+    solver_metrics,
+    stack_predictions,
+)
 from capsule_mpc.paths import ReferencePath
 
 #: A straight 100 mm path along +x at 10 mm/s (nominal time 10 s).
@@ -73,3 +80,38 @@ def test_no_motion_and_no_solver():
     s = solver_metrics(log, 33.3)
     assert math.isnan(s["solve_ms_median"]) and math.isnan(s["solve_ms_p99"])
     assert s["deadline_misses"] == 0
+
+
+def test_solver_metrics_report_the_worst_solve_and_step():
+    s = solver_metrics(make_log(controller_ms=np.array([0.5, 3.0, 5.0, 41.0, 7.0])), 33.3)
+    assert s["solve_ms_max"] == 40.0 and s["step_ms_max"] == 41.0
+    assert math.isnan(solver_metrics(make_log(), 33.3)["step_ms_max"])  # no controller_ms column
+
+
+def test_prediction_errors_hand_computed():
+    # The capsule moves along x at 1 mm per frame (dt = 1 s); predictions 2 stages ahead.
+    t = np.arange(5.0)
+    log = {"t_s": t, "capsule_x_m": 1e-3 * t, "capsule_y_m": np.zeros(5)}
+    pred = np.full((5, 2, 2), np.nan)
+    pred[0] = [[1e-3, 0.0], [2e-3, 0.0]]  # exact
+    pred[1] = [[2e-3, 3e-3], [3e-3, 4e-3]]  # 3 mm and 4 mm off
+    pred[4] = [[5e-3, 0.0], [6e-3, 0.0]]  # beyond the end of the log: not scored
+    look, rms, worst = prediction_errors(log, pred, dt_s=1.0)
+    np.testing.assert_allclose(look, [1.0, 2.0])
+    np.testing.assert_allclose(rms * 1e3, [math.sqrt(9 / 2), math.sqrt(16 / 2)])
+    np.testing.assert_allclose(worst * 1e3, [3.0, 4.0])
+    only_first = np.array([True, False, False, False, False])
+    np.testing.assert_allclose(prediction_errors(log, pred, 1.0, only_first)[1], [0.0, 0.0])
+    none = prediction_errors(log, pred, 1.0, np.zeros(5, dtype=bool))
+    assert np.all(np.isnan(none[1])) and np.all(np.isnan(none[2]))
+    with pytest.raises(ValueError, match="dt_s"):
+        prediction_errors(log, pred, 0.0)
+    with pytest.raises(ValueError, match="predictions"):
+        prediction_errors(log, pred[:3], 1.0)
+
+
+def test_stack_predictions_pads_with_nan():
+    assert stack_predictions([None, None]) is None
+    out = stack_predictions([None, np.ones((2, 2)), np.zeros((3, 2))])
+    assert out.shape == (3, 3, 2)
+    assert np.all(np.isnan(out[0])) and np.all(np.isnan(out[1, 2])) and np.all(out[2] == 0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -23,6 +24,7 @@ from capsule_mpc.sim import (
     UniformForce,
     make_actuator,
     read_log,
+    read_predictions,
     simulate,
     write_log,
     write_run,
@@ -345,3 +347,135 @@ def test_path_progress_is_monotone_on_a_closed_path():
     for t in np.linspace(0, r.duration_s, 400):
         s = prog.update(r.position(t) + np.array([0.0, 0.001]))
     assert s == pytest.approx(r.length_m, abs=2e-3)
+
+
+# --- real-time pacing and predictions ---------------------------------------------------------------
+
+
+def short_settle(scenario, settle_s=0.5):
+    return tweak(scenario, "sim", settle_s=settle_s, tail_s=0.5)
+
+
+class SlowFollow(Controller):
+    """The ``follow`` baseline, with every ``every``-th step taking ``delay_s`` longer."""
+
+    name = "slow_follow"
+
+    def __init__(self, every, delay_s):
+        from capsule_mpc.baselines import FollowPath
+
+        self.inner, self.every, self.delay_s = FollowPath(), every, delay_s
+        self.n = 0
+
+    def reset(self, scenario, path, epm_position_m):
+        self.scenario = scenario
+        self.inner.reset(scenario, path, epm_position_m)
+
+    def step(self, t_s, measurement, epm_position_m):
+        self.n += 1
+        if self.n % self.every == 0:
+            time.sleep(self.delay_s)
+        return self.inner.step(t_s, measurement, epm_position_m)
+
+
+def test_realtime_run_keeps_pace_with_the_wall_clock(scenario):
+    ctrl = SlowFollow(every=10**9, delay_s=0.0)  # never slow
+    run = simulate(short_settle(scenario), ctrl, SHORT, seed=2, realtime=True)
+    rt = run.realtime
+    assert rt is not None and rt.frames == len(run.log["t_s"]) == len(run.step_stats)
+    assert rt.period_ms == pytest.approx(1e3 / scenario.camera.rate_hz)
+    # Frame i starts at wall0 + i * period: the loop takes the simulated time, not less.
+    assert run.wall_time_s >= run.sim_time_s
+    assert run.wall_time_s == pytest.approx(run.sim_time_s, abs=0.1)
+    assert rt.slept_s > 0.8 * run.sim_time_s  # the steps are fast: most of the time is waiting
+    assert rt.deadline_misses <= 1 and rt.overruns == 0
+    assert run.metrics["deadline_misses"] == rt.deadline_misses
+    assert ctrl.scenario.mpc.enforce_deadline and run.scenario.mpc.enforce_deadline
+    assert not scenario.mpc.enforce_deadline  # the caller's scenario is untouched
+    assert run.summary()["realtime"]["frames"] == rt.frames
+    assert run.flags.completed
+
+
+def test_slow_controller_misses_deadlines_but_commands_stay_finite_and_limited(scenario):
+    sc = short_settle(scenario, 0.3)
+    period_s = 1 / sc.camera.rate_hz
+    ctrl = SlowFollow(every=6, delay_s=1.5 * period_s)
+    run = simulate(sc, ctrl, SHORT, seed=2, realtime=True)
+    rt, log = run.realtime, run.log
+    slow = rt.frames // 6
+    assert rt.overruns == slow  # exactly the slow steps took longer than a frame
+    assert rt.deadline_misses >= slow
+    assert rt.worst_step_ms >= 1.5 * period_s * 1e3
+    assert rt.max_late_ms >= 0.4 * period_s * 1e3
+    # The schedule is caught up after each slow step (5 fast frames absorb 0.5 frame of delay).
+    assert run.wall_time_s == pytest.approx(run.sim_time_s, abs=0.15)
+    assert np.all(log["controller_ms"][5::6] >= 1.5 * period_s * 1e3)
+    cmd = np.column_stack([log["cmd_vx_mps"], log["cmd_vy_mps"], log["cmd_vz_mps"]])
+    epm_v = np.column_stack([log["epm_vx_mps"], log["epm_vy_mps"], log["epm_vz_mps"]])
+    assert np.all(np.isfinite(cmd)) and np.all(np.isfinite(epm_v))
+    assert np.abs(cmd).max() <= sc.limits.speed_mps + 1e-12
+    assert np.linalg.norm(epm_v, axis=1).max() <= sc.limits.speed_mps * math.sqrt(3) + 1e-12
+    assert not run.flags.decoupled and not run.flags.dropped
+
+
+def test_late_mpc_solves_in_realtime_fall_back_to_the_shifted_plan(scenario, monkeypatch):
+    from dataclasses import replace
+
+    from capsule_mpc.mpc import MPCController, build_mpc_stack
+
+    sc = short_settle(scenario, 0.5)
+    sc = sc.model_copy(update={"mpc": sc.mpc.model_copy(update={"compile_c": False})})
+    period_ms = 1e3 / sc.camera.rate_hz
+    solver = build_mpc_stack(
+        sc.model_copy(update={"mpc": sc.mpc.model_copy(update={"enforce_deadline": True})})
+    ).solver
+    calls = {"n": 0}
+    original = type(solver).solve
+
+    def sometimes_slow(*args, **kwargs):  # every 8th warm solve takes 1.2 frames longer
+        res = original(solver, *args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] % 8 == 0:
+            time.sleep(1.2 * period_ms / 1e3)
+            return replace(res, solve_ms=res.solve_ms + 1.2 * period_ms)
+        return res
+
+    monkeypatch.setattr(solver, "solve", sometimes_slow)
+    path = ReferencePath(np.array([[0.0, 0.0], [0.03, 0.0], [0.03, 0.015]]), False, 0.02)
+    run = simulate(sc, MPCController(), path, seed=3, realtime=True)
+    log, lim = run.log, sc.limits
+    statuses = [s.status for s in run.step_stats]
+    assert any(s.startswith("late") for s in statuses)  # a late solve is not used
+    assert run.realtime.overruns >= calls["n"] // 8 >= 1
+    assert run.realtime.deadline_misses >= run.realtime.overruns
+    cmd = np.column_stack([log["cmd_vx_mps"], log["cmd_vy_mps"], log["cmd_vz_mps"]])
+    assert np.all(np.isfinite(cmd))
+    assert np.abs(cmd).max() <= lim.speed_mps + 1e-12
+    assert np.abs(np.diff(cmd, axis=0)).max() <= lim.accel_mps2 / sc.camera.rate_hz + 1e-12  # no jump
+    assert not run.flags.decoupled and not run.flags.dropped
+    # The MPC's predictions are recorded frame by frame and written beside the log.
+    assert len(run.predictions) == len(log["t_s"])
+    assert sum(p is not None for p in run.predictions) > 0.8 * len(log["t_s"])
+    assert run.predictions[-1].shape == (sc.mpc.horizon, 2)
+
+
+class Predicting(Hold):
+    """Holds still and 'predicts' a line through its frame time."""
+
+    def predicted_capsule_path(self):
+        t = self.seen[-1].t_s
+        return None if t < 0 else np.column_stack([np.full(4, t), np.arange(4.0)])
+
+
+def test_predictions_are_recorded_per_frame_and_written(scenario, tmp_path):
+    run = simulate(short_settle(scenario), Predicting(), SHORT, seed=0)
+    t = run.log["t_s"]
+    assert len(run.predictions) == len(t)
+    assert all((p is None) == (ti < 0) for p, ti in zip(run.predictions, t))
+    assert run.realtime is None and run.summary()["realtime"] is None
+    out = write_run(run, tmp_path / "run")
+    times, pred = read_predictions(out)
+    np.testing.assert_array_equal(times, t)
+    assert pred.shape == (len(t), 4, 2)
+    assert np.all(np.isnan(pred[t < 0]))
+    np.testing.assert_array_equal(pred[t >= 0, 2, 0], t[t >= 0])

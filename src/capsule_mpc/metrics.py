@@ -17,7 +17,7 @@ last frame at which the EPM or the capsule was still moving):
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -30,8 +30,10 @@ __all__ = [
     "motion_end_s",
     "motion_mask",
     "paper_std_m",
+    "prediction_errors",
     "run_metrics",
     "solver_metrics",
+    "stack_predictions",
 ]
 
 #: Below this speed (m/s) the EPM counts as at rest when finding the end of the motion phase.
@@ -77,17 +79,93 @@ def solver_metrics(log: Mapping[str, np.ndarray], deadline_ms: float) -> dict[st
     """Solve-time statistics from the ``solve_ms`` / ``solver_failed`` columns.
 
     Returns ``solve_ms_median``, ``solve_ms_p99`` (NaN when the controller reports no solve
-    times), ``solver_failures`` (count) and ``deadline_misses`` (solves longer than
-    ``deadline_ms``, e.g. the camera period).
+    times), ``solve_ms_max``, ``solver_failures`` (count), ``deadline_misses`` (solves longer
+    than ``deadline_ms``, e.g. the camera period; every frame counts, the settle phase too)
+    and ``step_ms_max`` (the longest controller step, from the ``controller_ms`` column; NaN
+    without it).
     """
     solve = np.asarray(log["solve_ms"], dtype=float)
     timed = solve[np.isfinite(solve)]
+    step = np.asarray(log.get("controller_ms", []), dtype=float)
+    step = step[np.isfinite(step)]
     return {
         "solve_ms_median": float(np.median(timed)) if timed.size else math.nan,
         "solve_ms_p99": float(np.percentile(timed, 99)) if timed.size else math.nan,
+        "solve_ms_max": float(np.max(timed)) if timed.size else math.nan,
         "solver_failures": int(np.sum(np.asarray(log["solver_failed"]) != 0)),
         "deadline_misses": int(np.sum(timed > deadline_ms)),
+        "step_ms_max": float(np.max(step)) if step.size else math.nan,
     }
+
+
+def stack_predictions(predictions: Sequence[np.ndarray | None]) -> np.ndarray | None:
+    """Per-frame predictions as one array (F, N, 2), NaN-filled where None; None if there are none.
+
+    Predictions of different lengths are NaN-padded to the longest.
+    """
+    present = [np.asarray(p, dtype=float) for p in predictions if p is not None]
+    if not present:
+        return None
+    n = max(p.shape[0] for p in present)
+    out = np.full((len(predictions), n, 2), math.nan)
+    for i, pred in enumerate(predictions):
+        if pred is not None:
+            arr = np.asarray(pred, dtype=float).reshape(-1, 2)
+            out[i, : arr.shape[0]] = arr
+    return out
+
+
+def prediction_errors(
+    log: Mapping[str, np.ndarray],
+    predictions: np.ndarray,
+    dt_s: float,
+    frames: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How far a controller's predicted capsule paths were from where the capsule really went.
+
+    The prediction made at frame time ``t`` is taken to hold the capsule positions at
+    ``t + dt_s * (1..N)`` (the MPC's stages); each is compared with the true capsule position
+    at that time (linear interpolation in the log). Stages beyond the end of the log and
+    frames without a prediction (NaN) are left out.
+
+    Parameters
+    ----------
+    log : mapping of str to numpy.ndarray
+        A run log (``t_s``, ``capsule_x_m``, ``capsule_y_m``).
+    predictions : numpy.ndarray (F, N, 2)
+        Per-frame predicted capsule positions, m (NaN where none).
+    dt_s : float
+        Time between prediction stages, s, > 0.
+    frames : numpy.ndarray of bool (F,), optional
+        Which frames to score (default: every frame with a prediction).
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray, numpy.ndarray)
+        Look-ahead times (N,), s; RMS (N,) and max (N,) prediction error at each, m (NaN where
+        nothing was scored).
+    """
+    if not dt_s > 0:
+        raise ValueError(f"dt_s: must be > 0, got {dt_s}")
+    pred = np.asarray(predictions, dtype=float)
+    t = np.asarray(log["t_s"], dtype=float)
+    if pred.ndim != 3 or pred.shape[0] != len(t) or pred.shape[2] != 2:
+        raise ValueError(f"predictions: must have shape ({len(t)}, N, 2), got {pred.shape}")
+    n = pred.shape[1]
+    lookahead = dt_s * np.arange(1, n + 1)
+    use = np.all(np.isfinite(pred), axis=(1, 2)) if frames is None else np.asarray(frames, dtype=bool)
+    when = t[use, None] + lookahead[None, :]  # (F', N)
+    inside = when <= t[-1] + 1e-9
+    actual = np.stack(
+        [np.interp(when, t, log["capsule_x_m"]), np.interp(when, t, log["capsule_y_m"])], axis=-1
+    )
+    err = np.hypot(*np.moveaxis(pred[use] - actual, -1, 0))
+    scored = inside & np.isfinite(err)
+    counts = np.sum(scored, axis=0)
+    sq = np.where(scored, err, 0.0) ** 2
+    rms = np.sqrt(np.sum(sq, axis=0) / np.maximum(counts, 1))
+    worst = np.max(np.where(scored, err, 0.0), axis=0, initial=0.0)
+    return lookahead, np.where(counts > 0, rms, np.nan), np.where(counts > 0, worst, np.nan)
 
 
 def run_metrics(

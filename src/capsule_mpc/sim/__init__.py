@@ -1,9 +1,9 @@
 """The simulated rig: plant, camera, actuator, closed-loop runner and run logs."""
 
 from .actuation import Actuator, SimpleArm, make_actuator, register_actuator
-from .log import LOG_COLUMNS, REQUIRED_COLUMNS, read_log, write_log, write_run
+from .log import LOG_COLUMNS, REQUIRED_COLUMNS, read_log, read_predictions, write_log, write_run
 from .plant import CapsulePlant, ForceField, MapForces, UniformForce
-from .runner import PathProgress, RunFlags, RunResult, simulate
+from .runner import PathProgress, RealtimeStats, RunFlags, RunResult, realtime_scenario, simulate
 from .sensing import Camera
 
 __all__ = [
@@ -15,12 +15,15 @@ __all__ = [
     "ForceField",
     "MapForces",
     "PathProgress",
+    "RealtimeStats",
     "RunFlags",
     "RunResult",
     "SimpleArm",
     "UniformForce",
     "make_actuator",
     "read_log",
+    "read_predictions",
+    "realtime_scenario",
     "register_actuator",
     "simulate",
     "write_log",

@@ -2,9 +2,12 @@
 
 A run directory holds ``log.csv`` (the columns below), ``config.yaml`` (the
 scenario actually used, from :func:`capsule_mpc.dump_config`) and ``run.json``
-(seed, controller, path, metrics, failure flags, limit counts, timing). Every
-file is written to a temporary name and renamed into place, so an interrupted
-run leaves no half file.
+(seed, controller, path, metrics, failure flags, limit counts, timing, real-time
+pacing). A controller that predicts (the MPC) also leaves ``predictions.npz``:
+``t_s`` (F,) the frame times and ``capsule_xy_m`` (F, N, 2) the capsule path it
+predicted at each frame (NaN where it predicted nothing). Every file is written
+to a temporary name and renamed into place, so an interrupted run leaves no half
+file.
 
 Two columns are wall-clock timings (``solve_ms``, ``controller_ms``); every other
 column is a deterministic function of the scenario, controller and seed.
@@ -50,6 +53,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..config import dump_config
+from ..metrics import stack_predictions
 
 if TYPE_CHECKING:
     from .runner import RunResult
@@ -57,9 +61,11 @@ if TYPE_CHECKING:
 __all__ = [
     "INT_COLUMNS",
     "LOG_COLUMNS",
+    "PREDICTIONS_FILE",
     "REQUIRED_COLUMNS",
     "STR_COLUMNS",
     "read_log",
+    "read_predictions",
     "write_atomic",
     "write_log",
     "write_run",
@@ -90,6 +96,8 @@ REQUIRED_COLUMNS: tuple[str, ...] = (
 INT_COLUMNS: frozenset[str] = frozenset({"stuck", "solver_failed"})
 #: Text columns.
 STR_COLUMNS: frozenset[str] = frozenset({"solver_status"})
+#: File of a run's per-frame predicted capsule paths (only for controllers that predict).
+PREDICTIONS_FILE = "predictions.npz"
 
 
 def write_atomic(path: Path, text: str) -> None:
@@ -223,4 +231,24 @@ def write_run(result: RunResult, out_dir: str | Path) -> Path:
     write_log(result.log, out / "log.csv")
     write_atomic(out / "config.yaml", dump_config(result.scenario))
     write_atomic(out / "run.json", json.dumps(_jsonable(result.summary()), indent=2) + "\n")
+    stacked = stack_predictions(result.predictions)
+    if stacked is not None:
+        tmp = out / f".{PREDICTIONS_FILE}.tmp{os.getpid()}.npz"
+        try:
+            np.savez_compressed(tmp, t_s=np.asarray(result.log["t_s"], dtype=float), capsule_xy_m=stacked)
+            tmp.replace(out / PREDICTIONS_FILE)
+        finally:
+            tmp.unlink(missing_ok=True)
     return out
+
+
+def read_predictions(run_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Frame times (F,) and predicted capsule paths (F, N, 2) from a run folder's ``predictions.npz``.
+
+    Raises
+    ------
+    FileNotFoundError
+        The run has no predictions (its controller does not predict).
+    """
+    with np.load(Path(run_dir) / PREDICTIONS_FILE) as data:
+        return np.asarray(data["t_s"]), np.asarray(data["capsule_xy_m"])

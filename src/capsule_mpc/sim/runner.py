@@ -24,6 +24,22 @@ A run ends at the first of:
 * *stalled*: after the nominal duration, the EPM and the capsule have both been
   at rest for ``sim.stall_s`` (nothing can change any more);
 * *timed out*: t reaches ``1.25 * nominal duration + sim.tail_s``.
+
+Real-time mode (``simulate(..., realtime=True)``, ``capsule-mpc simulate --realtime``):
+the loop is paced to the wall clock at the camera rate. Frame ``i`` (counted from
+the first frame) has the wall-clock slot ``[T0 + i P, T0 + (i + 1) P)``, P the
+frame period: the plant is advanced to the frame's time, the loop sleeps until
+the slot starts, then the controller is called. A command ready after the end of
+its slot is a *deadline miss*: it is counted, the command is still applied, and
+the loop carries on (the next frames start late, at once, until the schedule is
+caught up). The runner sleeps only between frames, never inside a controller.
+The controller gets the scenario with ``mpc.enforce_deadline = True`` (a late
+MPC solve then makes it use its shifted plan); that scenario is the one recorded
+in the result.
+
+Predictions: after each step the runner records
+:meth:`~capsule_mpc.control.Controller.predicted_capsule_path` (``None`` for
+controllers that do not predict), one entry per logged frame.
 """
 
 from __future__ import annotations
@@ -48,8 +64,10 @@ from .sensing import Camera
 __all__ = [
     "TIMEOUT_FACTOR",
     "PathProgress",
+    "RealtimeStats",
     "RunFlags",
     "RunResult",
+    "realtime_scenario",
     "simulate",
 ]
 
@@ -111,6 +129,55 @@ class RunFlags:
 
 
 @dataclass
+class RealtimeStats:
+    """Wall-clock pacing of a real-time run (see the module docstring).
+
+    Attributes
+    ----------
+    period_ms : float
+        Frame period (the slot length), ms.
+    frames : int
+        Controller steps taken.
+    deadline_misses : int
+        Steps whose command was ready after the end of their slot (a step that started late,
+        behind a long one, counts too).
+    deadline_misses_motion : int
+        Of those, the ones at t >= 0 (after the settle phase, while the EPM may move).
+    overruns : int
+        Steps that by themselves took longer than a frame period.
+    worst_step_ms : float
+        Longest controller step (wall time of ``Controller.step``), ms.
+    worst_step_t_s : float
+        Frame time of that step, s.
+    max_late_ms : float
+        Worst time a command was ready after the end of its slot, ms (0 if never late).
+    slept_s : float
+        Total time the loop slept waiting for slots, s.
+    """
+
+    period_ms: float
+    frames: int = 0
+    deadline_misses: int = 0
+    deadline_misses_motion: int = 0
+    overruns: int = 0
+    worst_step_ms: float = 0.0
+    worst_step_t_s: float = math.nan
+    max_late_ms: float = 0.0
+    slept_s: float = 0.0
+
+    def record(self, t_s: float, step_s: float, late_s: float) -> None:
+        """Account for one step that took ``step_s`` and ended ``late_s`` after its slot (< 0: early)."""
+        self.frames += 1
+        self.overruns += int(step_s * 1e3 > self.period_ms)
+        if step_s * 1e3 > self.worst_step_ms:
+            self.worst_step_ms, self.worst_step_t_s = step_s * 1e3, t_s
+        if late_s > 0:
+            self.deadline_misses += 1
+            self.deadline_misses_motion += int(t_s >= 0)
+            self.max_late_ms = max(self.max_late_ms, late_s * 1e3)
+
+
+@dataclass
 class RunResult:
     """Everything a run produced.
 
@@ -142,6 +209,12 @@ class RunResult:
         Number of plant steps.
     meta : dict
         Free-form provenance (config path, waypoints file), written to run.json.
+    predictions : list of (numpy.ndarray (N, 2) or None)
+        The controller's predicted capsule path after each logged frame's step
+        (:meth:`~capsule_mpc.control.Controller.predicted_capsule_path`), m; None where it
+        predicts nothing (and on a final failure row, where no step was taken).
+    realtime : RealtimeStats or None
+        Wall-clock pacing figures of a real-time run; None otherwise.
     """
 
     scenario: Scenario
@@ -157,6 +230,8 @@ class RunResult:
     sim_time_s: float
     plant_steps: int
     meta: dict[str, Any] = field(default_factory=dict)
+    predictions: list[np.ndarray | None] = field(default_factory=list)
+    realtime: RealtimeStats | None = None
 
     @property
     def realtime_factor(self) -> float:
@@ -164,7 +239,7 @@ class RunResult:
         return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
 
     def summary(self) -> dict[str, Any]:
-        """What ``run.json`` holds: provenance, metrics, flags, limit counts and timing."""
+        """What ``run.json`` holds: provenance, metrics, flags, limit counts, timing, real-time pacing."""
         return {
             "controller": self.controller,
             "seed": self.seed,
@@ -181,6 +256,7 @@ class RunResult:
                 "plant_steps": self.plant_steps,
                 "realtime_factor": self.realtime_factor,
             },
+            "realtime": None if self.realtime is None else vars(self.realtime),
         }
 
 
@@ -220,6 +296,22 @@ def _check_command(cmd: Any) -> np.ndarray | None:
     return v
 
 
+def realtime_scenario(scenario: Scenario) -> Scenario:
+    """``scenario`` with ``mpc.enforce_deadline = True`` (what a wall-clock-paced controller gets)."""
+    if scenario.mpc.enforce_deadline:
+        return scenario
+    return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"enforce_deadline": True})})
+
+
+def _wait_until(deadline: float) -> float:
+    """Sleep until ``time.perf_counter()`` reaches ``deadline``; returns the time slept, s."""
+    remaining = deadline - time.perf_counter()
+    if remaining <= 0:
+        return 0.0
+    time.sleep(remaining)
+    return remaining
+
+
 def simulate(
     scenario: Scenario,
     controller: Controller | str,
@@ -230,6 +322,7 @@ def simulate(
     actuator: Actuator | None = None,
     plant: CapsulePlant | None = None,
     meta: dict[str, Any] | None = None,
+    realtime: bool = False,
 ) -> RunResult:
     """Run one closed-loop simulation.
 
@@ -251,6 +344,10 @@ def simulate(
         The plant; default the finite-magnet plant of ``scenario``.
     meta : dict, optional
         Provenance copied into :attr:`RunResult.meta` (e.g. ``config``, ``waypoints_file``).
+    realtime : bool
+        Pace the loop to the wall clock at the camera rate and count deadline misses
+        (:class:`RealtimeStats`); the controller gets :func:`realtime_scenario`. The run then
+        takes as long as the simulated time (settle phase included).
 
     Returns
     -------
@@ -260,6 +357,8 @@ def simulate(
     """
     ctrl = make_controller(controller) if isinstance(controller, str) else controller
     name = controller if isinstance(controller, str) else (ctrl.name or type(ctrl).__name__)
+    if realtime:
+        scenario = realtime_scenario(scenario)
     rng = np.random.default_rng(seed)
     sim, cam_cfg = scenario.sim, scenario.camera
     dt = 1.0 / sim.plant_rate_hz
@@ -284,6 +383,9 @@ def simulate(
     log = _Log(j_last - j0 + 2)
     flags = RunFlags()
     stats: list[StepStats] = []
+    predictions: list[np.ndarray | None] = []
+    period_s = 1.0 / cam_cfg.rate_hz
+    pacing = RealtimeStats(period_ms=period_s * 1e3) if realtime else None
     completion = math.nan
     rest_s = 0.0
     tol = sim.completion_tol_m
@@ -296,6 +398,7 @@ def simulate(
     step_plant, step_act = plant.step, act.step_xyz
     wall0 = time.perf_counter()
     for j in range(j0, j_last + 1):
+        slot_start = wall0 + (j - j0) * period_s
         status = OK
         for _ in range(round(j * ratio) - k):
             ex, ey, ez = step_act(dt)
@@ -323,11 +426,18 @@ def simulate(
             row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), cmd_applied.tolist()))
             row["solver_status"], row["solver_failed"] = "", 0
             log.add(row)
+            predictions.append(None)
             break
         meas = camera.frame(t, pos)
+        if pacing is not None:
+            pacing.slept_s += _wait_until(slot_start)
         c0 = time.perf_counter()
         cmd = ctrl.step(t, meas, epm)
-        row["controller_ms"] = (time.perf_counter() - c0) * 1e3
+        c1 = time.perf_counter()
+        row["controller_ms"] = (c1 - c0) * 1e3
+        if pacing is not None:
+            pacing.record(t, c1 - c0, c1 - (slot_start + period_s))
+        predictions.append(ctrl.predicted_capsule_path())
         vel = _check_command(cmd)
         step_stats = cmd.stats if isinstance(cmd, Command) else StepStats(status="invalid", failed=True)
         if vel is None:
@@ -357,7 +467,9 @@ def simulate(
     wall = time.perf_counter() - wall0
     bar.close()
     arrays = log.arrays()
-    metrics = run_metrics(arrays, path, completion_time_s=completion, deadline_ms=1e3 / cam_cfg.rate_hz)
+    metrics = run_metrics(arrays, path, completion_time_s=completion, deadline_ms=period_s * 1e3)
+    if pacing is not None:  # measured on the wall clock rather than from the reported solve times
+        metrics["deadline_misses"] = pacing.deadline_misses
     metrics.update(
         completed=flags.completed, decoupled=flags.decoupled, dropped=flags.dropped,
         stalled=flags.stalled, timed_out=flags.timed_out, invalid_commands=flags.invalid_commands,
@@ -368,4 +480,5 @@ def simulate(
         scenario=scenario, controller=name, seed=seed, path=path, log=arrays, metrics=metrics,
         flags=flags, step_stats=stats, limit_counts=limits, wall_time_s=wall,
         sim_time_s=(k - k_first) * dt, plant_steps=k - k_first, meta=dict(meta or {}),
+        predictions=predictions, realtime=pacing,
     )  # fmt: skip
