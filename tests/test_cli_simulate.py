@@ -85,3 +85,84 @@ def test_demo_compares_on_the_rectangle(tmp_path, monkeypatch, capsys, table):
     assert summary["path_length_m"] == pytest.approx(0.32)
     assert f"demo results: {out.resolve()}" in capsys.readouterr().out
     assert yaml.safe_load((out / "follow" / "config.yaml").read_text())["name"] == "rectangle"
+
+
+@pytest.fixture
+def quick_config(tmp_path):
+    """The paper rig with a short settle and the MPC's NLP left uncompiled (builds in ~1 s)."""
+    f = tmp_path / "quick.yaml"
+    f.write_text("base: paper\nname: quick\nsim: {settle_s: 0.5, tail_s: 0.5}\nmpc: {compile_c: false}\n")
+    return f
+
+
+def test_simulate_realtime_reports_deadline_misses(tmp_path, short_path, quick_config, capsys, table):
+    out = tmp_path / "rt"
+    args = ["simulate", "--controller", "follow", "--config", str(quick_config), "--out", str(out)]
+    assert (
+        main([*args, "--waypoints", str(short_path), "--speed", "0.04", "--realtime", "--no-progress"]) == 0
+    )
+    run = json.loads((out / "run.json").read_text())
+    rt = run["realtime"]
+    assert rt["frames"] > 30 and rt["period_ms"] == pytest.approx(1e3 / 30)
+    assert run["metrics"]["deadline_misses"] == rt["deadline_misses"]
+    assert run["timing"]["wall_time_s"] == pytest.approx(run["timing"]["sim_time_s"], abs=0.15)
+    assert load_config(out / "config.yaml").mpc.enforce_deadline  # what the controller ran with
+    text = capsys.readouterr().out
+    assert f"deadline misses {rt['deadline_misses']} " in text and "worst step" in text
+    assert not (out / "joint_trajectory.csv").exists()  # follow: no arm outputs unless --arm
+
+
+def test_simulate_mpc_writes_predictions_and_arm_outputs(tmp_path, short_path, quick_config, capsys, table):
+    out = tmp_path / "mpc"
+    args = ["simulate", "--controller", "mpc", "--config", str(quick_config), "--out", str(out)]
+    assert main([*args, "--waypoints", str(short_path), "--no-progress"]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert {"mpc_prediction.png", "predictions.npz", "epm_trajectory.csv", "joint_trajectory.csv",
+            "joint_trajectory.yaml", "joint_trajectory.png"} <= names  # fmt: skip
+    log = read_log(out / "log.csv")
+    joints = np.loadtxt(out / "joint_trajectory.csv", delimiter=",", skiprows=1)
+    moving = log["t_s"] >= 0
+    assert joints[0, 0] == pytest.approx(log["t_s"][moving][0])  # from t = 0 on, not the settle
+    assert joints[-1, 0] >= log["t_s"][-1] - 1e-9
+    text = capsys.readouterr().out
+    assert "solve time median" in text and "arm:" in text
+
+
+def test_simulate_reports_an_arm_that_cannot_follow(
+    tmp_path, short_path, quick_config, capsys, monkeypatch, table
+):
+    from capsule_mpc.arm import UnreachableTargetError
+
+    def unreachable(scenario, t_s, epm, out_dir, **kw):
+        raise UnreachableTargetError(t_s[3], epm[3], "joint 2 leaves its position limit")
+
+    monkeypatch.setattr("capsule_mpc.arm.export_arm_trajectory", unreachable)
+    out = tmp_path / "arm"
+    args = ["simulate", "--controller", "follow", "--arm", "--config", str(quick_config), "--out", str(out)]
+    assert main([*args, "--waypoints", str(short_path), "--speed", "0.04", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "cannot follow" in err and "joint 2 leaves its position limit" in err and "skipped" in err
+    assert (out / "log.csv").exists() and not (out / "joint_trajectory.csv").exists()
+
+
+def test_simulate_rejects_unknown_controller(tmp_path, capsys):
+    assert main(["simulate", "--controller", "nope", "--out", str(tmp_path / "x")]) == 2
+    assert "unknown 'nope'" in capsys.readouterr().err
+
+
+def test_compare_with_mpc_adds_solver_figures_and_prediction(tmp_path, short_path, quick_config, table):
+    out = tmp_path / "cmp"
+    args = ["compare", "--config", str(quick_config), "--out", str(out), "--waypoints", str(short_path)]
+    assert main([*args, "--controllers", "follow", "mpc", "--no-progress"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert "mpc_prediction.png" in summary["figures"] and (out / "mpc_prediction.png").stat().st_size > 0
+    entry = summary["controllers"]["mpc"]
+    log = read_log(out / "mpc" / "log.csv")
+    solve = log["solve_ms"][np.isfinite(log["solve_ms"])]
+    assert len(solve) >= len(log["t_s"]) - 2  # every step but the first (no measurement yet) solves
+    assert entry["solve_ms_median"] == pytest.approx(np.median(solve))
+    assert entry["solve_ms_p99"] == pytest.approx(np.percentile(solve, 99))
+    assert entry["deadline_misses"] == int(np.sum(solve > 1e3 / 30))
+    assert entry["solver_failures"] == int(log["solver_failed"].sum())
+    assert summary["controllers"]["follow"]["solve_ms_median"] is None  # follow does not solve
+    assert "deadline misses" in (out / "summary.md").read_text()

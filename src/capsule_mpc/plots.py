@@ -1,4 +1,5 @@
-"""Figures of runs: trajectories (paper Fig. 7a), errors over time (Fig. 8) and a metrics bar chart.
+"""Figures of runs: trajectories (paper Fig. 7a), errors over time (Fig. 8), a metrics bar chart,
+and the MPC's predicted vs actual capsule path at a corner.
 
 Every function takes run logs (column name -> array, see :mod:`capsule_mpc.sim.log`)
 keyed by controller name, draws with the Agg backend and writes a PNG.
@@ -13,9 +14,19 @@ from typing import Any
 
 import numpy as np
 
+from .metrics import prediction_errors, stack_predictions
 from .paths import ReferencePath
 
-__all__ = ["BAR_METRICS", "plot_errors", "plot_metrics", "plot_trajectories"]
+__all__ = [
+    "BAR_METRICS",
+    "CORNER_MIN_TURN_RAD",
+    "PREDICTION_ZOOM_M",
+    "first_corner_arc_m",
+    "plot_errors",
+    "plot_metrics",
+    "plot_prediction",
+    "plot_trajectories",
+]
 
 #: Metrics shown in the bar chart: (key in the metrics dict, axis label).
 BAR_METRICS: tuple[tuple[str, str], ...] = (
@@ -23,6 +34,13 @@ BAR_METRICS: tuple[tuple[str, str], ...] = (
     ("cross_track_max_mm", "cross-track max, mm"),
     ("paper_std_mm", "paper STD |P_E - P_I|, mm"),
 )
+
+#: A corner is where the path turns by at least this much within :data:`PREDICTION_ZOOM_M`, rad.
+CORNER_MIN_TURN_RAD = math.radians(30.0)
+#: Half-width of the zoomed view of the corner in the prediction figure, m.
+PREDICTION_ZOOM_M = 0.012
+#: Predicted paths drawn in the zoomed view (evenly spread over the frames near the corner).
+_PREDICTIONS_DRAWN = 12
 
 Log = Mapping[str, np.ndarray]
 
@@ -146,5 +164,141 @@ def plot_metrics(
         ax.set_xticks(range(len(names)), names, rotation=20)
         ax.set_title(label, fontsize=10)
         ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def first_corner_arc_m(path: ReferencePath, window_m: float = PREDICTION_ZOOM_M) -> float | None:
+    """Arc length (m) of the first corner after the start, or None if the path never turns.
+
+    The turn at each interior vertex is summed over ``+-window_m`` of arc length, so a rounded
+    bend (many small turns) counts as one corner; the corner is the turn-weighted centre of the
+    first run of vertices whose summed turn reaches :data:`CORNER_MIN_TURN_RAD`.
+    """
+    v = path.vertices_m
+    seg = np.diff(v, axis=0)
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+    heading = np.arctan2(seg[:, 1], seg[:, 0])
+    turn = np.abs(np.angle(np.exp(1j * np.diff(heading))))  # at interior vertices 1..M-2
+    s_v = arc[1:-1]
+    if turn.size == 0:
+        return None
+    near = np.abs(s_v[:, None] - s_v[None, :]) <= window_m
+    summed = near @ turn
+    hit = summed >= CORNER_MIN_TURN_RAD
+    if not np.any(hit):
+        return None
+    first = int(np.argmax(hit))
+    last = first
+    while last + 1 < len(hit) and hit[last + 1] and s_v[last + 1] - s_v[last] <= window_m:
+        last += 1
+    w = turn[first : last + 1]
+    return float(np.sum(w * s_v[first : last + 1]) / np.sum(w)) if np.sum(w) > 0 else float(s_v[first])
+
+
+def plot_prediction(
+    log: Log,
+    predictions: np.ndarray | Sequence[np.ndarray | None],
+    path: ReferencePath,
+    out: str | Path,
+    dt_s: float,
+    title: str = "mpc",
+) -> Path:
+    """The controller's predicted capsule paths vs the actual path at the first corner.
+
+    Left: a :data:`PREDICTION_ZOOM_M` view of the first corner after t = 0 with the
+    reference, the true capsule path and the paths predicted at frames near the corner (each
+    starting where the controller estimated the capsule one stage ahead; colour = frame time).
+    Right: RMS and max distance between a prediction and where the capsule really was, against
+    the look-ahead time (:func:`capsule_mpc.metrics.prediction_errors`), over the whole motion
+    and over the corner frames.
+
+    Parameters
+    ----------
+    log : run log
+        ``t_s``, ``capsule_x_m``, ``capsule_y_m`` (and ``solver_failed``: frames whose step
+        failed are left out, as their prediction is an older one).
+    predictions : numpy.ndarray (F, N, 2) or sequence of (N, 2) arrays / None
+        The predicted capsule path after each frame's step, m (NaN or None where none).
+    path : ReferencePath
+        The reference.
+    out : str or Path
+        PNG file to write.
+    dt_s : float
+        Time between prediction stages, s.
+    title : str
+        Controller name for the title.
+    """
+    plt = _pyplot()
+    stacked = predictions if isinstance(predictions, np.ndarray) else stack_predictions(list(predictions))
+    if stacked is None:
+        raise ValueError("predictions: the run has no predicted path (its controller does not predict)")
+    pred = np.asarray(stacked, dtype=float)
+    if pred.ndim != 3 or pred.shape[0] != len(log["t_s"]) or pred.shape[2] != 2:
+        raise ValueError(f"predictions: must have shape ({len(log['t_s'])}, N, 2), got {pred.shape}")
+    t = np.asarray(log["t_s"], dtype=float)
+    usable = np.all(np.isfinite(pred), axis=(1, 2)) & (t >= 0)
+    if "solver_failed" in log:
+        usable &= np.asarray(log["solver_failed"]) == 0
+    s_c = first_corner_arc_m(path)
+    if s_c is None:  # no corner: the middle of the path
+        s_c = path.length_m / 2
+    corner = path.point_at_arc(s_c)
+    t_c = s_c / path.speed_mps
+    zoom = min(PREDICTION_ZOOM_M, path.length_m / 4)
+    window_s = 1.5 * zoom / path.speed_mps
+    near = usable & (np.abs(t - t_c) <= window_s)
+    fig, (ax, ax_err) = plt.subplots(1, 2, figsize=(12, 5.2))
+    ref = path.vertices_m * 1e3
+    ax.plot(ref[:, 0], ref[:, 1], "k--", lw=1, label="reference")
+    ax.plot(
+        log["capsule_x_m"] * 1e3, log["capsule_y_m"] * 1e3, "b-", lw=2, alpha=0.6, label="capsule (actual)"
+    )
+    idx = np.flatnonzero(near)
+    if idx.size:
+        chosen = idx[
+            np.unique(np.linspace(0, idx.size - 1, min(_PREDICTIONS_DRAWN, idx.size)).round().astype(int))
+        ]
+        cmap = plt.get_cmap("autumn")
+        span = max(float(t[chosen[-1]] - t[chosen[0]]), 1e-9)
+        for k, i in enumerate(chosen):
+            colour = cmap((t[i] - t[chosen[0]]) / span)
+            xy = pred[i] * 1e3
+            ax.plot(
+                xy[:, 0],
+                xy[:, 1],
+                "-",
+                color=colour,
+                lw=1,
+                label="predicted (colour: frame time)" if k == 0 else None,
+            )
+            ax.plot(xy[0, 0], xy[0, 1], "o", color=colour, ms=3)
+    ax.plot(*(corner * 1e3), "k+", ms=12, mew=1.5)
+    # Centre the view inside the turn, so both legs of the corner are in it.
+    d_in = corner - path.point_at_arc(s_c - zoom)
+    d_out = path.point_at_arc(s_c + zoom) - corner
+    inward = d_out / max(float(np.linalg.norm(d_out)), 1e-12) - d_in / max(float(np.linalg.norm(d_in)), 1e-12)
+    centre = corner + 0.5 * zoom * inward / max(float(np.linalg.norm(inward)), 1e-12)
+    ax.set_xlim((centre[0] - zoom) * 1e3, (centre[0] + zoom) * 1e3)
+    ax.set_ylim((centre[1] - zoom) * 1e3, (centre[1] + zoom) * 1e3)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x, mm")
+    ax.set_ylabel("y, mm")
+    ax.set_title(f"{title}: predicted vs actual capsule path, first corner (t ~ {t_c:.1f} s)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    for frames, label, style in ((usable, "whole motion", "-"), (near, "corner frames", "--")):
+        if not np.any(frames):
+            continue
+        look, rms, worst = prediction_errors(log, pred, dt_s, frames)
+        (line,) = ax_err.plot(look, rms * 1e3, style, lw=1.5, label=f"RMS, {label}")
+        ax_err.plot(
+            look, worst * 1e3, style, lw=0.8, color=line.get_color(), alpha=0.6, label=f"max, {label}"
+        )
+    ax_err.set_xlabel("look-ahead, s")
+    ax_err.set_ylabel("|predicted - actual| capsule position, mm")
+    ax_err.set_title("prediction error against look-ahead", fontsize=10)
+    ax_err.grid(alpha=0.3)
+    ax_err.legend(fontsize=8)
     fig.tight_layout()
     return _save(fig, out)

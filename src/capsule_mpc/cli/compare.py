@@ -1,8 +1,17 @@
 """``capsule-mpc compare``: every available controller on the same plant, path and seed.
 
 Writes, into ``--out``: one run folder per controller (``log.csv``, ``config.yaml``,
-``run.json``), ``summary.json``, ``summary.md`` (a table) and the figures
-``trajectories.png`` (paper Fig. 7a), ``errors.png`` (Fig. 8) and ``metrics.png``.
+``run.json``; ``predictions.npz`` for the MPC), ``summary.json``, ``summary.md`` (a
+table) and the figures ``trajectories.png`` (paper Fig. 7a), ``errors.png`` (Fig. 8),
+``metrics.png`` and, when an ``mpc`` run is present, ``mpc_prediction.png`` (its
+predicted vs actual capsule path at the first corner).
+
+Solver figures per controller (from the run log; NaN / ``n/a`` for controllers that
+report no solve): ``solve_ms_median``, ``solve_ms_p99``, ``solve_ms_max``,
+``solver_failures`` (steps the controller reported as failed), ``deadline_misses``
+(solves longer than the camera frame period, settle phase included) and ``step_ms_max``.
+The runs are not paced to the wall clock (see ``simulate --realtime`` for that), so
+the MPC accepts late solves here and the runs are deterministic.
 """
 
 from __future__ import annotations
@@ -19,9 +28,16 @@ from typing import Any
 from ..config import Scenario
 from ..control import available_controllers
 from ..paths import ReferencePath
-from .simulate import add_run_arguments, prepare_run
+from .simulate import PREDICTION_FIGURE, add_run_arguments, prepare_run, write_prediction_figure
 
-__all__ = ["SUMMARY_COLUMNS", "compare_controllers", "register", "run", "summary_table"]
+__all__ = [
+    "PREDICTING_CONTROLLER",
+    "SUMMARY_COLUMNS",
+    "compare_controllers",
+    "register",
+    "run",
+    "summary_table",
+]
 
 #: Columns of summary.md: (metric key, header, format).
 SUMMARY_COLUMNS: tuple[tuple[str, str, str], ...] = (
@@ -36,12 +52,23 @@ SUMMARY_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("solve_ms_median", "solve median (ms)", "{:.2f}"),
     ("solve_ms_p99", "solve p99 (ms)", "{:.2f}"),
     ("solver_failures", "solver failures", "{}"),
+    ("deadline_misses", "deadline misses", "{}"),
 )
+#: The controller whose predictions are drawn in ``mpc_prediction.png``.
+PREDICTING_CONTROLLER = "mpc"
 
 
 def register(sub: Any) -> None:
     """Add the ``compare`` command."""
-    p = sub.add_parser("compare", help="run every available controller on the same plant and seed")
+    p = sub.add_parser(
+        "compare",
+        help="run every available controller on the same plant and seed",
+        description=(
+            "Run controllers (default: every registered one: follow, paper_0.8v, mpc, plan if available) on "
+            "the same plant, path and seed. Writes one run folder per controller, summary.json, summary.md, "
+            "trajectories.png, errors.png, metrics.png and, with mpc, mpc_prediction.png."
+        ),
+    )
     add_run_arguments(p)
     p.add_argument(
         "--controllers", nargs="+", default=None, help="only these controllers (default: all available)"
@@ -111,7 +138,7 @@ def compare_controllers(
     dict
         The summary written to ``summary.json``: ``{"config", "seed", "speed_mps",
         "waypoints_file", "path_length_m", "controllers": {name: metrics + flags + limit
-        counts + run_dir + realtime_factor, or {"error": text}}}``.
+        counts + run_dir + realtime_factor, or {"error": text}}, "figures": [file names]}``.
     """
     from ..plots import plot_errors, plot_metrics, plot_trajectories
     from ..sim import simulate, write_run
@@ -123,6 +150,7 @@ def compare_controllers(
     names = list(controllers) if controllers is not None else available_controllers()
     entries: dict[str, dict[str, Any]] = {}
     logs = {}
+    prediction_figure = None
     for name in names:
         try:
             result = simulate(scenario, name, path, seed, progress=progress, meta=meta)
@@ -137,6 +165,11 @@ def compare_controllers(
             "realtime_factor": result.realtime_factor,
         }
         logs[name] = result.log
+        if name == PREDICTING_CONTROLLER:
+            prediction_figure = write_prediction_figure(result, out / PREDICTION_FIGURE)
+    figures = ["trajectories.png", "errors.png", "metrics.png"] if logs else []
+    if prediction_figure is not None:
+        figures.append(prediction_figure.name)
     summary = {
         "config": meta.get("config"),
         "seed": seed,
@@ -144,6 +177,7 @@ def compare_controllers(
         "waypoints_file": meta.get("waypoints_file"),
         "path_length_m": path.length_m,
         "controllers": entries,
+        "figures": figures,
     }
     write_atomic(out / "summary.json", json.dumps(_json_value(summary), indent=2) + "\n")
     title = f"# compare: {scenario.name}, v = {path.speed_mps} m/s, seed {seed}\n\n"

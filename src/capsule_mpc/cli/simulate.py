@@ -1,16 +1,46 @@
-"""``capsule-mpc simulate``: one closed-loop run of one controller, logged to a folder."""
+"""``capsule-mpc simulate``: one closed-loop run of one controller, logged to a folder.
+
+Writes ``log.csv``, ``config.yaml``, ``run.json`` (see :mod:`capsule_mpc.sim.log`),
+``trajectories.png`` and ``errors.png``; for a controller that predicts (the MPC)
+also ``predictions.npz`` and ``mpc_prediction.png``; for the MPC (or with
+``--arm``) the arm outputs of the EPM trajectory actually run (t >= 0):
+``epm_trajectory.csv``, ``joint_trajectory.csv``, ``joint_trajectory.yaml``,
+``joint_trajectory.png``, ``arm_summary.json`` (:func:`capsule_mpc.arm.export_arm_trajectory`).
+
+``--realtime`` paces the loop to the wall clock at the camera rate and reports
+deadline misses (:func:`capsule_mpc.sim.simulate`).
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..config import Scenario, config_from_dict, load_config
 from ..magnetics import force_map
 from ..paths import ReferencePath, path_from_scenario
 
-__all__ = ["add_run_arguments", "prepare_run", "register", "run"]
+if TYPE_CHECKING:
+    from ..sim import RunResult
+
+__all__ = [
+    "ARM_CONTROLLERS",
+    "PREDICTION_FIGURE",
+    "add_run_arguments",
+    "export_run_arm",
+    "prediction_step_s",
+    "prepare_run",
+    "register",
+    "run",
+    "write_prediction_figure",
+]
+
+#: Controllers whose runs also get the arm outputs by default (their EPM trajectory is new).
+ARM_CONTROLLERS = ("mpc",)
+#: File name of the predicted-vs-actual figure.
+PREDICTION_FIGURE = "mpc_prediction.png"
 
 
 def add_run_arguments(p: argparse.ArgumentParser) -> None:
@@ -27,9 +57,34 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
 
 def register(sub: Any) -> None:
     """Add the ``simulate`` command."""
-    p = sub.add_parser("simulate", help="simulate one controller on the rig and log the run")
+    p = sub.add_parser(
+        "simulate",
+        help="simulate one controller on the rig and log the run",
+        description=(
+            "Run one controller in closed loop with the simulated rig and write log.csv, config.yaml, "
+            "run.json and figures to --out. A controller that predicts (mpc) also gets predictions.npz "
+            "and mpc_prediction.png (predicted vs actual capsule path at the first corner). For mpc, or "
+            "with --arm, the EPM trajectory actually run is turned into UR5 joint commands "
+            "(epm_trajectory.csv, joint_trajectory.csv/.yaml/.png, arm_summary.json); if the arm cannot "
+            "follow it, that is reported and the arm files are skipped."
+        ),
+    )
     add_run_arguments(p)
-    p.add_argument("--controller", required=True, help="controller name (see `capsule-mpc compare`)")
+    p.add_argument(
+        "--controller", required=True, help="controller name: follow, paper_0.8v, mpc, plan (if available)"
+    )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="pace the loop to the wall clock at the camera rate; report deadline misses (the run takes "
+        "as long as the simulated time; the MPC then treats a late solve as failed and uses its "
+        "shifted plan)",
+    )
+    arm = p.add_mutually_exclusive_group()
+    arm.add_argument(
+        "--arm", action="store_true", default=None, help="write the arm outputs (default: only for mpc)"
+    )
+    arm.add_argument("--no-arm", dest="arm", action="store_false", help="do not write the arm outputs")
     p.set_defaults(func=run)
 
 
@@ -66,18 +121,68 @@ def prepare_run(
     return scenario, path, meta
 
 
-def run(args: argparse.Namespace) -> int:
-    """Simulate ``--controller`` and write ``log.csv``, ``config.yaml``, ``run.json`` and figures."""
-    from ..plots import plot_errors, plot_trajectories
-    from ..sim import simulate, write_run
+def prediction_step_s(scenario: Scenario) -> float:
+    """Time between the MPC's prediction stages, s (``mpc.dt_s``, else one camera frame)."""
+    dt = scenario.mpc.dt_s
+    return float(dt) if dt is not None else 1.0 / scenario.camera.rate_hz
 
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
-    seed = scenario.sim.seed if args.seed is None else args.seed
-    result = simulate(scenario, args.controller, path, seed, progress=not args.no_progress, meta=meta)
-    out = write_run(result, args.out)
-    logs = {result.controller: result.log}
-    plot_trajectories(logs, path, out / "trajectories.png")
-    plot_errors(logs, path, out / "errors.png", {result.controller: result.metrics["motion_end_s"]})
+
+def write_prediction_figure(result: RunResult, out: str | Path) -> Path | None:
+    """``mpc_prediction.png`` of a run whose controller predicts (see :func:`plot_prediction`).
+
+    Returns the file, or None if the run holds no prediction.
+    """
+    from ..metrics import stack_predictions
+    from ..plots import plot_prediction
+
+    stacked = stack_predictions(result.predictions)
+    if stacked is None:
+        return None
+    return plot_prediction(
+        result.log, stacked, result.path, Path(out), prediction_step_s(result.scenario), result.controller
+    )
+
+
+def export_run_arm(result: RunResult, out_dir: str | Path) -> dict[str, Path] | None:
+    """Arm outputs of the EPM trajectory a run actually followed (frames at t >= 0).
+
+    Calls :func:`capsule_mpc.arm.export_arm_trajectory`. If the arm cannot follow the
+    trajectory (:class:`~capsule_mpc.arm.ArmError`, e.g. an unreachable target), a message
+    naming the time and position is printed to stderr and nothing is written: the run itself
+    is still a result.
+
+    Returns
+    -------
+    dict of str to Path or None
+        The files written, or None if the export was skipped.
+    """
+    import numpy as np
+
+    from ..arm import ArmError, export_arm_trajectory
+
+    log = result.log
+    moving = np.asarray(log["t_s"]) >= 0
+    if np.count_nonzero(moving) < 2:
+        print("  arm: skipped (the run has fewer than two frames at t >= 0)", file=sys.stderr)
+        return None
+    epm = np.column_stack([log["epm_x_m"], log["epm_y_m"], log["epm_z_m"]])[moving]
+    try:
+        arm = export_arm_trajectory(result.scenario, log["t_s"][moving], epm, out_dir)
+    except ArmError as exc:
+        print(
+            f"  arm: the robot arm cannot follow this EPM trajectory; arm files skipped: {exc}",
+            file=sys.stderr,
+        )
+        return None
+    s = arm.summary
+    print(
+        f"  arm: {s['n_setpoints']} setpoints at {s['arm_rate_hz']:.0f} Hz, worst IK error "
+        f"{s['ik']['max_position_error_m']:.1e} m -> {', '.join(p.name for p in arm.paths.values())}"
+    )
+    return dict(arm.paths)
+
+
+def _print_result(result: RunResult, out: Path) -> None:
     m, f = result.metrics, result.flags
     print(
         f"{result.controller}: cross-track RMS {m['cross_track_rms_mm']:.2f} mm, max "
@@ -86,5 +191,60 @@ def run(args: argparse.Namespace) -> int:
     )
     if f.failure:
         print(f"  FAILED at t = {f.failure_t_s:.3f} s: {f.failure}")
-    print(f"  {result.realtime_factor:.0f}x real time; results in {out}")
+    if m["solve_ms_median"] == m["solve_ms_median"]:  # not NaN: the controller reports solves
+        print(
+            f"  solve time median {m['solve_ms_median']:.2f} ms, p99 {m['solve_ms_p99']:.2f} ms, max "
+            f"{m['solve_ms_max']:.1f} ms; solver failures {m['solver_failures']}"
+        )
+    rt = result.realtime
+    if rt is not None:
+        print(
+            f"  real time: {rt.frames} frames paced at {rt.period_ms:.1f} ms; deadline misses "
+            f"{rt.deadline_misses} ({rt.deadline_misses_motion} at t >= 0; {rt.overruns} steps longer than "
+            f"a frame), worst step "
+            f"{rt.worst_step_ms:.1f} ms at t = {rt.worst_step_t_s:.2f} s, worst lateness "
+            f"{rt.max_late_ms:.1f} ms; wall {result.wall_time_s:.2f} s for "
+            f"{result.sim_time_s:.2f} s simulated"
+        )
+        print(f"  results in {out}")
+    else:
+        print(
+            f"  solves over the frame period ({1e3 / result.scenario.camera.rate_hz:.1f} ms): "
+            f"{m['deadline_misses']}; {result.realtime_factor:.0f}x real time; results in {out}"
+        )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Simulate ``--controller`` and write the run, its figures and (for mpc / ``--arm``) the arm files."""
+    from ..control import available_controllers
+    from ..plots import plot_errors, plot_trajectories
+    from ..sim import simulate, write_run
+
+    known = available_controllers()
+    if args.controller not in known:
+        print(
+            f"capsule-mpc simulate: --controller: unknown {args.controller!r}; available: {known}",
+            file=sys.stderr,
+        )
+        return 2
+    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
+    seed = scenario.sim.seed if args.seed is None else args.seed
+    result = simulate(
+        scenario,
+        args.controller,
+        path,
+        seed,
+        progress=not args.no_progress,
+        meta=meta,
+        realtime=args.realtime,
+    )
+    out = write_run(result, args.out)
+    logs = {result.controller: result.log}
+    plot_trajectories(logs, path, out / "trajectories.png")
+    plot_errors(logs, path, out / "errors.png", {result.controller: result.metrics["motion_end_s"]})
+    write_prediction_figure(result, out / PREDICTION_FIGURE)
+    _print_result(result, out)
+    want_arm = args.arm if args.arm is not None else args.controller in ARM_CONTROLLERS
+    if want_arm:
+        export_run_arm(result, out)
     return 0
