@@ -487,9 +487,7 @@ class MPCConfig(_Strict):
     height_control: bool = Field(
         False, description="Let the MPC move the EPM height (else the height command is 0)."
     )
-    deadline_ms: float | None = Field(
-        None, gt=0, description="Solve deadline, ms; None = one frame period."
-    )
+    deadline_ms: float | None = Field(None, gt=0, description="Solve deadline, ms; None = one frame period.")
     enforce_deadline: bool = Field(
         False,
         description=(

@@ -26,12 +26,12 @@ import numpy as np
 from ..config import Scenario
 from ..dynamics import CapsuleModel
 
-__all__ = ["N_DIST", "OCP", "build_ocp", "n_slacks"]
+__all__ = ["N_DIST", "OCP", "TANGENT_EPS_MPS", "build_ocp", "n_slacks"]
 
 #: Slacks per stage: coupling (lead), normal force (both bounds).
 n_slacks = 2
 #: Speed below which the reference counts as standing still, m/s (smooths the path frame).
-_TANGENT_EPS_MPS = 1e-4
+TANGENT_EPS_MPS = 1e-4
 #: Disturbance parameters: constant force (x, y) and extra friction magnitude, N.
 N_DIST = 3
 #: Variable scales: the NLP works in mm, cm/s and unit-order slacks, so the QP (an active-set
@@ -154,7 +154,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
         err = xk[0:2] - ref[0:2, k]
         # Path frame from the reference velocity: tangent t, normal n; where the reference
         # stands still (t = 0) the last term weighs the whole error isotropically.
-        tan = ref[2:4, k] / ca.sqrt(ca.sumsqr(ref[2:4, k]) + _TANGENT_EPS_MPS**2)
+        tan = ref[2:4, k] / ca.sqrt(ca.sumsqr(ref[2:4, k]) + TANGENT_EPS_MPS**2)
         nrm = ca.vertcat(-tan[1], tan[0])
         still = 1 - ca.sumsqr(tan)
         residuals += [

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..dynamics import CapsuleModel
-from ..mpc.problem import _TANGENT_EPS_MPS, FN_SCALE, S_SCALE, U_SCALE, X_SCALE, n_slacks
+from ..mpc.problem import FN_SCALE, S_SCALE, TANGENT_EPS_MPS, U_SCALE, X_SCALE, n_slacks
 from ..paths import ReferencePath
 
 __all__ = [
@@ -246,7 +246,7 @@ def _tracking_function(scenario: Scenario) -> ca.Function:
     p, v, ref_p, ref_v = (ca.SX.sym(n, 2) for n in ("p", "v", "ref_p", "ref_v"))
     u, du = ca.SX.sym("u", 3), ca.SX.sym("du", 3)
     err = p - ref_p
-    tan = ref_v / ca.sqrt(ca.sumsqr(ref_v) + _TANGENT_EPS_MPS**2)
+    tan = ref_v / ca.sqrt(ca.sumsqr(ref_v) + TANGENT_EPS_MPS**2)
     nrm = ca.vertcat(-tan[1], tan[0])
     still = 1 - ca.sumsqr(tan)
     r = ca.vertcat(
