@@ -13,7 +13,7 @@ __all__ = ["main"]
 
 #: Sub-modules of this package that each define ``register(subparsers)``; the parser they add
 #: sets ``func(args) -> int``.
-_COMMANDS = ("info", "docs", "demo", "learn", "demonstrate", "simulate", "compare", "arm", "plan")
+_COMMANDS = ("info", "docs", "demo", "learn", "demonstrate", "simulate", "compare", "arm", "plan", "bench")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,124 @@
+"""The MPC benchmark (``capsule_mpc.mpc.bench``, ``capsule-mpc bench``): a quick run with a tiny horizon."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from capsule_mpc.cli import main
+from capsule_mpc.config import load_config, packaged_config_path
+from capsule_mpc.mpc.bench import TARGETS, bench_scenario, format_report, path_first_frames
+from capsule_mpc.paths import path_from_scenario
+
+#: Tiny horizon and run: the whole smoke test (3 fresh processes, one gcc compile, 2 short
+#: closed-loop runs) takes about 6 s on 2 cores.
+HORIZON = 3
+FRAMES = 40
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory, table):
+    out = tmp_path_factory.mktemp("bench") / "mpc_bench.json"
+    argv = ["bench", "--horizons", str(HORIZON), "--schemes", "rti", "--frames", str(FRAMES)]
+    assert main([*argv, "--out", str(out), "--quiet"]) == 0
+    return json.loads(out.read_text())
+
+
+def _positive(x) -> bool:
+    return isinstance(x, int | float) and math.isfinite(x) and x > 0
+
+
+def test_report_layout_and_machine_info(report):
+    assert report["benchmark"] == "mpc_bench"
+    mach = report["machine"]
+    for key in ("platform", "cpu_count", "load_average", "load_average_end", "casadi", "python"):
+        assert key in mach
+    assert len(mach["load_average"]) == 3 and all(x >= 0 for x in mach["load_average"])
+    st = report["settings"]
+    assert st["horizons"] == [HORIZON] and st["schemes"] == ["rti"] and st["frames"] == FRAMES
+    # The path was cut to what the reference covers in FRAMES frames.
+    assert st["path_duration_s"] == pytest.approx(FRAMES / st["camera_rate_hz"])
+    assert report["config"]["scenario"]["name"] == "rectangle"
+    assert report["config"]["path"].endswith("rectangle.yaml")
+    assert _positive(report["total_s"])
+
+
+def test_build_times_cold_compile_then_warm_cache(report):
+    (case,) = report["cases"]
+    assert (case["scheme"], case["horizon"]) == ("rti", HORIZON)
+    # 7 states + 3 inputs + 2 slacks per stage.
+    assert case["n_variables"] == 12 * HORIZON
+    build = case["build"]
+    assert set(build) == {"uncompiled", "compiled_cold", "compiled_warm"}
+    for b in build.values():
+        assert _positive(b["build_s"]) and _positive(b["process_s"]) and _positive(b["import_s"])
+        assert b["process_s"] > b["build_s"]
+        assert b["warnings"] == []
+    assert not build["uncompiled"]["compiled"]
+    cold, warm = build["compiled_cold"], build["compiled_warm"]
+    assert cold["compiled"] and warm["compiled"]
+    assert not cold["loaded_from_cache"] and warm["loaded_from_cache"]
+    assert warm["build_s"] < cold["build_s"]  # gcc ran only in the first start
+
+
+def test_closed_loop_solve_statistics(report):
+    (case,) = report["cases"]
+    runs = case["closed_loop"]
+    assert set(runs) == {"compiled", "uncompiled"}
+    for run in runs.values():
+        assert run["frames"] >= FRAMES  # settle phase + motion, first solve excluded
+        assert _positive(run["first_solve"]["solve_ms"])
+        assert 0 < run["solve_steady"]["frames"] <= run["frames"]
+        for key in ("solve", "solve_cpu", "solve_steady", "controller_step"):
+            s = run[key]
+            assert all(_positive(s[k]) for k in ("median_ms", "p99_ms", "max_ms", "mean_ms"))
+            assert s["median_ms"] <= s["p99_ms"] <= s["max_ms"]
+        assert run["failures"] >= 0 and run["recoveries"] >= 0
+        assert 0 <= run["frames_over_p99_target"] <= run["frames"]
+        slow = [f["solve_ms"] for f in run["slowest_frames"]]
+        assert slow == sorted(slow, reverse=True) and slow[0] == pytest.approx(run["solve"]["max_ms"])
+        # Every frame but the first is an RTI step (or a recovery), profiled from CasADi's stats.
+        rti = run["solver_profile"]["rti"]
+        assert rti["calls"] >= run["frames"] and rti["iterations_max"] == 1  # one SQP step per call
+        assert _positive(rti["t_wall_QP_median_ms"]) and _positive(rti["wall_median_ms"])
+        assert rti["t_wall_QP_median_ms"] < rti["wall_median_ms"]
+        assert run["metrics"]["completed"] and not run["metrics"]["decoupled"]
+        assert _positive(run["metrics"]["cross_track_rms_mm"])
+
+
+def test_targets_only_at_the_target_horizon(report):
+    assert TARGETS["horizon"] != HORIZON
+    assert report["targets"] == []
+    text = format_report(report)
+    assert "compiled, cold" in text and "median" in text and "load average" in text
+
+
+def test_path_first_frames_is_the_start_of_the_path():
+    scenario = load_config(packaged_config_path("rectangle"))
+    full = path_from_scenario(scenario)
+    part = path_first_frames(full, 300, 30.0)
+    assert part.length_m == pytest.approx(0.02 * 10.0)
+    assert not part.closed and part.speed_mps == full.speed_mps
+    s = np.linspace(0.0, part.length_m, 50)
+    np.testing.assert_allclose(part.point_at_arc(s), full.point_at_arc(s), atol=1e-12)
+    assert path_first_frames(full, 10_000, 30.0) is full
+    with pytest.raises(ValueError, match="frames: must be > 0"):
+        path_first_frames(full, 0, 30.0)
+
+
+def test_bench_scenario_overrides_only_the_mpc_fields(tmp_path):
+    base = load_config(packaged_config_path("rectangle"))
+    sc = bench_scenario(base, horizon=7, scheme="ipopt", compile_c=False, cache_dir=tmp_path)
+    assert (sc.mpc.horizon, sc.mpc.scheme, sc.mpc.compile_c) == (7, "ipopt", False)
+    assert sc.force_map.cache_dir == tmp_path
+    assert sc.model_dump(exclude={"mpc", "force_map"}) == base.model_dump(exclude={"mpc", "force_map"})
+
+
+def test_bad_options_exit_2(capsys):
+    assert main(["bench", "--horizons", "1", "--quiet"]) == 2
+    assert "--horizons must each be in [2, 200]" in capsys.readouterr().err
+    assert main(["bench", "--frames", "-1", "--quiet"]) == 2
+    assert "--frames must be >= 0" in capsys.readouterr().err
