@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -76,15 +77,66 @@ def test_bad_waypoints_exit_2_with_row(tmp_path, capsys):
     assert "line 3" in capsys.readouterr().err
 
 
-def test_demo_compares_on_the_rectangle(tmp_path, monkeypatch, capsys, table):
-    monkeypatch.setattr("capsule_mpc.cli.compare.available_controllers", lambda: ["follow"])
+def test_demo_demonstrates_learns_and_compares_with_a_cache(tmp_path, capsys, table):
+    from capsule_mpc.config import packaged_config_path
+
+    cfg = tmp_path / "rect.yaml"  # the demo's rectangle, with a shorter settle phase
+    cfg.write_text(f"base: {packaged_config_path('rectangle')}\nsim: {{settle_s: 0.5}}\n")
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out)]) == 0
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["config"].endswith("rectangle.yaml")
+    args = ["demo", "--config", str(cfg), "--out", str(out), "--speeds", "0.03", "0.04"]
+    args += ["--controllers", "follow", "--no-progress"]
+    assert main(args) == 0
+    first = capsys.readouterr().out
+    logs = sorted((out / "demonstrations").glob("*/log.csv"))
+    assert len(logs) == 6  # straight x, straight y, rectangle at two speeds
+    model = yaml.safe_load((out / "learned_friction.yaml").read_text())
+    assert model["force_model"] == "lookup" and model["degree"] == 4
+    assert sorted(model["sources"]) == sorted(str(p.resolve()) for p in logs)
+    assert (out / "learning" / "friction_c_fit.png").stat().st_size > 0
+    scenario = load_config(out / "scenario.yaml")  # the derived scenario: lookup model + learned friction
+    assert scenario.force_model == "lookup" and scenario.path.rectangle_size_m == (0.1, 0.06)
+    assert scenario.sim.settle_s == 0.5
+    assert scenario.controller_friction().coefficients == model["coefficients"]
+    summary = json.loads((out / "compare" / "summary.json").read_text())
+    assert summary["config"] == str((out / "scenario.yaml").resolve())
     assert summary["path_length_m"] == pytest.approx(0.32)
-    assert f"demo results: {out.resolve()}" in capsys.readouterr().out
-    assert yaml.safe_load((out / "follow" / "config.yaml").read_text())["name"] == "rectangle"
+    assert list(summary["controllers"]) == ["follow"]
+    used = yaml.safe_load((out / "compare" / "follow" / "config.yaml").read_text())
+    assert used["friction"]["learned"]["coefficients"] == model["coefficients"]  # inlined beside the run
+    assert "| follow |" in first and "demo results" in first and str(out.resolve() / "compare") in first
+    assert "(0 cached)" in first and "friction model: c(v) of degree 4" in first
+
+    # Second run: demonstrations reused, no re-fit, the comparison runs again.
+    stamp = (out / "learned_friction.yaml").stat().st_mtime_ns
+    assert main(args) == 0
+    second = capsys.readouterr().out
+    assert "(6 cached)" in second and "friction model: up to date" in second and "| follow |" in second
+    assert (out / "learned_friction.yaml").stat().st_mtime_ns == stamp  # (re-fit rules: next test)
+
+
+def test_model_is_current_needs_the_same_logs(tmp_path):
+    from capsule_mpc.cli.demo import model_is_current
+
+    log_a, log_b, model = tmp_path / "a.csv", tmp_path / "b.csv", tmp_path / "m.yaml"
+    for f in (log_a, log_b):
+        f.write_text("t_s\n")
+    assert not model_is_current(model, [log_a])  # no model yet
+    model.write_text(yaml.safe_dump({"force_model": "lookup", "sources": [str(log_a.resolve())]}))
+    os.utime(log_a, (0, 0))
+    os.utime(log_b, (0, 0))
+    assert model_is_current(model, [log_a])
+    assert not model_is_current(model, [log_a, log_b])  # fitted to other logs
+    future = model.stat().st_mtime + 10
+    os.utime(log_a, (future, future))
+    assert not model_is_current(model, [log_a])  # a demonstration newer than the model
+    os.utime(log_a, (0, 0))
+    model.write_text(yaml.safe_dump({"force_model": "dipole", "sources": [str(log_a.resolve())]}))
+    assert not model_is_current(model, [log_a])  # another force model
+
+
+def test_demo_rejects_unknown_controller(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path), "--controllers", "nope"]) == 2
+    assert "unknown ['nope']" in capsys.readouterr().err
 
 
 @pytest.fixture

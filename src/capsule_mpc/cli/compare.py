@@ -31,6 +31,7 @@ from ..paths import ReferencePath
 from .simulate import PREDICTION_FIGURE, add_run_arguments, prepare_run, write_prediction_figure
 
 __all__ = [
+    "CONTROLLER_ORDER",
     "PREDICTING_CONTROLLER",
     "SUMMARY_COLUMNS",
     "compare_controllers",
@@ -56,6 +57,8 @@ SUMMARY_COLUMNS: tuple[tuple[str, str, str], ...] = (
 )
 #: The controller whose predictions are drawn in ``mpc_prediction.png``.
 PREDICTING_CONTROLLER = "mpc"
+#: Order of the runs and of the table rows (the issue's order); other registered controllers follow.
+CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
 
 
 def register(sub: Any) -> None:
@@ -127,7 +130,8 @@ def compare_controllers(
     out : str or Path
         Output folder (created).
     controllers : sequence of str, optional
-        Names to run; default every registered controller (:func:`available_controllers`).
+        Names to run, in this order; default every registered controller
+        (:func:`available_controllers`) in :data:`CONTROLLER_ORDER`, then the others.
     meta : dict, optional
         Provenance (``config``, ``waypoints_file``) for the summary and each run.json.
     progress : bool
@@ -147,7 +151,11 @@ def compare_controllers(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
-    names = list(controllers) if controllers is not None else available_controllers()
+    if controllers is not None:
+        names = list(controllers)
+    else:
+        known = available_controllers()
+        names = [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
     entries: dict[str, dict[str, Any]] = {}
     logs = {}
     prediction_figure = None

@@ -1,44 +1,253 @@
-"""``capsule-mpc demo``: the project's main job on the default scenario (``make demo``).
+"""``capsule-mpc demo``: demonstrate -> learn -> compare on the default scenario (``make demo``).
 
-Runs ``compare`` (every available controller, same plant and seed) on
-``configs/rectangle.yaml`` and writes the results to ``./results/demo``.
+Four steps, each cached so that a second run only repeats the comparison:
+
+1. *demonstrate*: the ``follow`` baseline at several speeds on straight and rectangular
+   paths (:func:`capsule_mpc.learning.demonstrations.run_demonstrations`) into
+   ``OUT/demonstrations/``; a run whose config, path, speed and seed are unchanged is reused.
+2. *learn*: c(v) fitted to those logs with the ``lookup`` force model (the finite-magnet
+   force map, as the paper used FEM) into ``OUT/learned_friction.yaml``, with the paper's
+   Fig. 7b/7c as ``OUT/learning/friction_*.png``. Skipped when the model exists, is newer
+   than every demonstration log and was fitted to exactly those logs.
+3. *scenario*: ``OUT/scenario.yaml``, the base config (a full dump) with
+   ``force_model: lookup`` and ``friction.learned: learned_friction.yaml``: the
+   controllers' model uses the force map and the learned friction; the simulated plant is
+   the same rig.
+4. *compare*: every available controller (``follow``, ``paper_0.8v``, ``mpc``, ``plan`` if
+   available) on that scenario, same plant and seed, into ``OUT/compare/`` (see
+   :mod:`capsule_mpc.cli.compare`).
+
+The finite-magnet force map is computed on first use and cached (``$CAPSULE_MPC_CACHE``,
+default ``~/.cache/capsule_mpc``), as is the MPC's compiled NLP.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Final, Literal
 
-from ..config import packaged_config_path
-from . import compare
+import yaml
 
-__all__ = ["DEFAULT_OUT", "register", "run"]
+from ..config import Scenario, load_config, packaged_config_path
+from .demonstrate import DEFAULT_SPEEDS_MPS
+
+__all__ = [
+    "DEFAULT_OUT",
+    "LEARNED_MODEL",
+    "SCENARIO_FILE",
+    "derived_scenario_text",
+    "model_is_current",
+    "register",
+    "run",
+]
 
 #: Where the demo writes its results (relative to the working directory).
 DEFAULT_OUT = Path("results") / "demo"
+#: The learned friction model, in the output folder.
+LEARNED_MODEL = "learned_friction.yaml"
+#: The derived scenario (base config + learned friction + lookup force model), in the output folder.
+SCENARIO_FILE = "scenario.yaml"
+#: The force model the friction is learned with and the controllers then use.
+FORCE_MODEL: Final[Literal["lookup"]] = "lookup"
+
+
+def _speed(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be a speed > 0 m/s, got {text}")
+    return value
 
 
 def register(sub: Any) -> None:
     """Add the ``demo`` command."""
     p = sub.add_parser(
-        "demo", help="compare every controller on the default scenario (what `make demo` runs)"
+        "demo",
+        help="demonstrate -> learn friction -> compare every controller (what `make demo` runs)",
+        description=(
+            "The project's main job, cached: (1) run the follow baseline at several speeds as "
+            "demonstrations (OUT/demonstrations/, finished runs are reused), (2) learn c(v) from them with "
+            "the lookup force model (OUT/learned_friction.yaml; skipped if it is newer than the "
+            "demonstrations), (3) write OUT/scenario.yaml = the config + force_model: lookup + "
+            "friction.learned, (4) compare every available controller on it (OUT/compare/: summary.md, "
+            "summary.json, figures, one run folder per controller)."
+        ),
     )
-    p.add_argument("--config", default=None, help="scenario YAML (default: packaged rectangle.yaml)")
+    p.add_argument("--config", default=None, help="base scenario YAML (default: packaged rectangle.yaml)")
     p.add_argument("--out", default=str(DEFAULT_OUT), help=f"output folder (default: {DEFAULT_OUT})")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default: sim.seed of the config)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="seed of the demonstrations and the comparison (default: sim.seed)",
+    )
+    p.add_argument(
+        "--speeds",
+        type=_speed,
+        nargs="+",
+        default=list(DEFAULT_SPEEDS_MPS),
+        help="demonstration speeds, m/s (default: " + " ".join(f"{v:g}" for v in DEFAULT_SPEEDS_MPS) + ")",
+    )
+    p.add_argument(
+        "--controllers", nargs="+", default=None, help="compare only these (default: all available)"
+    )
+    p.add_argument("--no-cache", action="store_true", help="re-run the demonstrations and re-fit the model")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run ``compare`` on the default scenario and say where the results are."""
-    config = args.config if args.config is not None else str(packaged_config_path("rectangle"))
-    print(f"capsule-mpc demo: comparing every controller on {config}")
-    ns = argparse.Namespace(
-        config=config, out=args.out, seed=args.seed, waypoints=None, speed=None,
-        controllers=None, no_progress=False,
+def model_is_current(model_path: Path, log_paths: Sequence[Path]) -> bool:
+    """Whether a learned model can be reused: it exists, is newer than every log, and was fitted to them.
+
+    Parameters
+    ----------
+    model_path : Path
+        The learned-model YAML.
+    log_paths : sequence of Path
+        The demonstration logs it should have been fitted to.
+    """
+    if not model_path.exists() or not log_paths:
+        return False
+    stamp = model_path.stat().st_mtime
+    if any(Path(p).stat().st_mtime >= stamp for p in log_paths):
+        return False
+    try:
+        data = yaml.safe_load(model_path.read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return False
+    if not isinstance(data, dict) or data.get("force_model") != FORCE_MODEL:
+        return False
+    return set(data.get("sources") or []) == {str(Path(p).resolve()) for p in log_paths}
+
+
+def derived_scenario_text(base: Scenario, model_file: str) -> str:
+    """The demo's scenario: ``base`` in full with the lookup force model and the learned friction.
+
+    Parameters
+    ----------
+    base : Scenario
+        The base scenario (rig, path, limits, ...).
+    model_file : str
+        The learned-model YAML, relative to the scenario file's folder.
+    """
+    data = base.model_dump(mode="json", exclude_none=True)
+    data["force_model"] = FORCE_MODEL
+    data["friction"]["learned"] = model_file
+    source = base.source_path if base.source_path is not None else "the packaged defaults"
+    header = (
+        f"# Written by `capsule-mpc demo`: {source} with the controllers' model switched to the\n"
+        f"# finite-magnet force map (force_model: {FORCE_MODEL}) and the friction learned from the\n"
+        f"# demonstrations (friction.learned: {model_file}). The simulated plant is unchanged.\n"
+    )
+    return header + yaml.safe_dump(data, sort_keys=False)
+
+
+def _demonstrate(base: Scenario, args: argparse.Namespace, out: Path, seed: int) -> list[Path]:
+    from ..learning.demonstrations import run_demonstrations
+
+    t0 = time.perf_counter()
+    runs = run_demonstrations(
+        base, args.speeds, out / "demonstrations", seed=seed, use_cache=not args.no_cache,
+        progress=not args.no_progress,
     )  # fmt: skip
-    status = compare.run(ns)
+    cached = sum(r.cached for r in runs)
+    print(
+        f"[1/4] demonstrations: {len(runs)} follow runs ({cached} cached) at "
+        f"{', '.join(f'{v:g}' for v in args.speeds)} m/s in {time.perf_counter() - t0:.1f} s "
+        f"-> {out / 'demonstrations'}"
+    )
+    for r in runs:
+        if r.status in ("decoupled", "dropped"):
+            print(f"  note: {Path(r.run_dir).name} {r.status}; its log is used up to the failure")
+    return [r.log_path.resolve() for r in runs]
+
+
+def _learn(base: Scenario, logs: list[Path], out: Path, refit: bool) -> Path:
+    from ..learning import LogOptions, learn_from_logs, write_model
+    from ..learning.plots import save_figures
+
+    model_path = out / LEARNED_MODEL
+    if not refit and model_is_current(model_path, logs):
+        print(f"[2/4] friction model: up to date (newer than the demonstrations) -> {model_path}")
+        return model_path
+    t0 = time.perf_counter()
+    result = learn_from_logs(logs, base, LogOptions(force_model=FORCE_MODEL))
+    write_model(result.model, model_path)
+    figures = save_figures(result, out / "learning")
+    fit = result.fit
+    lo, hi = fit.validity_mps
+    r2 = "n/a" if fit.r2 is None else f"{fit.r2:.3f}"
+    print(
+        f"[2/4] friction model: c(v) of degree {fit.degree} from {fit.n_samples} of {len(result.samples)} "
+        f"samples, valid {lo:.4g}-{hi:.4g} m/s, R^2 {r2}, in {time.perf_counter() - t0:.1f} s "
+        f"-> {model_path} (figures: {', '.join(p.name for p in figures)} in {out / 'learning'})"
+    )
+    return model_path
+
+
+def _write_if_changed(path: Path, text: str) -> None:
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Demonstrate, learn, write the derived scenario and compare; say where everything is.
+
+    Exit status: 0; 1 if a controller raised or the fit failed; 2 for an unknown controller.
+    """
+    from ..control import available_controllers
+    from ..learning import LearningDataError
+    from ..magnetics import force_map
+    from ..paths import path_from_scenario
+    from .compare import compare_controllers, summary_table
+
+    wall0 = time.perf_counter()
+    known = available_controllers()
+    unknown = [n for n in args.controllers or [] if n not in known]
+    if unknown:
+        print(f"capsule-mpc demo: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
+        return 2
+    config = args.config if args.config is not None else str(packaged_config_path("rectangle"))
     out = Path(args.out).resolve()
-    print(f"demo results: {out}/summary.md (table), {out}/*.png (figures), {out}/<controller>/log.csv (logs)")
-    return status
+    out.mkdir(parents=True, exist_ok=True)
+    base = load_config(config)
+    seed = base.sim.seed if args.seed is None else args.seed
+    print(f"capsule-mpc demo: demonstrate -> learn -> compare on {config} (seed {seed}), into {out}")
+    force_map(base, progress=not args.no_progress)  # computed once per machine, then cached
+    logs = _demonstrate(base, args, out, seed)
+    try:
+        model_file = _learn(base, logs, out, refit=args.no_cache)
+    except (LearningDataError, ValueError) as exc:
+        print(f"capsule-mpc demo: learning the friction failed: {exc}", file=sys.stderr)
+        return 1
+    scenario_path = out / SCENARIO_FILE
+    _write_if_changed(scenario_path, derived_scenario_text(base, model_file.name))
+    scenario = load_config(scenario_path)
+    print(f"[3/4] scenario: {scenario_path} (force_model {FORCE_MODEL}, friction.learned {model_file.name})")
+    path = path_from_scenario(scenario)
+    t0 = time.perf_counter()
+    compare_dir = out / "compare"
+    print(
+        f"[4/4] compare: {', '.join(args.controllers) if args.controllers else 'every available controller'}"
+    )
+    summary = compare_controllers(
+        scenario, path, compare_dir, seed, controllers=args.controllers,
+        meta={"config": str(scenario_path), "waypoints_file": None}, progress=not args.no_progress,
+    )  # fmt: skip
+    print(f"  compared in {time.perf_counter() - t0:.1f} s")
+    print(summary_table(summary["controllers"]), end="")
+    errors = [n for n, e in summary["controllers"].items() if "error" in e]
+    for name in errors:
+        print(f"capsule-mpc demo: controller {name!r} failed: {summary['controllers'][name]['error']}")
+    print(f"demo results ({time.perf_counter() - wall0:.1f} s):")
+    print(f"  demonstrations  {out / 'demonstrations'}/<path>_v<speed>mmps_r0/log.csv")
+    print(f"  learned model   {model_file} (figures in {out / 'learning'})")
+    print(f"  scenario        {scenario_path}")
+    print(
+        f"  comparison      {compare_dir}/summary.md (table), summary.json, {', '.join(summary['figures'])}"
+    )
+    print(f"  runs            {compare_dir}/<controller>/log.csv, run.json, config.yaml")
+    return 1 if errors else 0
