@@ -67,7 +67,7 @@ def register(sub: Any) -> None:
         "compare",
         help="run every available controller on the same plant and seed",
         description=(
-            "Run controllers (default: every registered one: follow, paper_0.8v, mpc, plan if available) on "
+            "Run controllers (default: every registered one: follow, paper_0.8v, plan if available, mpc) on "
             "the same plant, path and seed. Writes one run folder per controller, summary.json, summary.md, "
             "trajectories.png, errors.png, metrics.png and, with mpc, mpc_prediction.png."
         ),
