@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from capsule_mpc import ConfigError, Scenario
@@ -34,6 +34,8 @@ RATE_HZ = 500.0
 DT = 1.0 / RATE_HZ
 #: Tolerance of the finite-difference jerk against its limit (the issue's 1 %).
 JERK_TOL = 1.01
+#: How close Ruckig lands on a target position, m (its numerical precision).
+RUCKIG_PRECISION_M = 1e-8
 #: Tolerance of analytic velocities/accelerations against their limits (rounding only).
 LIMIT_TOL = 1.0 + 1e-9
 
@@ -115,7 +117,7 @@ def test_plan_smoothing_is_jerk_limited_and_starts_and_ends_at_rest(limits, spee
     assert cart.t_s[0] == t[0]
     assert_within_limits(cart.position_m, cart.velocity_mps, cart.acceleration_mps2, limits)
     np.testing.assert_array_equal(cart.position_m[0], p[0])
-    np.testing.assert_array_equal(cart.position_m[-1], p[-1])
+    np.testing.assert_allclose(cart.position_m[-1], p[-1], rtol=0, atol=RUCKIG_PRECISION_M)
     np.testing.assert_array_equal(cart.velocity_mps[[0, -1]], 0.0)
     np.testing.assert_array_equal(cart.acceleration_mps2[[0, -1]], 0.0)
     np.testing.assert_allclose(cart.position_m[:, 2], 0.095, atol=1e-12)  # the height is not disturbed
@@ -154,12 +156,14 @@ waypoint_sequences = st.lists(
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seq=waypoint_sequences)
+# Found by hypothesis: Ruckig ends 6 nm short of the target; snapping onto it broke the jerk limit.
+@example(seq=[(0.25, 0.0, 0.0, 0.09375), (0.125, 0.0, 0.0, 0.09375)])
 def test_plan_smoothing_property(limits, seq):
     t = np.cumsum([0.0] + [s[0] for s in seq])
     p = np.array([[0.0, 0.0, 0.095]] + [list(s[1:]) for s in seq])
     cart = smooth_waypoints(t, p, limits, RATE_HZ)
     assert_within_limits(cart.position_m, cart.velocity_mps, cart.acceleration_mps2, limits)
-    np.testing.assert_array_equal(cart.position_m[-1], p[-1])
+    np.testing.assert_allclose(cart.position_m[-1], p[-1], rtol=0, atol=RUCKIG_PRECISION_M)
     assert cart.t_s[-1] >= t[-1]
 
 

@@ -559,10 +559,13 @@ def smooth_waypoints(
         else:  # the last interval targets the final rest state: follow it to the end
             t_end = max(tau + traj.duration, t_next)
             sampler.sample(traj, tau, t_end)
-            state, t_next = target, t_end
+            pos, _vel, _acc = traj.at_time(traj.duration)
+            state, t_next = (pos, [0.0] * 3, [0.0] * 3), t_end
         tau = t_next
-    # The final state (at rest at the last waypoint) at the first grid time not before it.
-    final = (p[-1].tolist(), [0.0] * 3, [0.0] * 3)
+    # The final state, at rest, at the first grid time not before it. It is where Ruckig's last
+    # trajectory ends -- within Ruckig's precision (~1e-8 m) of the last waypoint -- and not the
+    # waypoint itself: snapping those nanometres onto the 2 ms grid breaks the jerk limit.
+    final = (list(state[0]), [0.0] * 3, [0.0] * 3)
     sampler.append(sampler.next_time(), *final)
     out_t = np.array(sampler.t)
     out_p = np.array(sampler.p, dtype=float).reshape(-1, 3)
