@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from capsule_mpc.cli import main
+from capsule_mpc.cli.bench import format_report
 from capsule_mpc.config import load_config, packaged_config_path
-from capsule_mpc.mpc.bench import TARGETS, bench_scenario, format_report, path_first_frames
+from capsule_mpc.mpc.bench import TARGETS, bench_scenario, path_first_frames
 from capsule_mpc.paths import path_from_scenario
 
 #: Tiny horizon and run: the whole smoke test (3 fresh processes, one gcc compile, 2 short

@@ -8,10 +8,12 @@ bad config or option.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+from pathlib import Path
 from typing import Any
 
-__all__ = ["add_bench_arguments", "register", "run"]
+__all__ = ["add_bench_arguments", "format_report", "register", "run", "write_report"]
 
 #: Default JSON output (a folder gets ``mpc_bench.json`` inside it).
 DEFAULT_OUT = "results/benchmarks/mpc_bench.json"
@@ -58,7 +60,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark, print the tables and write the JSON report."""
-    from ..mpc.bench import format_report, run_benchmark, write_report
+    from ..mpc.bench import run_benchmark
 
     if args.frames < 0:
         print(f"capsule-mpc bench: --frames must be >= 0, got {args.frames}", file=sys.stderr)
@@ -79,3 +81,87 @@ def run(args: argparse.Namespace) -> int:
     print(format_report(report))
     print(f"wrote {out}")
     return 0
+
+
+def write_report(report: dict[str, Any], out: str | Path) -> Path:
+    """Write ``report`` as JSON to ``out`` (a ``.json`` file, or a folder: ``out/mpc_bench.json``)."""
+    target = Path(out)
+    if target.suffix != ".json":
+        target = target / "mpc_bench.json"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(target.name + ".tmp")
+    tmp.write_text(json.dumps(report, indent=2) + "\n")
+    tmp.replace(target)
+    return target
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """The report as text tables: build and start-up times, closed-loop solve times, targets."""
+    mach, st = report["machine"], report["settings"]
+    load = " ".join(f"{x:.2f}" for x in mach["load_average"] or [])
+    lines = [
+        f"MPC benchmark: {report['config']['path']}, seed {st['seed']},"
+        f" path {st['path_length_m'] * 1e3:.0f} mm ({st['path_duration_s']:.1f} s);"
+        f" {mach['cpu_count']} CPUs, load average at start {load}; casadi {mach['casadi']}",
+        "",
+        "Build / first start, fresh process, s (process incl. interpreter and imports in brackets)",
+        f"{'scheme':>7s} {'N':>4s} {'vars':>5s} {'uncompiled':>17s} {'compiled, cold':>17s}"
+        f" {'compiled, warm':>17s}",
+    ]
+
+    def build_cell(b: dict[str, Any] | None) -> str:
+        return "-" if b is None else f"{b['build_s']:.2f} ({b['process_s']:.2f})"
+
+    for c in report["cases"]:
+        b = c["build"]
+        lines.append(
+            f"{c['scheme']:>7s} {c['horizon']:4d} {c['n_variables']:5d} {build_cell(b['uncompiled']):>17s}"
+            f" {build_cell(b.get('compiled_cold')):>17s} {build_cell(b.get('compiled_warm')):>17s}"
+        )
+    lines += [
+        "",
+        "Closed loop, solve time per frame, ms (first = the converged IPOPT initialisation, left out of"
+        " the rest; cpu: CPU time of the solver calls; std: steady frames, one warm-started step after"
+        " another)",
+        f"{'scheme':>7s} {'N':>4s} {'variant':>10s} {'frames':>6s} {'first':>7s} {'median':>7s} {'p99':>7s}"
+        f" {'max':>7s} {'cpu med':>7s} {'cpu p99':>7s} {'std med':>7s} {'std p99':>7s}"
+        f" {'>5ms':>5s} {'recov':>5s} {'fail':>4s}"
+        f" {'CT RMS mm':>9s}",
+    ]
+    for c in report["cases"]:
+        for variant, r in c["closed_loop"].items():
+            s, cpu, std = r["solve"], r["solve_cpu"], r["solve_steady"]
+            lines.append(
+                f"{c['scheme']:>7s} {c['horizon']:4d} {variant:>10s} {r['frames']:6d}"
+                f" {r['first_solve']['solve_ms']:7.1f} {s['median_ms']:7.2f} {s['p99_ms']:7.2f}"
+                f" {s['max_ms']:7.1f} {cpu['median_ms']:7.2f} {cpu['p99_ms']:7.2f}"
+                f" {std['median_ms']:7.2f} {std['p99_ms']:7.2f}"
+                f" {r['frames_over_p99_target']:5d} {r['recoveries']:5d} {r['failures']:4d}"
+                f" {r['metrics']['cross_track_rms_mm']:9.3f}"
+            )
+    if report["targets"]:
+        tg = report["settings"]["targets"]
+        lines += [
+            "",
+            f"Targets at N = {tg['horizon']}: median <= {tg['median_ms']} ms, p99 <= {tg['p99_ms']} ms,"
+            f" second start <= {tg['warm_start_s']} s",
+        ]
+        for t in report["targets"]:
+            text = (
+                f"  {t['scheme']} {t['variant']}: median {t['median_ms']:.2f} ms"
+                f" {'met' if t['median_met'] else 'MISSED'}, p99 {t['p99_ms']:.2f} ms"
+                f" {'met' if t['p99_met'] else 'MISSED'}"
+            )
+            text += (
+                f" (CPU {t['cpu_median_ms']:.2f} / {t['cpu_p99_ms']:.2f} ms; steady frames"
+                f" {t['steady_median_ms']:.2f} / {t['steady_p99_ms']:.2f} ms)"
+            )
+            if "warm_start_met" in t:
+                text += (
+                    f", second start {t['warm_start_build_s']:.2f} s"
+                    f" {'met' if t['warm_start_met'] else 'MISSED'}"
+                )
+            lines.append(text)
+    end = " ".join(f"{x:.2f}" for x in mach.get("load_average_end") or [])
+    lines += ["", f"load average at end {end}; total {report['total_s']:.0f} s"]
+    return "\n".join(lines)
