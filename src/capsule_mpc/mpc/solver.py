@@ -31,9 +31,9 @@ __all__ = ["MPCSolver", "SolveResult"]
 
 #: SQP statuses that mean "a usable step was taken" (RTI stops after one iteration by design).
 _SQP_OK = {"Solve_Succeeded", "Maximum_Iterations_Exceeded"}
-#: Active-set iteration cap of qrqp: a QP needing more is treated as failed (its step is then
-#: checked for infeasibility), not waited for.
-_QP_MAX_ITER = 200
+#: Active-set iteration cap of qrqp (~0.9 ms each at N = 20, so ~45 ms): a QP needing more has
+#: cycled (zero-length steps seen in its log); its step is then checked for infeasibility.
+_QP_MAX_ITER = 50
 #: Largest constraint violation (scaled NLP units: mm, cm/s, 0.1 N) an SQP step may leave.
 #: One Gauss-Newton step across the smoothed friction's sign change (the capsule starting or
 #: stopping) routinely leaves a few units, which the next frames absorb; tens of units mean the
@@ -94,24 +94,31 @@ def _sqp_options(ocp: OCP, max_iter: int, expand: bool) -> dict:
     }
 
 
-def _ipopt_options(max_iter: int, expand: bool) -> dict:
+def _ipopt_options(ocp: OCP, max_iter: int, expand: bool) -> dict:
+    # IPOPT takes the Gauss-Newton Hessian too (upper triangle): measured 20-106 ms per
+    # recovery solve at N = 20 against 87-364 ms with its limited-memory approximation.
+    w, p = ocp.nlp["x"], ocp.nlp["p"]
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ocp.nlp["g"].shape[0])
+    hess = ca.triu(ocp.hess_lag(w, p, lam_f, lam_g))
+    hess_lag = ca.Function("nlp_hess_l", [w, p, lam_f, lam_g], [hess], ["x", "p", "lam_f", "lam_g"],
+                           ["triu_hess_gamma_x_x"])  # fmt: skip
     return {
         "expand": expand,
         "print_time": False,
         "error_on_fail": False,
+        "hess_lag": hess_lag,
         "ipopt": {
             "print_level": 0,
             "sb": "yes",
             "max_iter": max_iter,
             "tol": 1e-6,
             "acceptable_tol": 1e-4,
-            "hessian_approximation": "limited-memory",
         },
     }
 
 
-def _ipopt_warm_options(max_iter: int, expand: bool) -> dict:
-    opts = _ipopt_options(max_iter, expand)
+def _ipopt_warm_options(ocp: OCP, max_iter: int, expand: bool) -> dict:
+    opts = _ipopt_options(ocp, max_iter, expand)
     opts["ipopt"] |= {
         "warm_start_init_point": "yes",
         "warm_start_bound_push": 1e-6,
@@ -192,10 +199,15 @@ class MPCSolver:
         self.scheme = scheme
         self.loaded_from_cache = False
         t0 = time.perf_counter()
-        self._ipopt = _nlpsol("mpc_ipopt", "ipopt", ocp.nlp, lambda e: _ipopt_options(max_ipopt_iter, e))
+        self._ipopt = _nlpsol("mpc_ipopt", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, max_ipopt_iter, e))
         self._ipopt_warm = _nlpsol(
-            "mpc_ipopt_warm", "ipopt", ocp.nlp, lambda e: _ipopt_warm_options(max_ipopt_iter, e)
+            "mpc_ipopt_warm", "ipopt", ocp.nlp, lambda e: _ipopt_warm_options(ocp, max_ipopt_iter, e)
         )
+        # Constant bounds converted once (converting NumPy arguments costs ~0.1 ms per call).
+        self._bounds = {
+            "lbx": ca.DM(ocp.lbw), "ubx": ca.DM(ocp.ubw), "lbg": ca.DM(ocp.lbg), "ubg": ca.DM(ocp.ubg)
+        }  # fmt: skip
+        self._n_eq = int(np.count_nonzero(ocp.lbg == ocp.ubg))
         self._sqp: ca.Function | None = None
         w, p = ocp.nlp["x"], ocp.nlp["p"]
         self._g = ca.Function("g", [w, p], [ocp.nlp["g"]]).expand()
@@ -213,7 +225,7 @@ class MPCSolver:
 
     def _call(self, fn: ca.Function, kind: str, p: np.ndarray, w0: np.ndarray, lam_x0, lam_g0) -> SolveResult:
         ocp = self.ocp
-        args = {"x0": w0, "p": p, "lbx": ocp.lbw, "ubx": ocp.ubw, "lbg": ocp.lbg, "ubg": ocp.ubg}
+        args = {"x0": w0, "p": p, **self._bounds}
         if lam_x0 is not None and lam_g0 is not None:
             args |= {"lam_x0": lam_x0, "lam_g0": lam_g0}
         t0 = time.perf_counter()
@@ -232,7 +244,7 @@ class MPCSolver:
         ok_set = _IPOPT_OK if kind.startswith("ipopt") else _SQP_OK
         success = status in ok_set and bool(np.all(np.isfinite(w)))
         if success:
-            viol = self.violation(w, p)
+            viol = self._violation(w, np.asarray(sol["g"]).ravel())
             if viol > MAX_STEP_VIOLATION:
                 success, status = False, f"infeasible step (violation {viol:.3g})"
         return SolveResult(
@@ -248,8 +260,10 @@ class MPCSolver:
 
     def violation(self, w: np.ndarray, p: np.ndarray) -> float:
         """Largest bound or constraint violation of ``w`` (scaled NLP units)."""
+        return self._violation(w, np.asarray(self._g(w, p)).ravel())
+
+    def _violation(self, w: np.ndarray, g: np.ndarray) -> float:
         ocp = self.ocp
-        g = np.asarray(self._g(w, p)).ravel()
         parts = [ocp.lbg - g, g - ocp.ubg, ocp.lbw - w, w - ocp.ubw]
         return float(max(np.max(np.nan_to_num(v, nan=np.inf, neginf=0.0)) for v in parts))
 
