@@ -451,6 +451,13 @@ class MPCConfig(_Strict):
             "convergence by IPOPT; sqp: Gauss-Newton SQP to convergence; ipopt: interior point."
         ),
     )
+    qp_solver: Literal["piqp", "qrqp"] = Field(
+        "piqp",
+        description=(
+            "QP solver inside the SQP schemes: piqp (interior point; tight worst case) or qrqp "
+            "(CasADi's active set; same median, slower after large changes)."
+        ),
+    )
     max_sqp_iter: int = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
     max_ipopt_iter: int = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
     position_tol_m: float = Field(

@@ -66,12 +66,12 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
     ocp = build_ocp(model, dt, lead_eq)
     compile_dir = cache_directory(scenario) / "mpc" if cfg.compile_c else None
     try:
-        solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, compile_dir)
+        solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, compile_dir, cfg.qp_solver)
     except (OSError, RuntimeError) as exc:  # no C compiler, or it failed: run uncompiled
         if compile_dir is None:
             raise
         warnings.warn(f"mpc.compile_c: compiling the NLP failed ({exc}); running uncompiled", stacklevel=2)
-        solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, None)
+        solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, None, cfg.qp_solver)
     stack = MPCStack(ocp, solver, time.perf_counter() - t0, force)
     _STACKS[key] = stack
     return stack
