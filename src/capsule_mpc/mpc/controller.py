@@ -253,33 +253,47 @@ class MPCController(Controller):
                    "disturbance_y_n": float(self.disturbance_n[1]),
                    "disturbance_friction_n": float(self.disturbance_n[2])},
         )  # fmt: skip
-        if res.success and not late:
+        if res.success:
             xs, us, _ = self.stack.ocp.unpack(res.w)  # type: ignore[union-attr]
             # IPOPT's interior-point multipliers mislead the active-set QP (an undo of every
             # inactive bound: 25-400 ms measured); the next RTI step starts without them.
             sqp_after_ipopt = res.solver.startswith("ipopt") and self.stack.solver.scheme != "ipopt"  # type: ignore[union-attr]
             lam_x, lam_g = (None, None) if sqp_after_ipopt else (res.lam_x, res.lam_g)
-            self.plan = _Plan(res.w, lam_x, lam_g, xs, us)
-            self.last_prediction = xs[0:2].T.copy()
-            return self._emit(us[:, 0], epm, stats, hold=t_s < 0)
+            new_plan = _Plan(res.w, lam_x, lam_g, xs, us)
+            if not late:
+                self.plan = new_plan
+                self.last_prediction = xs[0:2].T.copy()
+                return self._emit(us[:, 0], epm, stats, hold=t_s < 0)
+            # Late: this frame's command comes from the previous plan (the new one arrived too
+            # late to be sent), but the new solution is the better warm start for the next
+            # frame -- dropping it makes the next step start cold and be late again.
+            stats.failed = True
+            stats.status = "late: " + res.status
+            self.fallback_steps += 1
+            u = self._fallback_command()
+            self.plan = new_plan
+            return self._emit(u, epm, stats, hold=t_s < 0)
         stats.failed = True
-        stats.status = ("late: " if late else "failed: ") + res.status
+        stats.status = "failed: " + res.status
         self.fallback_steps += 1
         return self._emit(self._fallback_command(), epm, stats, hold=t_s < 0)
 
     def _fallback_command(self) -> np.ndarray:
-        """The shifted previous plan while it lasts, else brake; the next solve starts cold."""
+        """The previous plan's next command while the plan lasts, else brake.
+
+        The plan is shifted by the frame that passed (its first command was applied last
+        frame), so it stays aligned with time as the next solve's warm start.
+        """
         plan = self.plan
         if plan is not None and plan.age + 1 < plan.us.shape[1]:
             plan.age += 1
-            u = plan.us[:, plan.age]
             plan.xs = np.hstack([plan.xs[:, 1:], plan.xs[:, -1:]])
             plan.us = np.hstack([plan.us[:, 1:], plan.us[:, -1:]])
             plan.w = self.stack.ocp.pack_variables(  # type: ignore[union-attr]
                 plan.xs, plan.us, np.zeros((n_slacks, plan.us.shape[1]))
             )
             plan.lam_x = plan.lam_g = None
-            return np.asarray(u, dtype=float)
+            return np.asarray(plan.us[:, 0], dtype=float)
         self.plan = None
         return np.zeros(3)  # braking target; the safety layer limits the deceleration
 
