@@ -158,3 +158,27 @@ def test_safe_command_limits_acceleration(scenario):
     )
     assert clipped
     assert out[:2] == pytest.approx([scenario.limits.accel_mps2 * dt, -scenario.limits.accel_mps2 * dt])
+
+
+def test_fallback_sends_the_previous_plans_next_commands(fast, monkeypatch):
+    ctrl = MPCController()
+    epm = np.array([-0.017, 0.0, fast.plate.epm_height_m])
+    ctrl.reset(fast, PATH, epm)
+    dt = 1 / fast.camera.rate_hz
+    for k in range(15):
+        t = k * dt
+        cmd = ctrl.step(t, Measurement(t, t - dt, PATH.position(max(t - dt, 0)) * 0.9), epm)
+        epm = epm + dt * cmd.epm_velocity_mps
+    planned = ctrl.plan.us.copy()
+    solver = ctrl.stack.solver
+    monkeypatch.setattr(solver, "solve", lambda *a, **k: _failing(type(solver).solve(solver, *a, **k)))
+    monkeypatch.setattr(
+        solver, "solve_converged", lambda *a, **k: _failing(type(solver).solve_converged(solver, *a, **k))
+    )
+    sent = []
+    for k in range(15, 18):
+        t = k * dt
+        cmd = ctrl.step(t, Measurement(t, t - dt, PATH.position(t - dt) * 0.9), epm)
+        sent.append(cmd.epm_velocity_mps)
+    # Frame by frame the plan's 2nd, 3rd, 4th commands (the 1st was sent before the failure).
+    assert np.array(sent) == pytest.approx(planned[:, 1:4].T, abs=1e-12)
