@@ -16,39 +16,18 @@ from pathlib import Path
 
 from capsule_mpc.config import load_config
 from capsule_mpc.paths import path_from_scenario
-from capsule_mpc.planner import VARIANTS, constraint_report, plan_path
+from capsule_mpc.planner import VARIANTS, plan_path, plan_summary
 
 #: The scenarios planned by default (repository configs).
 CONFIGS = ("configs/rectangle.yaml", "configs/pipe.yaml")
 
 
 def bench_case(config: str, variant: str) -> dict:
-    """Plan one path with one variant; the figures of the solve and the plan."""
+    """Plan one path with one variant; the figures of the solve and the plan (as ``plan.json``)."""
     scenario = load_config(config)
     path = path_from_scenario(scenario)
     plan = plan_path(scenario, path, variant)  # type: ignore[arg-type]
-    report = constraint_report(scenario, plan, path)
-    return {
-        "config": config,
-        "variant": variant,
-        "force_model": scenario.force_model,
-        "friction": "learned" if scenario.friction.learned is not None else "paper",
-        "status": plan.status,
-        "success": plan.success,
-        "iterations": plan.iterations,
-        "build_s": plan.build_s,
-        "solve_s": plan.solve_s,
-        "n_steps": plan.n_steps,
-        "dt_s": plan.dt_s,
-        "duration_s": plan.duration_s,
-        "nominal_duration_s": plan.nominal_duration_s,
-        "arrival_s": report["arrival_s"],
-        "cross_track_max_mm": report["cross_track_max_m"] * 1e3,
-        "residual_position_m": plan.residual.position_m if plan.residual else None,
-        "max_speed_mps": report["max_speed_mps"],
-        "max_accel_mps2": report["max_accel_mps2"],
-        "max_coupling_mm": report["max_coupling_m"] * 1e3,
-    }
+    return plan_summary(scenario, plan, path, {"config": config})
 
 
 def main() -> None:
@@ -65,7 +44,7 @@ def main() -> None:
                 f"{Path(config).stem:10s} {variant:9s} {case['status']:20s} {case['iterations']:4d} it, "
                 f"build {case['build_s']:.2f} s, solve {case['solve_s']:.2f} s, T {case['duration_s']:.2f} s "
                 f"(nominal {case['nominal_duration_s']:.2f} s), "
-                f"cross-track max {case['cross_track_max_mm']:.2f} mm"
+                f"cross-track max {case['constraints']['cross_track_max_m'] * 1e3:.2f} mm"
             )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
