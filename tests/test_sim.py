@@ -237,8 +237,8 @@ def test_simple_arm_property(scenario, commands):
 
 def test_unavailable_actuator_is_a_clear_error(scenario, monkeypatch):
     # As before the Ruckig + Pinocchio arm registers 'robot': no provider module defines it.
-    monkeypatch.setattr("capsule_mpc.sim.actuation._ACTUATORS", {"simple": SimpleArm})
-    monkeypatch.setattr("capsule_mpc.sim.actuation._PROVIDERS", ("capsule_mpc._no_such_arm",))
+    monkeypatch.setattr("capsule_mpc.actuation._ACTUATORS", {"simple": SimpleArm})
+    monkeypatch.setattr("capsule_mpc.actuation._PROVIDERS", ("capsule_mpc._no_such_arm",))
     assert isinstance(make_actuator(scenario), SimpleArm)
     with pytest.raises(ConfigError, match=r"sim\.actuator: 'robot' is not available"):
         make_actuator(tweak(scenario, "sim", actuator="robot"))
@@ -479,3 +479,16 @@ def test_predictions_are_recorded_per_frame_and_written(scenario, tmp_path):
     assert pred.shape == (len(t), 4, 2)
     assert np.all(np.isnan(pred[t < 0]))
     np.testing.assert_array_equal(pred[t >= 0, 2, 0], t[t >= 0])
+
+
+def test_arm_does_not_import_the_simulator():
+    # Data flows config -> models -> controllers -> arm -> simulator: the arm must not need sim.
+    import ast
+    from pathlib import Path
+
+    import capsule_mpc.arm as arm
+
+    for py in Path(arm.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(py.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                assert not node.module.lstrip(".").startswith("sim"), f"{py.name} imports {node.module}"

@@ -15,8 +15,8 @@ import math
 
 import numpy as np
 
+from ..actuation import Actuator, register_actuator
 from ..config import Scenario
-from ..sim.actuation import Actuator, register_actuator
 from .kinematics import ArmKinematics, IKTracker, JointTrajectory, joint_trajectory
 from .smoothing import CartesianLimits, CartesianTrajectory, VelocitySmoother
 
