@@ -64,7 +64,7 @@ def test_plan_satisfies_the_model_dynamics(fast):
     lead_eq = ocp.lead_eq_m
     x0 = np.array([0.0, 0.0, 0.0, 0.0, lead_eq[0], lead_eq[1], fast.plate.epm_height_m])
     times = ocp.dt_s * np.arange(1, n + 1)
-    ref = np.vstack([PATH.position(times).T, PATH.velocity(times).T])
+    ref = np.vstack([PATH.position(times).T, PATH.velocity(times).T, PATH.velocity(times).T])
     p = ocp.pack_parameters(x0, ref, np.zeros(3), np.zeros(3))
     guess = ocp.pack_variables(np.tile(x0[:, None], (1, n)), np.zeros((3, n)), np.zeros((2, n)))
     res = stack.solver.solve_converged(p, guess)
@@ -182,3 +182,18 @@ def test_fallback_sends_the_previous_plans_next_commands(fast, monkeypatch):
         sent.append(cmd.epm_velocity_mps)
     # Frame by frame the plan's 2nd, 3rd, 4th commands (the 1st was sent before the failure).
     assert np.array(sent) == pytest.approx(planned[:, 1:4].T, abs=1e-12)
+
+
+def test_offline_plan_as_feedforward(fast):
+    planned = fast.model_copy(update={"mpc": fast.mpc.model_copy(update={"feedforward": "plan"})})
+    ctrl = MPCController()
+    run = simulate(planned, ctrl, PATH, seed=3)
+    assert ctrl._offline_plan is not None and ctrl._offline_plan.success
+    ref = ctrl._reference(0.5)
+    starts = 0.5 + ctrl.dt_s * np.arange(1, ref.shape[1] + 1) - ctrl.dt_s  # input k starts at t + k dt
+    expected = np.array([ctrl._offline_plan.epm_velocity_at(t)[:2] for t in starts]).T
+    assert ref[4:6] == pytest.approx(expected)
+    assert np.abs(ref[4:6] - ref[2:4]).max() > 1e-4  # the plan's EPM velocity, not the path's
+    cmd = np.column_stack([run.log["cmd_vx_mps"], run.log["cmd_vy_mps"]])
+    assert np.abs(np.diff(cmd, axis=0)).max() <= fast.limits.accel_mps2 / fast.camera.rate_hz + 1e-12
+    assert run.metrics["completed"] and run.metrics["cross_track_max_mm"] < 1.5

@@ -494,6 +494,13 @@ class MPCConfig(_Strict):
     height_control: bool = Field(
         False, description="Let the MPC move the EPM height (else the height command is 0)."
     )
+    feedforward: Literal["path", "plan"] = Field(
+        "path",
+        description=(
+            "EPM velocity the command effort is measured from: the path's velocity, or the offline "
+            "plan's EPM velocity (`capsule_mpc.planner`, solved once at reset and cached)."
+        ),
+    )
     deadline_ms: float | None = Field(None, gt=0, description="Solve deadline, ms; None = one frame period.")
     enforce_deadline: bool = Field(
         False,

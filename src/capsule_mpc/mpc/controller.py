@@ -143,6 +143,19 @@ class MPCController(Controller):
         self.disturbance_n = np.zeros(N_DIST)
         self.u_prev = np.zeros(3)
         self.plan: _Plan | None = None
+        self._offline_plan = None
+        if cfg.feedforward == "plan":
+            from ..planner import cached_plan  # lazy: the planner imports mpc.problem
+
+            offline = cached_plan(scenario, path)
+            if offline.success:
+                self._offline_plan = offline
+            else:
+                warnings.warn(
+                    f"mpc.feedforward: the offline plan failed ({offline.status}); using the path's "
+                    "velocity as feed-forward",
+                    stacklevel=2,
+                )
         self.last_prediction: np.ndarray | None = None
         self.clipped_steps = 0
         self._rest_leads: list[np.ndarray] = []
@@ -152,10 +165,16 @@ class MPCController(Controller):
 
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
-        times = t_s + self.dt_s * np.arange(1, self.stack.ocp.horizon + 1)  # type: ignore[union-attr]
+        """Capsule position and velocity at stages 1..N and the EPM feed-forward of inputs 0..N-1."""
+        dt, n = self.dt_s, self.stack.ocp.horizon  # type: ignore[union-attr]
+        times = t_s + dt * np.arange(1, n + 1)
         if t_s < 0:  # settle phase: the rig holds the EPM, so plan to stay at the start
-            times = np.zeros_like(times)
-        return np.vstack([self.path.position(times).T, self.path.velocity(times).T])
+            return np.vstack([self.path.position(np.zeros(n)).T, np.zeros((4, n))])
+        pos, vel = self.path.position(times).T, self.path.velocity(times).T
+        if self._offline_plan is None:
+            return np.vstack([pos, vel, vel])
+        ff = np.array([self._offline_plan.epm_velocity_at(t)[:2] for t in times - dt]).T
+        return np.vstack([pos, vel, ff])
 
     def _update_disturbance(self, v_est: np.ndarray) -> None:
         cfg = self.scenario.mpc

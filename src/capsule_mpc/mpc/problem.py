@@ -4,7 +4,8 @@ Decision variables ``w = (X_1..X_N, U_0..U_{N-1}, S_0..S_{N-1})``: predicted
 states (7 each), EPM velocities (3 each) and two non-negative slacks per stage
 (coupling, normal force). Parameters ``p = (x_0, ref, u_prev, d)``: the
 estimated current state, the reference window (capsule position and velocity at
-stages 1..N), the command being applied, and the estimated force disturbance
+stages 1..N, and the EPM velocity feed-forward for inputs 0..N-1: the path's
+velocity, or an offline plan's EPM velocity), the command being applied, and the estimated force disturbance
 ``d = (d_x, d_y, d_fric)``: a constant force (N) plus an extra friction force
 (N) that opposes the capsule's motion -- the model's friction is the part of the
 mismatch that turns with the motion, so it must not be a fixed vector.
@@ -26,12 +27,14 @@ import numpy as np
 from ..config import Scenario
 from ..dynamics import CapsuleModel
 
-__all__ = ["N_DIST", "OCP", "TANGENT_EPS_MPS", "build_ocp", "n_slacks"]
+__all__ = ["N_DIST", "N_REF", "OCP", "TANGENT_EPS_MPS", "build_ocp", "n_slacks"]
 
 #: Slacks per stage: coupling (lead), normal force (both bounds).
 n_slacks = 2
 #: Speed below which the reference counts as standing still, m/s (smooths the path frame).
 TANGENT_EPS_MPS = 1e-4
+#: Reference rows per stage: capsule position (2), capsule velocity (2), EPM velocity feed-forward (2).
+N_REF = 6
 #: Disturbance parameters: constant force (x, y) and extra friction magnitude, N.
 N_DIST = 3
 #: Variable scales: the NLP works in mm, cm/s and unit-order slacks, so the QP (an active-set
@@ -88,7 +91,7 @@ class OCP:
     def pack_parameters(
         self, x0: np.ndarray, ref: np.ndarray, u_prev: np.ndarray, disturbance_n: np.ndarray
     ) -> np.ndarray:
-        """Parameter vector from the current state (7), reference (4 x N), command (3), d (3)."""
+        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3)."""
         return np.concatenate(
             [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), np.ravel(disturbance_n)]
         )
@@ -121,16 +124,16 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
     n, nx, nu = cfg.horizon, model.n_x, model.n_u
     # One symbol each for w and p (nlpsol and hess_lag need purely symbolic inputs), sliced.
     n_w = (nx + nu + n_slacks) * n
-    n_p = nx + 4 * n + nu + N_DIST
+    n_p = nx + N_REF * n + nu + N_DIST
     w = ca.MX.sym("w", n_w)
     p = ca.MX.sym("p", n_p)
     xs = ca.diag(ca.DM(X_SCALE)) @ ca.reshape(w[0 : nx * n], nx, n)
     us = ca.diag(ca.DM(U_SCALE)) @ ca.reshape(w[nx * n : (nx + nu) * n], nu, n)
     ss = ca.diag(ca.DM(S_SCALE)) @ ca.reshape(w[(nx + nu) * n :], n_slacks, n)
     x0 = p[0:nx]
-    ref = ca.reshape(p[nx : nx + 4 * n], 4, n)
-    u_prev = p[nx + 4 * n : nx + 4 * n + nu]
-    dist = p[nx + 4 * n + nu :]
+    ref = ca.reshape(p[nx : nx + N_REF * n], N_REF, n)
+    u_prev = p[nx + N_REF * n : nx + N_REF * n + nu]
+    dist = p[nx + N_REF * n + nu :]
 
     mass = sc.capsule.mass_kg
     eps = sc.friction.smoothing_eps_mps
@@ -162,7 +165,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
             weight * ca.dot(tan, err) / cfg.position_tol_m,
             weight * still * err / cfg.position_tol_m,
             (xk[2:4] - ref[2:4, k]) / cfg.velocity_tol_mps,
-            (uk[0:2] - ref[2:4, k]) / cfg.input_tol_mps,
+            (uk[0:2] - ref[4:6, k]) / cfg.input_tol_mps,
             (uk - u_last) / cfg.input_rate_tol_mps,
             np.sqrt(cfg.slack_weight) * sk / S_SCALE,
         ]
