@@ -333,7 +333,7 @@ def test_write_log_is_atomic(scenario, tmp_path, monkeypatch):
     def interrupted(fd):
         raise OSError("disk full")
 
-    monkeypatch.setattr("capsule_mpc.sim.log.os.fsync", interrupted)
+    monkeypatch.setattr("capsule_mpc.atomic.os.fsync", interrupted)
     with pytest.raises(OSError, match="disk full"):
         write_log(res.log, target)
     assert target.read_text() == "old"  # the old file is intact

@@ -24,7 +24,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -33,6 +32,7 @@ from typing import IO, Any
 import numpy as np
 import yaml
 
+from ..atomic import atomic_path
 from ..config import Scenario
 from .kinematics import ArmKinematics, JointTrajectory, solve_trajectory
 from .smoothing import CartesianLimits, CartesianTrajectory, smooth_waypoints
@@ -82,21 +82,10 @@ def _float_text(x: float) -> str:
     return s
 
 
-def _temp_beside(path: Path) -> Path:
-    """A temporary name in the directory of ``path`` (same file system, so the rename is atomic)."""
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
-
-
 def _atomic_write(path: Path, writer: Callable[[IO[str]], None]) -> Path:
     """Write a text file through ``writer(file)`` into a temp file beside ``path``, then rename it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _temp_beside(path)
-    try:
-        with tmp.open("w", newline="") as f:
-            writer(f)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
+        writer(f)
     return path
 
 
@@ -234,13 +223,8 @@ def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
     fig.suptitle("Joint trajectories (red: URDF limit solid, enforced limit dashed)", fontsize=10)
     fig.tight_layout()
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _temp_beside(out)
-    try:
+    with atomic_path(out) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-        tmp.replace(out)
-    finally:
-        tmp.unlink(missing_ok=True)
     return out
 
 

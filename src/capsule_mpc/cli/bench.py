@@ -13,6 +13,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..atomic import write_text_atomic
+
 __all__ = ["add_bench_arguments", "format_report", "register", "run", "write_report"]
 
 #: Default JSON output (a folder gets ``mpc_bench.json`` inside it).
@@ -88,11 +90,7 @@ def write_report(report: dict[str, Any], out: str | Path) -> Path:
     target = Path(out)
     if target.suffix != ".json":
         target = target / "mpc_bench.json"
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(target.name + ".tmp")
-    tmp.write_text(json.dumps(report, indent=2) + "\n")
-    tmp.replace(target)
-    return target
+    return write_text_atomic(target, json.dumps(report, indent=2) + "\n")
 
 
 def format_report(report: dict[str, Any]) -> str:

@@ -144,9 +144,9 @@ def compare_controllers(
         "waypoints_file", "path_length_m", "controllers": {name: metrics + flags + limit
         counts + run_dir + realtime_factor, or {"error": text}}, "figures": [file names]}``.
     """
+    from ..atomic import write_text_atomic
     from ..plots import plot_errors, plot_metrics, plot_trajectories
     from ..sim import simulate, write_run
-    from ..sim.log import write_atomic
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -187,9 +187,9 @@ def compare_controllers(
         "controllers": entries,
         "figures": figures,
     }
-    write_atomic(out / "summary.json", json.dumps(_json_value(summary), indent=2) + "\n")
+    write_text_atomic(out / "summary.json", json.dumps(_json_value(summary), indent=2) + "\n")
     title = f"# compare: {scenario.name}, v = {path.speed_mps} m/s, seed {seed}\n\n"
-    write_atomic(out / "summary.md", title + summary_table(entries))
+    write_text_atomic(out / "summary.md", title + summary_table(entries))
     if logs:
         ok = {n: e for n, e in entries.items() if "error" not in e}
         plot_trajectories(logs, path, out / "trajectories.png")

@@ -20,6 +20,7 @@ import magpylib as magpy
 import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
+from ..atomic import atomic_path
 from ..config import Scenario
 from .finite import finite_force
 
@@ -142,13 +143,11 @@ class ForceMap:
 
     def save(self, path: Path) -> None:
         """Write the table atomically to ``path`` (.npz)."""
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(
-            tmp, lead_x_m=self.lead_x_m, lead_y_m=self.lead_y_m, height_m=self.height_m,
-            force_n=self.force_n, key=np.array(self.key),
-        )  # fmt: skip
-        tmp.replace(path)
+        with atomic_path(path) as tmp:
+            np.savez_compressed(
+                tmp, lead_x_m=self.lead_x_m, lead_y_m=self.lead_y_m, height_m=self.height_m,
+                force_n=self.force_n, key=np.array(self.key),
+            )  # fmt: skip
 
     @classmethod
     def load(cls, path: Path) -> ForceMap:

@@ -13,12 +13,12 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..config import Scenario, dump_config
 from ..paths import ReferencePath
 from .core import Plan, constraint_report
@@ -56,13 +56,8 @@ PLAN_COLUMNS = (
 
 def _replace_atomically(out: Path, write: Any) -> Path:
     """Call ``write(tmp_path)``, then rename the temporary file onto ``out``."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
-    try:
+    with atomic_path(out) as tmp:
         write(tmp)
-        tmp.replace(out)
-    finally:
-        tmp.unlink(missing_ok=True)
     return out
 
 

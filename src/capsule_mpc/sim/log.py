@@ -45,13 +45,13 @@ import csv
 import io
 import json
 import math
-import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..atomic import atomic_path, write_text_atomic
 from ..config import dump_config
 from ..metrics import stack_predictions
 
@@ -66,7 +66,6 @@ __all__ = [
     "STR_COLUMNS",
     "read_log",
     "read_predictions",
-    "write_atomic",
     "write_log",
     "write_run",
 ]
@@ -100,21 +99,6 @@ STR_COLUMNS: frozenset[str] = frozenset({"solver_status"})
 PREDICTIONS_FILE = "predictions.npz"
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same folder and an atomic rename."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        with tmp.open("w", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        tmp.replace(path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def _cell(value: Any) -> str:
     if isinstance(value, (float, np.floating)):
         return repr(float(value))  # shortest text that reads back to the same float
@@ -140,7 +124,7 @@ def write_log(log: Mapping[str, np.ndarray], path: str | Path) -> None:
     cols = [log[name].tolist() for name in names]
     for row in zip(*cols):
         writer.writerow([_cell(v) for v in row])
-    write_atomic(Path(path), buf.getvalue())
+    write_text_atomic(Path(path), buf.getvalue())
 
 
 def read_log(path: str | Path) -> dict[str, np.ndarray]:
@@ -229,16 +213,12 @@ def write_run(result: RunResult, out_dir: str | Path) -> Path:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_log(result.log, out / "log.csv")
-    write_atomic(out / "config.yaml", dump_config(result.scenario))
-    write_atomic(out / "run.json", json.dumps(_jsonable(result.summary()), indent=2) + "\n")
+    write_text_atomic(out / "config.yaml", dump_config(result.scenario))
+    write_text_atomic(out / "run.json", json.dumps(_jsonable(result.summary()), indent=2) + "\n")
     stacked = stack_predictions(result.predictions)
     if stacked is not None:
-        tmp = out / f".{PREDICTIONS_FILE}.tmp{os.getpid()}.npz"
-        try:
+        with atomic_path(out / PREDICTIONS_FILE) as tmp:
             np.savez_compressed(tmp, t_s=np.asarray(result.log["t_s"], dtype=float), capsule_xy_m=stacked)
-            tmp.replace(out / PREDICTIONS_FILE)
-        finally:
-            tmp.unlink(missing_ok=True)
     return out
 
 
