@@ -7,8 +7,8 @@ The EPM's target is the reference point plus the *calibrated offset*, the lead
 ``EPM - capsule`` at which the capsule rests under the magnet (off-centre with
 the Halbach array). A baseline does not read the plant: it calibrates the offset
 from the camera measurements averaged over the settle phase (EPM at rest), and
-falls back to the controller model's equilibrium (:func:`equilibrium_lead` on
-:func:`capsule_force_function`) if no valid frame arrived. The command is the
+falls back to the controller model's equilibrium (:func:`model_equilibrium_lead`) if no
+valid frame arrived. The command is the
 path's feed-forward velocity plus a proportional correction of the EPM's own
 position error (the robot knows its pose), clipped to the speed limit.
 """
@@ -21,7 +21,7 @@ import numpy as np
 
 from .config import Scenario
 from .control import Command, Controller, Measurement, StepStats, register_controller
-from .magnetics import capsule_force_function, equilibrium_lead
+from .magnetics import model_equilibrium_lead
 from .paths import ReferencePath
 
 __all__ = [
@@ -77,9 +77,7 @@ class FollowPath(Controller):
         self.offset_source = "none"
 
     def _model_offset(self) -> np.ndarray:
-        fn = capsule_force_function(self.scenario)
-        h = self.height_m
-        return equilibrium_lead(lambda lead: np.asarray(fn(lead, h)).ravel())
+        return model_equilibrium_lead(self.scenario, self.height_m)
 
     def _calibrate(self) -> None:
         if self._settle_n > 0:

@@ -12,6 +12,7 @@ from .models import (
     equilibrium_lead,
     ipm_moment_magnitude,
     ipm_volume_m3,
+    model_equilibrium_lead,
 )
 
 __all__ = [
@@ -36,4 +37,5 @@ __all__ = [
     "ipm_position",
     "ipm_volume_m3",
     "magnet_moment",
+    "model_equilibrium_lead",
 ]

@@ -28,6 +28,7 @@ __all__ = [
     "equilibrium_lead",
     "ipm_moment_magnitude",
     "ipm_volume_m3",
+    "model_equilibrium_lead",
 ]
 
 #: Field floor that smooths the capsule's heading where the horizontal field vanishes, T.
@@ -110,3 +111,14 @@ def equilibrium_lead(
     if not sol.success:
         raise RuntimeError(f"no force equilibrium found near lead {guess_m} m: {sol.message}")
     return np.asarray(sol.x, dtype=float)
+
+
+def model_equilibrium_lead(
+    scenario: Scenario, height_m: float | None = None, kind: str | None = None
+) -> np.ndarray:
+    """Where a force model says the capsule rests: :func:`equilibrium_lead` of
+    :func:`capsule_force_function` (``kind``, default ``scenario.force_model``) at ``height_m``
+    (default ``plate.epm_height_m``), m (2,)."""
+    force = capsule_force_function(scenario, kind)
+    h = scenario.plate.epm_height_m if height_m is None else float(height_m)
+    return equilibrium_lead(lambda lead: np.asarray(force(lead, h)).ravel())

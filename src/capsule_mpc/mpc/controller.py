@@ -26,7 +26,7 @@ from ..config import Scenario
 from ..control import Command, Controller, Measurement, StepStats, register_controller
 from ..dynamics import capsule_model
 from ..estimation import CapsuleEstimator
-from ..magnetics import cache_directory, capsule_force_function, equilibrium_lead
+from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
 from .problem import N_DIST, OCP, build_ocp, n_slacks
 from .solver import MPCSolver, SolveResult
@@ -60,9 +60,8 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
     cfg = scenario.mpc
     dt = cfg.dt_s if cfg.dt_s is not None else 1.0 / scenario.camera.rate_hz
     model = capsule_model(scenario)
-    h = scenario.plate.epm_height_m
     force = capsule_force_function(scenario)
-    lead_eq = equilibrium_lead(lambda lead: np.asarray(force(lead, h)).ravel())
+    lead_eq = model_equilibrium_lead(scenario)
     ocp = build_ocp(model, dt, lead_eq)
     compile_dir = cache_directory(scenario) / "mpc" if cfg.compile_c else None
     try:

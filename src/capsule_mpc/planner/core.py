@@ -25,7 +25,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..dynamics import capsule_model, discrete_step
-from ..magnetics import capsule_force_function, equilibrium_lead
+from ..magnetics import model_equilibrium_lead
 from ..paths import ReferencePath
 from .problem import PlannerOptions, PlanNLP, build_fixed_nlp, build_min_time_nlp
 
@@ -171,13 +171,6 @@ class Plan:
             return np.zeros(3)
         k = min(int(t_s / self.dt_s), self.n_steps - 1)
         return np.asarray(self.epm_velocity_mps[k], dtype=float).copy()
-
-
-def model_equilibrium_lead(scenario: Scenario) -> np.ndarray:
-    """The controller model's equilibrium lead at the configured height, m (2,)."""
-    force = capsule_force_function(scenario)
-    h = scenario.plate.epm_height_m
-    return equilibrium_lead(lambda lead: np.asarray(force(lead, h)).ravel())
 
 
 def _ipopt_solver(pnlp: PlanNLP, options: PlannerOptions) -> ca.Function:
