@@ -218,8 +218,6 @@ class MPCSolver:
         }  # fmt: skip
         self._n_eq = int(np.count_nonzero(ocp.lbg == ocp.ubg))
         self._sqp: ca.Function | None = None
-        w, p = ocp.nlp["x"], ocp.nlp["p"]
-        self._g = ca.Function("g", [w, p], [ocp.nlp["g"]]).expand()
         if scheme in ("rti", "sqp"):
             iters = 1 if scheme == "rti" else max_sqp_iter
             if compile_dir is not None:
@@ -269,11 +267,8 @@ class MPCSolver:
             lam_g=np.asarray(sol["lam_g"]).ravel(),
         )
 
-    def violation(self, w: np.ndarray, p: np.ndarray) -> float:
-        """Largest bound or constraint violation of ``w`` (scaled NLP units)."""
-        return self._violation(w, np.asarray(self._g(w, p)).ravel())
-
     def _violation(self, w: np.ndarray, g: np.ndarray) -> float:
+        """Largest bound or constraint violation of ``w`` given ``g(w)`` (scaled NLP units)."""
         ocp = self.ocp
         parts = [ocp.lbg - g, g - ocp.ubg, ocp.lbw - w, w - ocp.ubw]
         return float(max(np.max(np.nan_to_num(v, nan=np.inf, neginf=0.0)) for v in parts))
