@@ -29,6 +29,8 @@ from pydantic import (
 )
 
 __all__ = [
+    "PLANT_FIXED",
+    "PLANT_PRESET_RANGES",
     "ArmConfig",
     "CameraConfig",
     "CapsuleConfig",
@@ -36,11 +38,13 @@ __all__ = [
     "EPMConfig",
     "ForceMapConfig",
     "FrictionConfig",
+    "FrictionPatchConfig",
     "IPMConfig",
     "LearnedFrictionModel",
     "LimitsConfig",
     "MPCConfig",
     "PathConfig",
+    "PlantConfig",
     "PlateConfig",
     "RateStateConfig",
     "Scenario",
@@ -237,12 +241,6 @@ class FrictionConfig(_Strict):
     """Friction and tether drag (paper eq. 4-12, Table 1)."""
 
     mu0: float = Field(..., ge=0, le=2, description="Sliding friction mu0, in [0, 2]. Paper: 0.22.")
-    mu_static: float = Field(
-        ...,
-        ge=0,
-        le=2,
-        description="Static (breakaway) friction coefficient of the plant, in [0, 2], >= mu0.",
-    )
     tether_drag_n: float = Field(
         ..., ge=0, description="Tether drag f_s, N, >= 0; opposes motion. Paper: 0.03 N."
     )
@@ -270,12 +268,6 @@ class FrictionConfig(_Strict):
         le=0.01,
         description="Speed smoothing eps for CasADi models (|v| -> sqrt(v^2 + eps^2)), m/s, (0, 0.01].",
     )
-
-    @model_validator(mode="after")
-    def _static_above_kinetic(self) -> FrictionConfig:
-        if self.mu_static < self.mu0:
-            raise ValueError(f"mu_static: must be >= mu0 ({self.mu0}), got {self.mu_static}")
-        return self
 
 
 class ForceMapConfig(_Strict):
@@ -385,12 +377,23 @@ class SimConfig(_Strict):
     """The simulated rig (plant integration and run length)."""
 
     plant_rate_hz: float = Field(1000.0, ge=1000, le=100000, description="Plant step rate, Hz, >= 1000.")
-    seed: int = Field(0, ge=0, description="Seed of every random draw (camera noise, drops), >= 0.")
+    seed: int = Field(
+        0,
+        ge=0,
+        description="Seed of every random draw (plant truth, start offset, camera noise, drops), >= 0.",
+    )
     settle_s: float = Field(
         1.0, ge=0, le=30, description="Time the capsule settles under the resting EPM before motion, s."
     )
     tail_s: float = Field(
-        5.0, ge=0, le=120, description="Time allowed after the nominal end before a run is cut off, s."
+        15.0,
+        ge=0,
+        le=300,
+        description=(
+            "Time allowed after 1.25 x the nominal end for the capsule to come to rest before the run "
+            "is cut off (timed out), s, [0, 300]. 15 s: with the paper's friction constants a capsule "
+            "left under a small lateral force creeps below 1 mm/s for several seconds."
+        ),
     )
     actuator: Literal["simple", "robot"] = Field(
         "simple",
@@ -408,31 +411,32 @@ class SimConfig(_Strict):
             "(or when the lead leaves the force map)."
         ),
     )
-    friction_floor_speed_mps: float = Field(
-        1e-3,
-        gt=0,
-        le=0.01,
-        description=(
-            "Regularisation speed of the plant's rate-and-state law: the direct term uses "
-            "max(|v|, this), m/s, (0, 0.01] (mu -> -inf as |v| -> 0 otherwise)."
-        ),
-    )
     completion_tol_m: float = Field(
         0.002,
         gt=0,
         le=0.05,
         description=(
-            "A run is complete when the capsule's progress reaches the path end and it is within "
-            "this distance of the final waypoint, m, (0, 0.05]."
+            "Arrival tolerance: the arrival time is the first frame at which the capsule's progress "
+            "reaches the path end and it is within this distance of the final waypoint, m, (0, 0.05]. "
+            "The run goes on until the capsule is at rest (sim.rest_hold_s)."
         ),
     )
-    stall_s: float = Field(
+    rest_hold_s: float = Field(
         1.0,
         gt=0,
         le=60,
         description=(
-            "After the nominal end, a run stops early once the EPM and the capsule have both been "
-            "at rest for this long (nothing can change any more), s, (0, 60]."
+            "A run ends once the capsule has been at rest (speed below sim.rest_speed_mps) for this "
+            "long after the path's nominal end, s, (0, 60]; never while it moves."
+        ),
+    )
+    rest_speed_mps: float = Field(
+        1e-4,
+        gt=0,
+        le=0.01,
+        description=(
+            "Speed below which the capsule counts as at rest, m/s, (0, 0.01]. Default 0.1 mm/s: over "
+            "the 1 s hold it creeps less than the camera's 0.3 mm noise can show."
         ),
     )
 
@@ -684,6 +688,265 @@ class ArmConfig(_Strict):
         return vel, acc, jerk
 
 
+#: Uniform ranges (lo, hi) each plant preset draws its truth from, per ``PlantConfig`` field (fields
+#: absent from a preset take the value in :data:`PLANT_FIXED`). ``ideal`` draws nothing: the
+#: plant is the nominal rig. Sources are given in the field descriptions of :class:`PlantConfig`.
+PLANT_PRESET_RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "ideal": {},
+    "lab": {
+        "epm_remanence_scale": (0.95, 1.01),
+        "ipm_remanence_scale": (0.95, 1.01),
+        "epm_height_offset_m": (-0.001, 0.001),
+        "epm_tilt_rad": (0.0, math.radians(1.0)),
+        "epm_tilt_azimuth_rad": (-math.pi, math.pi),
+        "epm_yaw_rad": (-math.radians(1.0), math.radians(1.0)),
+        "mass_scale": (0.97, 1.03),
+        "mu0_scale": (0.85, 1.15),
+        "a_scale": (0.8, 1.2),
+        "b_scale": (0.8, 1.2),
+        "tether_drag_n": (0.02, 0.04),
+        "tether_drag_growth_n_per_m": (0.0, 0.05),
+        "friction_field_amplitude": (0.05, 0.15),
+        "servo_bandwidth_hz": (5.0, 10.0),
+        "compute_delay_s": (0.002, 0.008),
+        "camera_bias_x_m": (-3e-4, 3e-4),
+        "camera_bias_y_m": (-3e-4, 3e-4),
+        "camera_noise_std_m": (3e-4, 5e-4),
+        "rest_before_start_s": (2.0, 30.0),
+        "start_dead_zone_fraction": (0.0, 0.8),
+    },
+    "hard": {
+        "epm_remanence_scale": (0.88, 1.0),
+        "ipm_remanence_scale": (0.85, 1.0),
+        "epm_height_offset_m": (-0.003, 0.003),
+        "epm_tilt_rad": (0.0, math.radians(3.0)),
+        "epm_tilt_azimuth_rad": (-math.pi, math.pi),
+        "epm_yaw_rad": (-math.radians(3.0), math.radians(3.0)),
+        "mass_scale": (0.9, 1.1),
+        "mu0_scale": (0.7, 1.3),
+        "a_scale": (0.6, 1.4),
+        "b_scale": (0.6, 1.4),
+        "tether_drag_n": (0.015, 0.06),
+        "tether_drag_growth_n_per_m": (0.0, 0.15),
+        "friction_field_amplitude": (0.15, 0.3),
+        "servo_bandwidth_hz": (2.0, 5.0),
+        "compute_delay_s": (0.005, 0.02),
+        "camera_bias_x_m": (-1e-3, 1e-3),
+        "camera_bias_y_m": (-1e-3, 1e-3),
+        "camera_noise_std_m": (4e-4, 8e-4),
+        "rest_before_start_s": (2.0, 120.0),
+        "start_dead_zone_fraction": (0.0, 0.95),
+    },
+}
+
+#: The nominal (``ideal``) value of every drawable ``PlantConfig`` field; ``None`` for the servo
+#: bandwidth means no lag, ``None`` for the tether drag means ``friction.tether_drag_n`` and for the
+#: camera noise ``camera.noise_std_m``.
+PLANT_FIXED: dict[str, float | None] = {
+    "epm_remanence_scale": 1.0,
+    "ipm_remanence_scale": 1.0,
+    "epm_height_offset_m": 0.0,
+    "epm_tilt_rad": 0.0,
+    "epm_tilt_azimuth_rad": 0.0,
+    "epm_yaw_rad": 0.0,
+    "mass_scale": 1.0,
+    "mu0_scale": 1.0,
+    "a_scale": 1.0,
+    "b_scale": 1.0,
+    "tether_drag_n": None,
+    "tether_drag_growth_n_per_m": 0.0,
+    "friction_field_amplitude": 0.0,
+    "servo_bandwidth_hz": None,
+    "compute_delay_s": 0.0,
+    "camera_bias_x_m": 0.0,
+    "camera_bias_y_m": 0.0,
+    "camera_noise_std_m": None,
+    "rest_before_start_s": 1.0,
+    "start_dead_zone_fraction": 0.0,
+}
+
+
+class FrictionPatchConfig(_Strict):
+    """A rectangle of the plate whose friction is scaled (a wet or dry patch), on top of the field."""
+
+    x_range_m: tuple[float, float] = Field(..., description="Patch extent in x (min, max), m, min < max.")
+    y_range_m: tuple[float, float] = Field(..., description="Patch extent in y (min, max), m, min < max.")
+    scale: float = Field(..., gt=0, le=10, description="Friction multiplier inside the patch, (0, 10].")
+    edge_m: float = Field(
+        0.0, ge=0, le=0.05, description="Width of the smooth transition at the patch edge, m, [0, 0.05]."
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> FrictionPatchConfig:
+        for name in ("x_range_m", "y_range_m"):
+            lo, hi = getattr(self, name)
+            if not lo < hi:
+                raise ValueError(f"{name}: must satisfy min < max, got {(lo, hi)}")
+        return self
+
+
+def _drawn(description: str, **kw: Any) -> Any:
+    """An optional plant field: None takes the preset's draw (or its nominal value)."""
+    return Field(None, description=description + " None: drawn by the preset.", **kw)
+
+
+class PlantConfig(_Strict):
+    """The simulated truth: what only the plant uses, never the controller (DESIGN.md §4).
+
+    The scenario's other sections are the nominal rig, i.e. what the controller believes. The
+    plant draws its own truth around them from the run's seed: each field left at None takes a
+    value drawn uniformly from the preset's tolerance range (:data:`PLANT_PRESET_RANGES`; ``ideal``
+    draws nothing and is the nominal rig); a field given a value overrides the draw. The ranges
+    quoted as "lab" / "hard" below are those of the presets.
+    """
+
+    preset: Literal["ideal", "lab", "hard"] = Field(
+        "lab",
+        description=(
+            "ideal: the plant is the nominal rig, the EPM starts at the plant's true equilibrium over "
+            "the path start (the reference case; no lag, delay, bias or friction variation). lab: "
+            "each perturbation drawn from the tolerances of a lab rig. hard: wider tolerances."
+        ),
+    )
+    epm_remanence_scale: float | None = _drawn(
+        "True EPM remanence / nominal, (0, 2]. lab U(0.95, 1.01): N35 grade B_r 1.17-1.22 T "
+        "(MMPA 0100-00; supplier datasheets) against the nominal 1.26 T, plus Halbach assembly "
+        "losses; hard U(0.88, 1.0).",
+        gt=0,
+        le=2,
+    )
+    ipm_remanence_scale: float | None = _drawn(
+        "True IPM remanence / nominal, (0, 2]. lab U(0.95, 1.01) (grade tolerance, as the EPM); "
+        "hard U(0.85, 1.0) (a small magnet ground to shape loses more).",
+        gt=0,
+        le=2,
+    )
+    epm_height_offset_m: float | None = _drawn(
+        "True EPM height minus plate.epm_height_m, m, [-0.005, 0.005]. lab U(-1, 1) mm (arm "
+        "calibration and plate flatness); hard U(-3, 3) mm.",
+        ge=-0.005,
+        le=0.005,
+    )
+    epm_tilt_rad: float | None = _drawn(
+        "Mounting tilt of the EPM (rotation about a horizontal axis), rad, [0, 0.1]. lab U(0, 1 deg) "
+        "(machined adapter and flange tolerance); hard U(0, 3 deg).",
+        ge=0,
+        le=0.1,
+    )
+    epm_tilt_azimuth_rad: float | None = _drawn(
+        "Direction of the tilt axis in the plate plane, rad, [-pi, pi]; lab and hard U(-pi, pi).",
+        ge=-math.pi,
+        le=math.pi,
+    )
+    epm_yaw_rad: float | None = _drawn(
+        "Mounting yaw error of the EPM about the vertical, rad, [-0.1, 0.1]. lab U(-1, 1) deg; "
+        "hard U(-3, 3) deg.",
+        ge=-0.1,
+        le=0.1,
+    )
+    mass_scale: float | None = _drawn(
+        "True capsule mass / capsule.mass_kg, [0.5, 2]. lab U(0.97, 1.03) (tether weight carried, "
+        "scale resolution); hard U(0.9, 1.1).",
+        ge=0.5,
+        le=2,
+    )
+    mu0_scale: float | None = _drawn(
+        "True mu0 / friction.mu0, [0.3, 3]. lab U(0.85, 1.15): the paper's pull test spans "
+        "0.042-0.048 N (+-7 %) on one sample, and sliding friction on tissue phantoms varies by "
+        "10-30 % between preparations; hard U(0.7, 1.3).",
+        ge=0.3,
+        le=3,
+    )
+    a_scale: float | None = _drawn(
+        "True rate-and-state a / friction.rate_state.a, [0.2, 5]. lab U(0.8, 1.2); hard U(0.6, 1.4) "
+        "(a and b are not measured on this rig; the paper only fits their difference).",
+        ge=0.2,
+        le=5,
+    )
+    b_scale: float | None = _drawn(
+        "True rate-and-state b / friction.rate_state.b, [0.2, 5]. lab U(0.8, 1.2); hard U(0.6, 1.4).",
+        ge=0.2,
+        le=5,
+    )
+    tether_drag_n: float | None = _drawn(
+        "True tether drag at the start of the path, N, [0, 0.5]. lab U(0.02, 0.04) around the paper's "
+        "0.03 N; hard U(0.015, 0.06); ideal friction.tether_drag_n.",
+        ge=0,
+        le=0.5,
+    )
+    tether_drag_growth_n_per_m: float | None = _drawn(
+        "Growth of the tether drag with the tether paid out (the capsule's travelled distance), N/m, "
+        "[0, 2]. lab U(0, 0.05); hard U(0, 0.15).",
+        ge=0,
+        le=2,
+    )
+    friction_field_amplitude: float | None = _drawn(
+        "Standard deviation of the friction multiplier over the plate (a smooth random field), "
+        "[0, 0.9]. lab U(0.05, 0.15); hard U(0.15, 0.3).",
+        ge=0,
+        le=0.9,
+    )
+    friction_field_correlation_m: float = Field(
+        0.03,
+        gt=0,
+        le=1,
+        description="Correlation length of the friction field, m, (0, 1]. Default 30 mm.",
+    )
+    friction_patches: list[FrictionPatchConfig] = Field(
+        default_factory=list, description="Patches whose friction is scaled, on top of the field."
+    )
+    servo_bandwidth_hz: float | None = _drawn(
+        "Bandwidth of the arm's velocity servo (first-order lag of the EPM behind its command), Hz, "
+        "(0, 1000]. lab U(5, 10) Hz (Cartesian velocity control of a UR-class arm); hard U(2, 5) Hz; "
+        "ideal no lag.",
+        gt=0,
+        le=1000,
+    )
+    compute_delay_s: float | None = _drawn(
+        "Time from a camera frame to its command reaching the arm (image processing, solve, "
+        "transport), s, [0, one camera period). lab U(2, 8) ms; hard U(5, 20) ms; ideal 0.",
+        ge=0,
+        le=0.5,
+    )
+    camera_bias_x_m: float | None = _drawn(
+        "Constant error of the camera-to-plate registration in x, m, [-0.005, 0.005]. lab U(-0.3, 0.3) "
+        "mm; hard U(-1, 1) mm.",
+        ge=-0.005,
+        le=0.005,
+    )
+    camera_bias_y_m: float | None = _drawn("As camera_bias_x_m, in y.", ge=-0.005, le=0.005)
+    camera_noise_std_m: float | None = _drawn(
+        "True camera noise per axis, m, [0, 0.01] (the estimator keeps camera.noise_std_m). lab "
+        "U(0.3, 0.5) mm; hard U(0.4, 0.8) mm; ideal camera.noise_std_m.",
+        ge=0,
+        le=0.01,
+    )
+    rest_before_start_s: float | None = _drawn(
+        "How long the capsule has rested before the run (heals the friction state theta), s, "
+        "[0, 3600]. lab U(2, 30) s; hard U(2, 120) s; ideal 1 s.",
+        ge=0,
+        le=3600,
+    )
+    start_dead_zone_fraction: float | None = _drawn(
+        "Where the capsule rests at the start: a lead drawn uniformly inside this fraction of the "
+        "static-friction dead zone around the true equilibrium, [0, 0.95] (0: at the equilibrium). "
+        "lab U(0, 0.8); hard U(0, 0.95); ideal 0.",
+        ge=0,
+        le=0.95,
+    )
+    breakaway_speed_mps: float = Field(
+        0.02,
+        gt=0,
+        le=1,
+        description=(
+            "Reload speed at which the plant's breakaway friction is evaluated: a capsule at rest "
+            "slips when the lateral force exceeds F_N mu(v_b, theta) + drag, with mu the "
+            "regularised rate-and-state law and theta its healed state, m/s, (0, 1]. 0.02 m/s (the "
+            "paper's operating speed) gives 0.26 after 1 s at rest with the paper's constants."
+        ),
+    )
+
+
 class Scenario(_Strict):
     """A whole scenario: the rig's physics and the models' settings."""
 
@@ -708,6 +971,10 @@ class Scenario(_Strict):
     mpc: MPCConfig = Field(default_factory=MPCConfig, description="The MPC controller.")
     arm: ArmConfig = Field(
         default_factory=ArmConfig, description="The arm carrying the EPM (Ruckig + Pinocchio)."
+    )
+    plant: PlantConfig = Field(
+        default_factory=PlantConfig,
+        description="The simulated truth around this nominal rig (never seen by the controller).",
     )
     source_path: Path | None = Field(
         None, exclude=True, description="File this scenario was loaded from (not dumped)."

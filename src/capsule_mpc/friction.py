@@ -4,11 +4,14 @@
   (paper eq. 10). Numeric form (non-smooth, clipped at mu = 0 with a warning) and a
   smooth CasADi form for the controller. c(v) is held at its end values outside the
   speed range it was fitted on (no polynomial extrapolation); such speeds are flagged.
-* :class:`RateStateFriction` -- mu(v, theta) and theta' (paper eq. 5-9), the plant's law.
+* :class:`RateStateFriction` -- mu(v, theta) and theta' (paper eq. 5-9), and the plant's
+  law: eq. 5 regularised at v = 0 in the arcsinh form of Rice, Lapusta & Ranjith (2001),
+  with a breakaway (static) friction that grows as the state heals at rest.
 """
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -197,6 +200,48 @@ class RateStateFriction:
         with np.errstate(divide="ignore"):
             direct = self.a * np.log(self.v_star_mps / speed + 1.0)
         return self.mu0 - direct + self.b * np.log(self.v_star_mps * theta / self.d_c_m + 1.0)
+
+    def state_term(self, theta_s: float) -> float:
+        """psi(theta) = mu0 + b ln(v* theta / D_c + 1): eq. 5 without its direct term (scalar)."""
+        return self.mu0 + self.b * math.log(self.v_star_mps * theta_s / self.d_c_m + 1.0)
+
+    def mu_regularized(self, v_mps: float, theta_s: float) -> float:
+        """Eq. 5 regularised at v = 0: mu = a asinh(v / (2 (|v| + v*)) exp(psi(theta) / a)).
+
+        The arcsinh form of Rice, Lapusta & Ranjith (J. Mech. Phys. Solids 49, 2001), written so
+        that for large arguments (asinh x -> ln 2x) it is eq. 5 exactly:
+        a ln(v / (|v| + v*)) + psi = mu0 - a ln(v*/|v| + 1) + b ln(v* theta/D_c + 1). It is odd in
+        the signed speed ``v_mps`` (m/s), finite and zero at v = 0, and increasing in |v|. Scalar
+        (``math``), because the plant calls it at every step; evaluated through ln x when the
+        argument is large so exp(psi / a) never overflows.
+        """
+        psi = self.state_term(theta_s)
+        if v_mps == 0.0:
+            return 0.0
+        speed = abs(v_mps)
+        if self.a == 0.0:  # the limit a -> 0: no direct effect, mu = psi while sliding
+            return math.copysign(psi, v_mps)
+        log_x = math.log(speed / (2.0 * (speed + self.v_star_mps))) + psi / self.a
+        mu = self.a * (log_x + math.log1p(math.sqrt(1.0 + math.exp(-2.0 * log_x))) if log_x > 0 else
+                       math.asinh(math.exp(log_x)))  # fmt: skip
+        return math.copysign(mu, v_mps)
+
+    def mu_regularized_slope(self, speed_mps: float, theta_s: float) -> float:
+        """d mu_regularized / d|v| at ``speed_mps`` >= 0 (1/(m/s)); finite at 0."""
+        if self.a == 0.0:
+            return 0.0
+        psi = self.state_term(theta_s)
+        denom = speed_mps + self.v_star_mps
+        if speed_mps == 0.0:  # the derivative of a asinh(x) at x = 0: a dx/dv
+            return self.a * math.exp(psi / self.a - math.log(2.0 * self.v_star_mps))
+        log_x = math.log(speed_mps / (2.0 * denom)) + psi / self.a
+        # a dx/dv / sqrt(1 + x^2) with dx/dv = x v* / (v (v + v*)), as x / sqrt(1 + x^2) for stability
+        ratio = (
+            1.0 / math.sqrt(1.0 + math.exp(-2.0 * log_x))
+            if log_x > 0
+            else math.exp(log_x) / math.sqrt(1.0 + math.exp(2.0 * log_x))
+        )
+        return self.a * self.v_star_mps / (speed_mps * denom) * ratio
 
     def theta_rate(self, v: Any, theta: Any) -> Any:
         """theta' = 1 - |v| theta / D_c (paper eq. 6), 1/s * s = dimensionless."""

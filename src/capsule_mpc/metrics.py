@@ -1,17 +1,36 @@
-"""Tracking metrics of a run log: cross-track error, the paper's STD metric, completion, solver stats.
+"""Tracking metrics of a run log, scored on a common time window; solver statistics.
 
-Definitions (all over the *motion phase*: frames with ``0 <= t <= t_end``, where
-``t_end`` is the completion time if the capsule completed the path, else the
-last frame at which the EPM or the capsule was still moving):
+The scoring window
+------------------
+Every window metric is taken over the frames with ``0 <= t <= window_end_s`` (t = 0 is when
+the reference starts moving; the settle phase before it is not scored). Runs end when the
+capsule has come to rest after the path's end (or at the tail cut-off), so two controllers
+usually stop at different times. To score them on the *same* window, a log that ends before
+``window_end_s`` is padded: its last row is held (the capsule and the EPM stay at rest where
+they ended) at the log's frame spacing up to ``window_end_s``; only the reference keeps being
+evaluated along the path (it holds the path's end after the nominal time, exactly as the
+runner logs it). A run that stopped early far from the goal thus keeps paying for it until the
+window closes. The solver statistics count the logged frames only (padding solves nothing).
+Without a window end, :func:`run_metrics` falls back to :func:`motion_end_s`.
 
-* cross-track error: distance from the true capsule position to the reference
-  polyline; reported as RMS and max, mm.
+Definitions
+-----------
+* cross-track error: distance from the true capsule position to the reference polyline;
+  RMS and max over the window, mm.
+* tracking error: ``|p(t) - ref(t)|`` with the time-parameterised reference logged in
+  ``ref_x_m`` / ``ref_y_m``; RMS and max over the window, mm. As ``ref(t)`` lies on the
+  path, the cross-track error never exceeds the tracking error.
 * the paper's metric (paper §IV-D, Fig. 8): the standard deviation (population,
-  ddof = 0) of the horizontal EPM-IPM distance ``|P_E - P_I|`` over the motion.
+  ddof = 0) of the horizontal EPM-IPM distance ``|P_E - P_I|`` over the window.
   With the Halbach array the capsule rests off-centre, so ``|P_E - P_I|``
   contains a constant offset; like the paper we take the STD of the distance as
   it is.
-* completion time vs the nominal time ``length / v``.
+* arrival: the first frame (t >= 0) at which the capsule's arc-length progress has reached
+  ``length - tol`` and it is within ``tol`` of the path's end; compared with the nominal time
+  ``length / v``.
+* EPM jerk: the second time derivative of the logged EPM velocity (``numpy.gradient`` on the
+  frame times, which need not be uniform), RMS over the window, m/s^3; and the EPM's
+  horizontal path length over the capsule's, a measure of wasted arm motion.
 """
 
 from __future__ import annotations
@@ -25,19 +44,38 @@ import numpy as np
 from .paths import ReferencePath
 
 __all__ = [
+    "ARRIVAL_TOL_M",
+    "EPM_VELOCITY_COLUMNS",
+    "MIN_TRAVEL_M",
     "MOVING_SPEED_MPS",
+    "arrival_time_s",
     "cross_track_errors",
+    "epm_jerk_mps3",
+    "hold_log_until",
     "motion_end_s",
     "motion_mask",
     "paper_std_m",
+    "path_length_m",
     "prediction_errors",
     "run_metrics",
     "solver_metrics",
     "stack_predictions",
+    "tracking_errors",
 ]
 
 #: Below this speed (m/s) the EPM counts as at rest when finding the end of the motion phase.
 MOVING_SPEED_MPS = 1e-5
+#: Default arrival tolerance, m (the default of ``sim.completion_tol_m`` in the config).
+ARRIVAL_TOL_M = 0.002
+#: A capsule that travelled less than this over the window did not move (``epm_path_ratio`` is
+#: then NaN), m: far below the camera noise (0.3 mm), far above float round-off.
+MIN_TRAVEL_M = 1e-9
+#: The logged EPM velocity columns, m/s.
+EPM_VELOCITY_COLUMNS: tuple[str, str, str] = ("epm_vx_mps", "epm_vy_mps", "epm_vz_mps")
+#: Slack on frame times when comparing them with a window end, s (float round-off of ``k * dt``).
+_TIME_EPS_S = 1e-9
+#: Columns not held when a log is padded: the solver's, as no solve happens after the end.
+_SOLVER_COLUMNS: frozenset[str] = frozenset({"solve_ms", "controller_ms", "solver_failed", "solver_status"})
 
 
 def cross_track_errors(capsule_xy_m: np.ndarray, path: ReferencePath) -> np.ndarray:
@@ -73,6 +111,115 @@ def motion_mask(log: Mapping[str, np.ndarray], end_s: float) -> np.ndarray:
     """Boolean mask of the frames with ``0 <= t <= end_s``."""
     t = np.asarray(log["t_s"], dtype=float)
     return np.asarray((t >= 0) & (t <= end_s + 1e-9))
+
+
+def tracking_errors(log: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Distance (N,) from the true capsule position to the logged reference ``ref_{x,y}_m``, m."""
+    return np.asarray(
+        np.hypot(
+            np.asarray(log["capsule_x_m"], dtype=float) - np.asarray(log["ref_x_m"], dtype=float),
+            np.asarray(log["capsule_y_m"], dtype=float) - np.asarray(log["ref_y_m"], dtype=float),
+        )
+    )
+
+
+def path_length_m(xy_m: np.ndarray) -> float:
+    """Length of the polyline through the points (N, 2), m (0 for fewer than two points)."""
+    xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    if len(xy) < 2:
+        return 0.0
+    step = np.diff(xy, axis=0)
+    return float(np.sum(np.hypot(step[:, 0], step[:, 1])))
+
+
+def hold_log_until(
+    log: Mapping[str, np.ndarray], end_s: float, path: ReferencePath | None = None
+) -> dict[str, np.ndarray]:
+    """The log padded up to ``end_s`` by holding its last row (the capsule and EPM at rest).
+
+    Padded frames follow the last one at the log's frame spacing (the median step of ``t_s``;
+    with a single frame, one padded frame at ``end_s``) while they are ``<= end_s``. Every
+    column holds its last value, except: the reference ``ref_{x,y}_m`` is ``path.position(t)``
+    when ``path`` is given (as the runner logs it), and the solver columns (``solve_ms``,
+    ``controller_ms``: NaN; ``solver_failed``: 0; ``solver_status``: empty) as nothing is
+    solved after the end.
+
+    Parameters
+    ----------
+    log : mapping of str to numpy.ndarray
+        A run log with at least one frame.
+    end_s : float
+        Time to pad up to, s; a log that already reaches it is returned unchanged (copied).
+    path : ReferencePath, optional
+        The reference, to continue ``ref_{x,y}_m``.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        The padded log (new arrays).
+    """
+    t = np.asarray(log["t_s"], dtype=float)
+    out = {k: np.asarray(v).copy() for k, v in log.items()}
+    if len(t) == 0 or not end_s > t[-1] + _TIME_EPS_S:
+        return out
+    step = np.diff(t)
+    dt = float(np.median(step)) if len(step) else math.nan
+    if not dt > 0:  # a single frame (or no spacing to copy): one padded frame at the end
+        dt = end_s - float(t[-1])
+    count = math.floor((end_s - t[-1] + _TIME_EPS_S) / dt)
+    if count < 1:
+        return out
+    t_pad = t[-1] + dt * np.arange(1, count + 1)
+    for name, col in out.items():
+        if name == "t_s":
+            pad = t_pad
+        elif name in ("solve_ms", "controller_ms"):
+            pad = np.full(count, math.nan)
+        elif name in _SOLVER_COLUMNS:
+            pad = np.full(count, "" if col.dtype.kind in "US" else 0, dtype=col.dtype)
+        else:
+            pad = np.repeat(col[-1:], count)
+        out[name] = np.concatenate([col, pad])
+    if path is not None and "ref_x_m" in out and "ref_y_m" in out:
+        ref = path.position(t_pad)
+        for j, name in enumerate(("ref_x_m", "ref_y_m")):
+            out[name] = np.concatenate([np.asarray(log[name], dtype=float), ref[:, j]])
+    return out
+
+
+def arrival_time_s(log: Mapping[str, np.ndarray], path: ReferencePath, tol_m: float = ARRIVAL_TOL_M) -> float:
+    """First frame time (t >= 0) at which the capsule has arrived at the path's end, s; NaN if never.
+
+    Arrived: arc-length progress ``progress_m >= path.length_m - tol_m`` and distance to
+    ``path.end_m`` ``<= tol_m`` (both are needed: a closed path ends where it starts). NaN
+    without a ``progress_m`` column.
+    """
+    if "progress_m" not in log:
+        return math.nan
+    t = np.asarray(log["t_s"], dtype=float)
+    gap = np.hypot(
+        np.asarray(log["capsule_x_m"], dtype=float) - path.end_m[0],
+        np.asarray(log["capsule_y_m"], dtype=float) - path.end_m[1],
+    )
+    arrived = (
+        (t >= 0) & (np.asarray(log["progress_m"], dtype=float) >= path.length_m - tol_m) & (gap <= tol_m)
+    )
+    return float(t[np.argmax(arrived)]) if np.any(arrived) else math.nan
+
+
+def epm_jerk_mps3(log: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The EPM's jerk (N, 3) at each frame, m/s^3: the second time derivative of its logged velocity.
+
+    Taken with :func:`numpy.gradient` on the frame times ``t_s`` (second-order accurate, also on
+    non-uniform times; exact for a quadratic velocity). NaN-filled with fewer than three frames
+    or without the :data:`EPM_VELOCITY_COLUMNS`.
+    """
+    t = np.asarray(log["t_s"], dtype=float)
+    if len(t) < 3 or not all(c in log for c in EPM_VELOCITY_COLUMNS):
+        return np.full((len(t), 3), math.nan)
+    v = np.column_stack([np.asarray(log[c], dtype=float) for c in EPM_VELOCITY_COLUMNS])
+    acc = np.gradient(v, t, axis=0, edge_order=2)
+    return np.asarray(np.gradient(acc, t, axis=0, edge_order=2))
 
 
 def solver_metrics(log: Mapping[str, np.ndarray], deadline_ms: float) -> dict[str, float | int]:
@@ -168,14 +315,24 @@ def prediction_errors(
     return lookahead, np.where(counts > 0, rms, np.nan), np.where(counts > 0, worst, np.nan)
 
 
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if values.size else math.nan
+
+
+def _max(values: np.ndarray) -> float:
+    return float(np.max(values)) if values.size else math.nan
+
+
 def run_metrics(
     log: Mapping[str, np.ndarray],
     path: ReferencePath,
     *,
-    completion_time_s: float = math.nan,
+    window_end_s: float | None = None,
+    arrival_tol_m: float = ARRIVAL_TOL_M,
     deadline_ms: float = math.inf,
+    completion_time_s: float = math.nan,
 ) -> dict[str, Any]:
-    """Every metric of one run.
+    """Every metric of one run, over the scoring window ``0 <= t <= window_end_s``.
 
     Parameters
     ----------
@@ -183,47 +340,64 @@ def run_metrics(
         A run log (see :mod:`capsule_mpc.sim.log`).
     path : ReferencePath
         The reference the capsule had to follow (the nominal one, at the nominal speed).
-    completion_time_s : float
-        When the capsule completed the path, s (NaN if it did not).
+    window_end_s : float, optional
+        End of the scoring window, s. A log that ends earlier is padded by holding its last
+        row (:func:`hold_log_until`), so runs that came to rest at different times are scored
+        on the same window. Default: :func:`motion_end_s` of the log (with
+        ``completion_time_s``).
+    arrival_tol_m : float
+        Distance to the path's end (and shortfall of progress) that counts as arrived, m.
     deadline_ms : float
         Solve-time budget for ``deadline_misses``, ms.
+    completion_time_s : float
+        Deprecated: only used for the default window end when ``window_end_s`` is None (the
+        run's completion time, s; NaN if it did not complete). Not reported any more: see
+        ``arrival_time_s``.
 
     Returns
     -------
     dict
-        ``cross_track_rms_mm``, ``cross_track_max_mm``, ``paper_std_mm``, ``lead_mean_mm``
-        (mean |P_E - P_I|), ``completion_time_s``, ``nominal_time_s``, ``completion_ratio``
-        (completion / nominal), ``final_error_mm`` (last capsule position to the path end),
-        ``motion_end_s``, ``normal_force_min_n`` / ``normal_force_max_n`` over the motion, and
-        the :func:`solver_metrics`.
+        Over the window: ``cross_track_rms_mm`` / ``cross_track_max_mm`` (to the polyline),
+        ``tracking_rms_mm`` / ``tracking_max_mm`` (to the time-parameterised reference),
+        ``paper_std_mm``, ``lead_mean_mm`` (mean |P_E - P_I|), ``epm_jerk_rms_mps3``,
+        ``epm_path_ratio`` (EPM / capsule horizontal path length; NaN if the capsule did not
+        move), ``normal_force_min_n`` / ``normal_force_max_n`` (N). Besides: ``final_error_mm``
+        (last logged capsule position to the path end), ``arrival_time_s`` (over the whole
+        log, NaN if it never arrived; :func:`arrival_time_s`), ``nominal_time_s``,
+        ``arrival_ratio`` (arrival / nominal), ``window_end_s`` and ``motion_end_s`` (both the
+        window end used, s), and the :func:`solver_metrics` of the logged frames.
     """
-    end = motion_end_s(log, completion_time_s)
-    mask = motion_mask(log, end)
-    capsule = np.column_stack([log["capsule_x_m"], log["capsule_y_m"]])
-    epm = np.column_stack([log["epm_x_m"], log["epm_y_m"]])
-    moving_capsule = capsule[mask]
-    if moving_capsule.size:
-        err = cross_track_errors(moving_capsule, path)
-        rms, worst = float(np.sqrt(np.mean(err**2))), float(np.max(err))
-        lead = epm[mask] - moving_capsule
-        lead_mean = float(np.mean(np.hypot(lead[:, 0], lead[:, 1])))
-        f_n = np.asarray(log["normal_force_n"], dtype=float)[mask]
-        fn_min, fn_max = float(np.nanmin(f_n)), float(np.nanmax(f_n))
-    else:
-        rms = worst = lead_mean = fn_min = fn_max = math.nan
-    final = float(np.hypot(*(capsule[-1] - path.end_m))) if len(capsule) else math.nan
+    end = motion_end_s(log, completion_time_s) if window_end_s is None else float(window_end_s)
+    scored = hold_log_until(log, end, path)
+    mask = motion_mask(scored, end)
+    capsule = np.column_stack([scored["capsule_x_m"], scored["capsule_y_m"]])[mask]
+    epm = np.column_stack([scored["epm_x_m"], scored["epm_y_m"]])[mask]
+    cross = cross_track_errors(capsule, path) if len(capsule) else np.zeros(0)
+    track = tracking_errors(scored)[mask]
+    lead = np.hypot(*(epm - capsule).T) if len(capsule) else np.zeros(0)
+    f_n = np.asarray(scored["normal_force_n"], dtype=float)[mask]
+    jerk = np.linalg.norm(epm_jerk_mps3(scored)[mask], axis=1)
+    travel = path_length_m(capsule)
+    logged = np.column_stack([log["capsule_x_m"], log["capsule_y_m"]]).astype(float)
+    final = float(np.hypot(*(logged[-1] - path.end_m))) if len(logged) else math.nan
+    arrival = arrival_time_s(log, path, arrival_tol_m)
     out: dict[str, Any] = {
-        "cross_track_rms_mm": rms * 1e3,
-        "cross_track_max_mm": worst * 1e3,
-        "paper_std_mm": paper_std_m(epm[mask], moving_capsule) * 1e3,
-        "lead_mean_mm": lead_mean * 1e3,
-        "completion_time_s": float(completion_time_s),
-        "nominal_time_s": path.duration_s,
-        "completion_ratio": float(completion_time_s) / path.duration_s,
+        "cross_track_rms_mm": _rms(cross) * 1e3,
+        "cross_track_max_mm": _max(cross) * 1e3,
+        "tracking_rms_mm": _rms(track) * 1e3,
+        "tracking_max_mm": _max(track) * 1e3,
+        "paper_std_mm": paper_std_m(epm, capsule) * 1e3,
+        "lead_mean_mm": float(np.mean(lead)) * 1e3 if lead.size else math.nan,
         "final_error_mm": final * 1e3,
+        "arrival_time_s": arrival,
+        "nominal_time_s": path.duration_s,
+        "arrival_ratio": arrival / path.duration_s,
+        "window_end_s": end,
         "motion_end_s": end,
-        "normal_force_min_n": fn_min,
-        "normal_force_max_n": fn_max,
+        "epm_jerk_rms_mps3": _rms(jerk),
+        "epm_path_ratio": path_length_m(epm) / travel if travel > MIN_TRAVEL_M else math.nan,
+        "normal_force_min_n": float(np.nanmin(f_n)) if np.any(np.isfinite(f_n)) else math.nan,
+        "normal_force_max_n": float(np.nanmax(f_n)) if np.any(np.isfinite(f_n)) else math.nan,
     }
     out.update(solver_metrics(log, deadline_ms))
     return out

@@ -1,8 +1,10 @@
-"""Figures of runs: trajectories (paper Fig. 7a), errors over time (Fig. 8), a metrics bar chart,
-and the MPC's predicted vs actual capsule path at a corner.
+"""Figures of runs: trajectories (paper Fig. 7a), errors over time (Fig. 8), metrics per controller
+(bars for one run, distributions over several), and the MPC's predicted vs actual capsule path at
+a corner.
 
-Every function takes run logs (column name -> array, see :mod:`capsule_mpc.sim.log`)
-keyed by controller name, draws with the Agg backend and writes a PNG.
+The figures of runs take run logs (column name -> array, see :mod:`capsule_mpc.sim.log`)
+keyed by controller name (:func:`plot_metrics`: metrics dicts); each draws with the Agg
+backend and writes a PNG.
 """
 
 from __future__ import annotations
@@ -20,20 +22,33 @@ from .paths import ReferencePath
 __all__ = [
     "BAR_METRICS",
     "CORNER_MIN_TURN_RAD",
+    "DISTRIBUTION_METRICS",
     "PREDICTION_ZOOM_M",
     "first_corner_arc_m",
+    "metric_samples",
     "plot_errors",
     "plot_metrics",
     "plot_prediction",
     "plot_trajectories",
 ]
 
-#: Metrics shown in the bar chart: (key in the metrics dict, axis label).
+#: Metrics shown in the bar chart of one run per controller: (key in the metrics dict, axis label).
 BAR_METRICS: tuple[tuple[str, str], ...] = (
+    ("tracking_rms_mm", "tracking RMS |p - ref(t)|, mm"),
     ("cross_track_rms_mm", "cross-track RMS, mm"),
     ("cross_track_max_mm", "cross-track max, mm"),
     ("paper_std_mm", "paper STD |P_E - P_I|, mm"),
 )
+#: Metrics whose distribution over the runs is shown when controllers have several runs.
+DISTRIBUTION_METRICS: tuple[tuple[str, str], ...] = (
+    ("tracking_rms_mm", "tracking RMS |p - ref(t)|, mm"),
+    ("cross_track_rms_mm", "cross-track RMS, mm"),
+    ("final_error_mm", "final error, mm"),
+)
+#: Width of a box in the distribution plot, in units of the controller spacing.
+_BOX_WIDTH = 0.5
+#: The runs' points are spread over +- this around their box (controller spacing units).
+_STRIP_HALF_WIDTH = 0.15
 
 #: A corner is where the path turns by at least this much within :data:`PREDICTION_ZOOM_M`, rad.
 CORNER_MIN_TURN_RAD = math.radians(30.0)
@@ -43,6 +58,8 @@ PREDICTION_ZOOM_M = 0.012
 _PREDICTIONS_DRAWN = 12
 
 Log = Mapping[str, np.ndarray]
+#: The metrics of one run (see :func:`capsule_mpc.metrics.run_metrics`).
+RunMetrics = Mapping[str, Any]
 
 
 def _pyplot() -> Any:
@@ -136,36 +153,105 @@ def plot_errors(
     return _save(fig, out)
 
 
-def plot_metrics(
-    metrics: Mapping[str, Mapping[str, Any]],
-    out: str | Path,
-    keys: Sequence[tuple[str, str]] = BAR_METRICS,
-) -> Path:
-    """Bar chart of metrics per controller (missing or non-finite values are left out).
+def metric_samples(
+    metrics: Mapping[str, RunMetrics | Sequence[RunMetrics]], key: str
+) -> dict[str, np.ndarray]:
+    """The finite values of one metric per controller, over its runs.
 
     Parameters
     ----------
-    metrics : mapping of controller name to metrics dict
+    metrics : mapping of controller name to a metrics dict or a sequence of them (one per run)
+    key : str
+        The metric.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        Per controller, the finite values of ``key`` in run order (missing, None and NaN left out).
+    """
+    out = {}
+    for name, runs in _per_run(metrics).items():
+        values = [r.get(key) for r in runs]
+        out[name] = np.array(
+            [float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(v)], dtype=float
+        )
+    return out
+
+
+def _per_run(metrics: Mapping[str, RunMetrics | Sequence[RunMetrics]]) -> dict[str, list[RunMetrics]]:
+    return {name: [m] if isinstance(m, Mapping) else list(m) for name, m in metrics.items()}
+
+
+def plot_metrics(
+    metrics: Mapping[str, RunMetrics | Sequence[RunMetrics]],
+    out: str | Path,
+    keys: Sequence[tuple[str, str]] | None = None,
+) -> Path:
+    """Metrics per controller: bars for one run each, the distribution over the runs for several.
+
+    With one run per controller, a bar chart (missing or non-finite values: no bar, "n/a").
+    When any controller has several runs, a box plot per controller (median, quartiles,
+    whiskers at 1.5 IQR) with every run drawn as a point over it; NaN values are left out and
+    the number of values drawn is given with each controller's name.
+
+    Parameters
+    ----------
+    metrics : mapping of controller name to a metrics dict or a sequence of them (one per run)
     out : str or Path
         PNG file to write.
-    keys : sequence of (metric key, label)
-        Which metrics to show, one panel each.
+    keys : sequence of (metric key, label), optional
+        Which metrics to show, one panel each; default :data:`BAR_METRICS` for one run per
+        controller, :data:`DISTRIBUTION_METRICS` for several.
     """
     plt = _pyplot()
-    names = list(metrics)
+    runs = _per_run(metrics)
+    several = any(len(r) > 1 for r in runs.values())
+    if keys is None:
+        keys = DISTRIBUTION_METRICS if several else BAR_METRICS
+    names = list(runs)
     fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 3.8), squeeze=False)
     for ax, (key, label) in zip(axes.ravel(), keys):
-        values = [metrics[n].get(key) for n in names]
-        heights = [float(v) if isinstance(v, (int, float)) and math.isfinite(v) else 0.0 for v in values]
-        bars = ax.bar(range(len(names)), heights, color=[f"C{i}" for i in range(len(names))])
-        for bar, v in zip(bars, values):
-            text = f"{v:.2f}" if isinstance(v, (int, float)) and math.isfinite(v) else "n/a"
-            ax.annotate(text, (bar.get_x() + bar.get_width() / 2, bar.get_height()), ha="center", va="bottom")
-        ax.set_xticks(range(len(names)), names, rotation=20)
+        samples = metric_samples(metrics, key)
+        if several:
+            _draw_distribution(ax, names, samples)
+            ticks = [f"{n}\n(n = {samples[n].size})" for n in names]
+        else:
+            _draw_bars(ax, names, samples)
+            ticks = names
+        ax.set_xticks(range(len(names)), ticks, rotation=20)
         ax.set_title(label, fontsize=10)
         ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     return _save(fig, out)
+
+
+def _draw_bars(ax: Any, names: Sequence[str], samples: Mapping[str, np.ndarray]) -> None:
+    values = [float(samples[n][0]) if samples[n].size else None for n in names]
+    heights = [0.0 if v is None else v for v in values]
+    bars = ax.bar(range(len(names)), heights, color=[f"C{i}" for i in range(len(names))])
+    for bar, v in zip(bars, values):
+        text = "n/a" if v is None else f"{v:.2f}"
+        ax.annotate(text, (bar.get_x() + bar.get_width() / 2, bar.get_height()), ha="center", va="bottom")
+
+
+def _draw_distribution(ax: Any, names: Sequence[str], samples: Mapping[str, np.ndarray]) -> None:
+    drawn = [i for i, n in enumerate(names) if samples[n].size]
+    if drawn:
+        ax.boxplot(
+            [samples[names[i]] for i in drawn],
+            positions=drawn,
+            widths=_BOX_WIDTH,
+            showfliers=False,  # every run is drawn as a point anyway
+            medianprops={"color": "k"},
+        )
+    for i, name in enumerate(names):
+        values = samples[name]
+        if values.size:
+            offsets = (
+                np.linspace(-_STRIP_HALF_WIDTH, _STRIP_HALF_WIDTH, values.size) if values.size > 1 else 0.0
+            )
+            ax.plot(i + offsets, values, "o", color=f"C{i}", ms=4, alpha=0.7)
+    ax.set_xlim(-0.5, len(names) - 0.5)
 
 
 def first_corner_arc_m(path: ReferencePath, window_m: float = PREDICTION_ZOOM_M) -> float | None:

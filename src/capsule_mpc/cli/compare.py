@@ -1,10 +1,28 @@
-"""``capsule-mpc compare``: every available controller on the same plant, path and seed.
+"""``capsule-mpc compare``: every available controller on the same plant, path and seeds.
 
-Writes, into ``--out``: one run folder per controller (``log.csv``, ``config.yaml``,
-``run.json``; ``predictions.npz`` for the MPC), ``summary.json``, ``summary.md`` (a
-table) and the figures ``trajectories.png`` (paper Fig. 7a), ``errors.png`` (Fig. 8),
-``metrics.png`` and, when an ``mpc`` run is present, ``mpc_prediction.png`` (its
-predicted vs actual capsule path at the first corner).
+Each run ``k`` of ``--runs N`` uses the seed ``seed + k``; a seed fixes the plant drawn
+around the nominal scenario, the start offset and the camera noise, and every controller
+runs on it. A run ends when its capsule is at rest after the path's end (or at the tail
+cut-off), so the runs of one seed end at different times: they are all re-scored on a
+common window, from t = 0 to the latest end among that seed's runs
+(:func:`capsule_mpc.metrics.run_metrics` holds an earlier run's last state up to it).
+
+Writes, into ``--out``: one run folder per controller and seed (``log.csv``,
+``config.yaml``, ``run.json``; ``predictions.npz`` for the MPC) -- ``OUT/NAME/`` for one
+run, ``OUT/runs/seed_<S>/NAME/`` for several -- ``summary.json``, ``summary.md`` (a
+table; ``mean ± sd`` over the runs when there are several) and the figures
+``trajectories.png`` (paper Fig. 7a), ``errors.png`` (Fig. 8) and, when an ``mpc`` run is
+present, ``mpc_prediction.png`` (its predicted vs actual capsule path at the first corner),
+all of the first seed; and ``metrics.png`` (bars for one run, the distribution over the
+runs for several).
+
+``summary.json``: ``controllers.NAME.METRIC`` is the mean over that controller's successful
+runs of every numeric metric (NaN values left out), true/false flags (``decoupled``,
+``dropped``, ``stalled``, ...) are the number of runs where they were true;
+``controllers.NAME.spread.METRIC`` holds ``sd`` (ddof 1; 0 for a single value), ``min``,
+``max`` and ``n`` (the number of finite values); ``n_runs`` and ``n_failed`` count the
+runs that finished and those whose controller raised (:func:`aggregate_runs`). ``runs``
+lists every seed's runs as the runner reported them, re-scored.
 
 Solver figures per controller (from the run log; NaN / ``n/a`` for controllers that
 report no solve): ``solve_ms_median``, ``solve_ms_p99``, ``solve_ms_max``,
@@ -21,37 +39,48 @@ import json
 import math
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from ..config import Scenario
 from ..control import available_controllers
+from ..metrics import run_metrics
 from ..paths import ReferencePath
 from .simulate import PREDICTION_FIGURE, add_run_arguments, prepare_run, write_prediction_figure
+
+if TYPE_CHECKING:
+    from ..sim import RunResult
 
 __all__ = [
     "CONTROLLER_ORDER",
     "PREDICTING_CONTROLLER",
+    "RUNS_FOLDER",
     "SUMMARY_COLUMNS",
+    "aggregate_runs",
     "compare_controllers",
     "register",
+    "rescore_on_common_window",
     "run",
     "summary_table",
 ]
 
-#: Columns of summary.md: (metric key, header, format).
+#: Columns of summary.md: (metric key, header, format of one value). Flags counted over runs
+#: (``decoupled``, ``dropped``, ``stalled``) and integer counts use ``"{}"``.
 SUMMARY_COLUMNS: tuple[tuple[str, str, str], ...] = (
+    ("tracking_rms_mm", "tracking RMS (mm)", "{:.2f}"),
+    ("tracking_max_mm", "tracking max (mm)", "{:.2f}"),
     ("cross_track_rms_mm", "cross-track RMS (mm)", "{:.2f}"),
     ("cross_track_max_mm", "cross-track max (mm)", "{:.2f}"),
-    ("paper_std_mm", "paper STD (mm)", "{:.2f}"),
-    ("completion_time_s", "completion (s)", "{:.2f}"),
-    ("nominal_time_s", "nominal (s)", "{:.2f}"),
     ("final_error_mm", "final error (mm)", "{:.1f}"),
+    ("arrival_time_s", "arrival (s)", "{:.2f}"),
+    ("paper_std_mm", "paper STD (mm)", "{:.2f}"),
+    ("epm_jerk_rms_mps3", "EPM jerk RMS (m/s³)", "{:.3g}"),
     ("decoupled", "decoupled", "{}"),
     ("dropped", "dropped", "{}"),
-    ("solve_ms_median", "solve median (ms)", "{:.2f}"),
-    ("solve_ms_p99", "solve p99 (ms)", "{:.2f}"),
+    ("stalled", "stalled", "{}"),
     ("solver_failures", "solver failures", "{}"),
     ("deadline_misses", "deadline misses", "{}"),
 )
@@ -59,22 +88,44 @@ SUMMARY_COLUMNS: tuple[tuple[str, str, str], ...] = (
 PREDICTING_CONTROLLER = "mpc"
 #: Order of the runs and of the table rows (the issue's order); other registered controllers follow.
 CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
+#: Sub-folder of ``--out`` holding the run folders when there are several runs per controller.
+RUNS_FOLDER = "runs"
+
+
+def _runs_count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1 (runs per controller), got {text!r}")
+    return value
 
 
 def register(sub: Any) -> None:
     """Add the ``compare`` command."""
     p = sub.add_parser(
         "compare",
-        help="run every available controller on the same plant and seed",
+        help="run every available controller on the same plant and seeds",
         description=(
             "Run controllers (default: every registered one: follow, paper_0.8v, plan if available, mpc) on "
-            "the same plant, path and seed. Writes one run folder per controller, summary.json, summary.md, "
-            "trajectories.png, errors.png, metrics.png and, with mpc, mpc_prediction.png."
+            "the same plant, path and seed; with --runs N on N seeds (seed, seed + 1, ...), each drawing its "
+            "own plant and start offset. The runs of one seed are scored on a common window (t = 0 to the "
+            "latest end of a run). Writes one run folder per controller and seed, summary.json (means, "
+            "spreads and every run), summary.md (mean ± sd for N > 1), trajectories.png, errors.png, "
+            "metrics.png (distributions for N > 1) and, with mpc, mpc_prediction.png."
         ),
     )
     add_run_arguments(p)
     p.add_argument(
         "--controllers", nargs="+", default=None, help="only these controllers (default: all available)"
+    )
+    p.add_argument(
+        "--runs",
+        type=_runs_count,
+        default=1,
+        metavar="N",
+        help="seeds per controller, an integer >= 1: run k uses seed + k (default 1)",
     )
     p.set_defaults(func=run)
 
@@ -91,24 +142,158 @@ def _json_value(value: Any) -> Any:
     return value
 
 
-def summary_table(controllers: dict[str, dict[str, Any]]) -> str:
-    """A markdown table of the per-controller metrics (``n/a`` for missing / non-finite values)."""
+def _is_flag(value: Any) -> bool:
+    return isinstance(value, (bool, np.bool_))
 
-    def cell(entry: dict[str, Any], key: str, fmt: str) -> str:
-        v = entry.get(key)
-        if v is None or (isinstance(v, float) and not math.isfinite(v)):
-            return "n/a"
+
+def _is_number(value: Any) -> bool:
+    return value is None or (isinstance(value, (int, float, np.integer, np.floating)) and not _is_flag(value))
+
+
+def _spread(values: list[float]) -> dict[str, float | int]:
+    if not values:
+        return {"sd": math.nan, "min": math.nan, "max": math.nan, "n": 0}
+    sd = float(np.std(values, ddof=1)) if len(values) >= 2 else 0.0
+    return {"sd": sd, "min": float(min(values)), "max": float(max(values)), "n": len(values)}
+
+
+def _aggregate_controller(entries: list[Mapping[str, Any]]) -> dict[str, Any]:
+    ok = [e for e in entries if "error" not in e]
+    failed = [e for e in entries if "error" in e]
+    keys = list(dict.fromkeys(k for e in ok for k in e))
+    out: dict[str, Any] = {}
+    spread: dict[str, dict[str, float | int]] = {}
+    for key in keys:
+        values = [e[key] for e in ok if key in e]
+        if all(_is_flag(v) for v in values):
+            out[key] = sum(bool(v) for v in values)
+        elif all(_is_number(v) for v in values):
+            finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+            out[key] = float(np.mean(finite)) if finite else math.nan
+            spread[key] = _spread(finite)
+    out.update(n_runs=len(ok), n_failed=len(failed), spread=spread)
+    if failed:
+        out["errors"] = [str(e["error"]) for e in failed]
+    if not ok:
+        out["error"] = str(failed[0]["error"])
+    return out
+
+
+def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per-controller statistics over the runs of several seeds.
+
+    Parameters
+    ----------
+    per_seed : sequence of mapping
+        One entry per seed, as in ``summary.json``'s ``runs``: ``{"controllers": {name: the
+        run's metrics and flags, or {"error": text}}}`` (other keys are ignored). A JSON null
+        counts as NaN.
+
+    Returns
+    -------
+    dict of str to dict
+        For each controller, in order of first appearance: every numeric entry's mean over
+        the successful runs (NaN values left out; NaN if none is left), every true/false
+        entry as the number of runs where it was true, ``spread`` ``{key: {"sd" (ddof 1, 0
+        for one value), "min", "max", "n" (finite values)}}`` for the numeric entries,
+        ``n_runs`` (successful runs), ``n_failed`` (runs whose controller raised),
+        ``errors`` (their messages, when any) and ``error`` (the first message) when no run
+        succeeded. Text entries (``failure``, ``run_dir``, ...) are left out.
+    """
+    names = list(dict.fromkeys(n for seed in per_seed for n in seed["controllers"]))
+    return {
+        name: _aggregate_controller(
+            [seed["controllers"][name] for seed in per_seed if name in seed["controllers"]]
+        )
+        for name in names
+    }
+
+
+def _cell(entry: Mapping[str, Any], key: str, fmt: str, runs: int) -> str:
+    value = entry.get(key)
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "n/a"
+
+    def number(v: float) -> str:
+        if fmt == "{}":  # counts: no ".0" on whole numbers
+            return str(int(v)) if float(v).is_integer() else f"{v:.1f}"
         return fmt.format(v)
 
-    head = "| controller | " + " | ".join(h for _, h, _ in SUMMARY_COLUMNS) + " |"
-    rule = "|---|" + "---|" * len(SUMMARY_COLUMNS)
+    spread = entry.get("spread", {}).get(key)
+    n_runs = int(entry.get("n_runs", 1))
+    if runs > 1 and spread is not None:
+        text = f"{number(value)} ± {number(spread['sd'])}"
+        return text if spread["n"] >= n_runs else f"{text} ({spread['n']}/{n_runs})"
+    if runs > 1 and key not in entry.get("spread", {}) and isinstance(value, int):  # a flag's count
+        return f"{value}/{n_runs}"
+    return number(value)
+
+
+def summary_table(controllers: Mapping[str, Mapping[str, Any]], runs: int = 1) -> str:
+    """A markdown table of the per-controller metrics (``n/a`` for missing / non-finite values).
+
+    Parameters
+    ----------
+    controllers : mapping of controller name to dict
+        ``summary.json``'s ``controllers`` (:func:`aggregate_runs`); a plain metrics dict per
+        controller also works for one run.
+    runs : int
+        Runs per controller. Above 1 a metric reads ``mean ± sd`` (with ``(n/N)`` when only
+        ``n`` of the ``N`` successful runs had a finite value, e.g. arrived), a flag reads
+        ``k/N`` (true in ``k`` of ``N`` runs), and a first column gives the successful runs.
+    """
+    several = runs > 1
+    head = (
+        "| controller | "
+        + ("runs | " if several else "")
+        + " | ".join(h for _, h, _ in SUMMARY_COLUMNS)
+        + " |"
+    )
+    rule = "|---|" + "---|" * (len(SUMMARY_COLUMNS) + several)
     lines = [head, rule]
     for name, entry in controllers.items():
+        done = f"{entry.get('n_runs', 0)}/{runs} | " if several else ""
         if "error" in entry:
-            lines.append(f"| {name} | error: {entry['error']} |" + " |" * (len(SUMMARY_COLUMNS) - 1))
+            lines.append(f"| {name} | {done}error: {entry['error']} |" + " |" * (len(SUMMARY_COLUMNS) - 1))
             continue
-        lines.append(f"| {name} | " + " | ".join(cell(entry, k, f) for k, _, f in SUMMARY_COLUMNS) + " |")
+        cells = " | ".join(_cell(entry, k, f, runs) for k, _, f in SUMMARY_COLUMNS)
+        lines.append(f"| {name} | {done}{cells} |")
     return "\n".join(lines) + "\n"
+
+
+def rescore_on_common_window(
+    results: Mapping[str, RunResult], path: ReferencePath, scenario: Scenario
+) -> float:
+    """Re-score one seed's runs on a common window; returns its end, s (NaN without runs).
+
+    The window ends at the latest ``motion_end_s`` (the time a run ended at rest) among the
+    runs; each run's metrics are recomputed on it with :func:`capsule_mpc.metrics.run_metrics`
+    (arrival tolerance ``sim.completion_tol_m``, deadline one camera period) and written into
+    its ``metrics`` dict, which keeps the runner's other entries (flags, limit counts).
+    """
+    ends = [float(r.metrics["motion_end_s"]) for r in results.values()]
+    ends = [e for e in ends if math.isfinite(e)]
+    if not ends:
+        return math.nan
+    common = max(ends)
+    for result in results.values():
+        result.metrics.update(
+            run_metrics(
+                result.log,
+                path,
+                window_end_s=common,
+                arrival_tol_m=scenario.sim.completion_tol_m,
+                deadline_ms=1e3 / scenario.camera.rate_hz,
+            )
+        )
+    return common
+
+
+def _controller_names(controllers: Sequence[str] | None) -> list[str]:
+    if controllers is not None:
+        return list(controllers)
+    known = available_controllers()
+    return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
 
 
 def compare_controllers(
@@ -120,62 +305,95 @@ def compare_controllers(
     controllers: Sequence[str] | None = None,
     meta: dict[str, Any] | None = None,
     progress: bool = True,
+    runs: int = 1,
 ) -> dict[str, Any]:
-    """Run controllers on the same plant, path and seed; write runs, summary and figures.
+    """Run controllers on the same plant, path and seeds; write runs, summary and figures.
 
     Parameters
     ----------
-    scenario, path, seed
+    scenario, path
         As for :func:`capsule_mpc.sim.simulate`.
     out : str or Path
         Output folder (created).
+    seed : int
+        Seed of the first run; run ``k`` uses ``seed + k``.
     controllers : sequence of str, optional
         Names to run, in this order; default every registered controller
         (:func:`available_controllers`) in :data:`CONTROLLER_ORDER`, then the others.
     meta : dict, optional
         Provenance (``config``, ``waypoints_file``) for the summary and each run.json.
     progress : bool
-        Progress bars on runs longer than a second.
+        A progress bar over the runs.
+    runs : int
+        Seeds per controller, >= 1.
 
     Returns
     -------
     dict
         The summary written to ``summary.json``: ``{"config", "seed", "speed_mps",
-        "waypoints_file", "path_length_m", "controllers": {name: metrics + flags + limit
-        counts + run_dir + realtime_factor, or {"error": text}}, "figures": [file names]}``.
+        "waypoints_file", "path_length_m", "runs_requested", "seeds", "controllers": {name:
+        :func:`aggregate_runs` entry (for one run also the run's text entries: ``failure``,
+        ``run_dir``, or ``traceback`` if it raised)}, "runs": [{"seed", "window_end_s", "controllers": {name:
+        metrics + flags + limit counts + failure + run_dir + realtime_factor, or {"error",
+        "traceback"}}}], "figures": [file names]}``.
+
+    Raises
+    ------
+    ValueError
+        If ``runs`` < 1.
     """
+    from tqdm import tqdm
+
     from ..atomic import write_text_atomic
-    from ..plots import plot_errors, plot_metrics, plot_trajectories
     from ..sim import simulate, write_run
 
+    if runs < 1:
+        raise ValueError(f"runs: must be an integer >= 1, got {runs}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
-    if controllers is not None:
-        names = list(controllers)
-    else:
-        known = available_controllers()
-        names = [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
-    entries: dict[str, dict[str, Any]] = {}
-    logs = {}
+    names = _controller_names(controllers)
+    seeds = [seed + k for k in range(runs)]
+    per_seed: list[dict[str, Any]] = []
+    first: dict[str, RunResult] = {}
     prediction_figure = None
-    for name in names:
-        try:
-            result = simulate(scenario, name, path, seed, progress=progress, meta=meta)
-        except Exception as exc:  # one broken controller must not hide the others' results
-            entries[name] = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
-            continue
-        run_dir = write_run(result, out / name.replace("/", "_"))
-        entries[name] = {
-            **result.metrics,
-            "failure": result.flags.failure,
-            "run_dir": str(run_dir),
-            "realtime_factor": result.realtime_factor,
-        }
-        logs[name] = result.log
-        if name == PREDICTING_CONTROLLER:
-            prediction_figure = write_prediction_figure(result, out / PREDICTION_FIGURE)
-    figures = ["trajectories.png", "errors.png", "metrics.png"] if logs else []
+    bar = tqdm(total=runs * len(names), desc="compare", unit="run", disable=not progress)
+    for k, s in enumerate(seeds):
+        results: dict[str, RunResult] = {}
+        entries: dict[str, dict[str, Any]] = {}
+        for name in names:
+            bar.set_postfix_str(f"seed {s}, {name}")
+            try:
+                results[name] = simulate(scenario, name, path, s, progress=False, meta=meta)
+            except Exception as exc:  # one broken controller must not hide the others' results
+                entries[name] = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+            bar.update(1)
+        window_end = rescore_on_common_window(results, path, scenario)
+        base = out if runs == 1 else out / RUNS_FOLDER / f"seed_{s}"
+        for name, result in results.items():
+            run_dir = write_run(result, base / name.replace("/", "_"))
+            entries[name] = {
+                **result.metrics,
+                "failure": result.flags.failure,
+                "run_dir": str(run_dir),
+                "realtime_factor": result.realtime_factor,
+            }
+        per_seed.append(
+            {"seed": s, "window_end_s": window_end, "controllers": {n: entries[n] for n in names}}
+        )
+        if k == 0:
+            first = results
+            if PREDICTING_CONTROLLER in results:
+                prediction_figure = write_prediction_figure(
+                    results[PREDICTING_CONTROLLER], out / PREDICTION_FIGURE
+                )
+    bar.close()
+    aggregated = aggregate_runs(per_seed)
+    if runs == 1:  # as before: the run's text entries (run_dir, failure, traceback) beside its metrics
+        for name, entry in aggregated.items():
+            single = per_seed[0]["controllers"][name]
+            entry.update({key: value for key, value in single.items() if key not in entry})
+    figures = _write_figures(out, path, per_seed, first, runs)
     if prediction_figure is not None:
         figures.append(prediction_figure.name)
     summary = {
@@ -184,22 +402,66 @@ def compare_controllers(
         "speed_mps": path.speed_mps,
         "waypoints_file": meta.get("waypoints_file"),
         "path_length_m": path.length_m,
-        "controllers": entries,
+        "runs_requested": runs,
+        "seeds": seeds,
+        "controllers": aggregated,
+        "runs": per_seed,
         "figures": figures,
     }
     write_text_atomic(out / "summary.json", json.dumps(_json_value(summary), indent=2) + "\n")
-    title = f"# compare: {scenario.name}, v = {path.speed_mps} m/s, seed {seed}\n\n"
-    write_text_atomic(out / "summary.md", title + summary_table(entries))
-    if logs:
-        ok = {n: e for n, e in entries.items() if "error" not in e}
-        plot_trajectories(logs, path, out / "trajectories.png")
-        plot_errors(logs, path, out / "errors.png", {n: e["motion_end_s"] for n, e in ok.items()})
-        plot_metrics(ok, out / "metrics.png")
+    write_text_atomic(out / "summary.md", _summary_markdown(scenario, path, seeds, aggregated))
     return summary
 
 
+def _summary_markdown(
+    scenario: Scenario,
+    path: ReferencePath,
+    seeds: Sequence[int],
+    controllers: Mapping[str, Mapping[str, Any]],
+) -> str:
+    runs = len(seeds)
+    if runs == 1:
+        title = f"# compare: {scenario.name}, v = {path.speed_mps} m/s, seed {seeds[0]}\n\n"
+        note = ""
+    else:
+        title = f"# compare: {scenario.name}, v = {path.speed_mps} m/s, seeds {seeds[0]}..{seeds[-1]}\n\n"
+        note = (
+            f"\nMean ± sd (ddof 1) over the {runs} seeds; `(n/N)`: only n runs had a value (e.g. arrived); "
+            "flags: runs where true. Each seed's runs are scored on a common window (t = 0 to the "
+            "latest end among them).\n"
+        )
+    return title + summary_table(controllers, runs) + note
+
+
+def _write_figures(
+    out: Path,
+    path: ReferencePath,
+    per_seed: Sequence[Mapping[str, Any]],
+    first: Mapping[str, RunResult],
+    runs: int,
+) -> list[str]:
+    """trajectories.png and errors.png of the first seed, metrics.png of every run; the file names."""
+    from ..plots import plot_errors, plot_metrics, plot_trajectories
+
+    if not first:  # no controller ran on the first seed
+        return []
+    figures: list[str] = []
+    logs = {n: r.log for n, r in first.items()}
+    plot_trajectories(logs, path, out / "trajectories.png")
+    plot_errors(logs, path, out / "errors.png", {n: r.metrics["motion_end_s"] for n, r in first.items()})
+    figures += ["trajectories.png", "errors.png"]
+    done: dict[str, list[Mapping[str, Any]]] = {}
+    for seed in per_seed:
+        for name, entry in seed["controllers"].items():
+            if "error" not in entry:
+                done.setdefault(name, []).append(entry)
+    plot_metrics({n: v[0] for n, v in done.items()} if runs == 1 else done, out / "metrics.png")
+    figures.append("metrics.png")
+    return figures
+
+
 def run(args: argparse.Namespace) -> int:
-    """Compare the controllers; exit status 1 if any controller raised."""
+    """Compare the controllers; exit status 1 if any controller raised, 2 for an unknown one."""
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
     seed = scenario.sim.seed if args.seed is None else args.seed
     known = available_controllers()
@@ -208,13 +470,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc compare: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
         return 2
     summary = compare_controllers(
-        scenario, path, args.out, seed, controllers=args.controllers, meta=meta, progress=not args.no_progress
-    )
-    print(summary_table(summary["controllers"]), end="")
-    errors = [n for n, e in summary["controllers"].items() if "error" in e]
-    for name in errors:
-        print(f"capsule-mpc compare: controller {name!r} failed: {summary['controllers'][name]['error']}")
-    print(
-        f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, one folder per controller)"
-    )
-    return 1 if errors else 0
+        scenario, path, args.out, seed, controllers=args.controllers, meta=meta,
+        progress=not args.no_progress, runs=args.runs,
+    )  # fmt: skip
+    print(summary_table(summary["controllers"], args.runs), end="")
+    failed = False
+    for seed_entry in summary["runs"]:
+        for name, entry in seed_entry["controllers"].items():
+            if "error" in entry:
+                failed = True
+                where = f"seed {seed_entry['seed']}"
+                print(f"capsule-mpc compare: controller {name!r} failed ({where}): {entry['error']}")
+    folders = "one folder per controller" if args.runs == 1 else f"{RUNS_FOLDER}/seed_<S>/<controller>/"
+    print(f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, {folders})")
+    return 1 if failed else 0

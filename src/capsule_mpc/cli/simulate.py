@@ -185,12 +185,12 @@ def export_run_arm(result: RunResult, out_dir: str | Path) -> dict[str, Path] | 
 def _print_result(result: RunResult, out: Path) -> None:
     m, f = result.metrics, result.flags
     print(
-        f"{result.controller}: cross-track RMS {m['cross_track_rms_mm']:.2f} mm, max "
-        f"{m['cross_track_max_mm']:.2f} mm, paper STD {m['paper_std_mm']:.2f} mm, completion "
-        f"{m['completion_time_s']:.2f} s (nominal {m['nominal_time_s']:.2f} s)"
+        f"{result.controller}: tracking RMS {m['tracking_rms_mm']:.2f} mm (max {m['tracking_max_mm']:.2f}), "
+        f"cross-track RMS {m['cross_track_rms_mm']:.2f} mm (max {m['cross_track_max_mm']:.2f}), "
+        f"paper STD {m['paper_std_mm']:.2f} mm, arrival {m['arrival_time_s']:.2f} s "
+        f"(nominal {m['nominal_time_s']:.2f} s), final error {m['final_error_mm']:.2f} mm"
     )
-    if f.failure:
-        print(f"  FAILED at t = {f.failure_t_s:.3f} s: {f.failure}")
+    print(f"  {m['outcome']}" + (f" at t = {f.failure_t_s:.3f} s" if f.failure else ""))
     if m["solve_ms_median"] == m["solve_ms_median"]:  # not NaN: the controller reports solves
         print(
             f"  solve time median {m['solve_ms_median']:.2f} ms, p99 {m['solve_ms_p99']:.2f} ms, max "

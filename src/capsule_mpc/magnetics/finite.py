@@ -37,11 +37,13 @@ __all__ = [
 ]
 
 
-def halbach_array(epm: EPMConfig) -> magpy.Collection:
+def halbach_array(epm: EPMConfig, orientation: Rotation | None = None) -> magpy.Collection:
     """The EPM as a magpylib collection of cuboid blocks, centred on the origin.
 
     Blocks lie side by side along x (from -x to +x, in the order of
     ``epm.magnetisation``), each with polarisation ``remanence_t * direction``.
+    ``orientation`` (optional) turns the whole array about its centre: a mounting error
+    (the simulator's truth; the nominal array is unrotated).
     """
     bx, by, bz = epm.block_size_m
     n = epm.n_blocks
@@ -53,7 +55,10 @@ def halbach_array(epm: EPMConfig) -> magpy.Collection:
         )
         for i, d in enumerate(epm.magnetisation)
     ]
-    return magpy.Collection(*blocks)
+    array = magpy.Collection(*blocks)
+    if orientation is not None:
+        array.rotate(orientation, anchor=(0.0, 0.0, 0.0))
+    return array
 
 
 def ipm_position(lead_xy: np.ndarray, height_m: float | np.ndarray) -> np.ndarray:
@@ -88,6 +93,7 @@ def finite_force(
     *,
     meshing: int | None = None,
     progress: bool = False,
+    epm_orientation: Rotation | None = None,
 ) -> np.ndarray:
     """Force on the IPM from the Halbach EPM, by magpylib ``getFT``.
 
@@ -103,6 +109,8 @@ def finite_force(
         Number of cells in the IPM mesh; defaults to ``scenario.force_map.meshing``.
     progress : bool
         Show a progress bar.
+    epm_orientation : scipy.spatial.transform.Rotation, optional
+        Mounting rotation of the EPM about its centre (default: none, the nominal array).
 
     Returns
     -------
@@ -110,7 +118,7 @@ def finite_force(
         ``(F_x, F_y, F_att)`` in N, with F_att the component toward the EPM.
     """
     positions = ipm_position(lead_xy, height_m)
-    source = halbach_array(scenario.epm)
+    source = halbach_array(scenario.epm, epm_orientation)
     fields = np.atleast_2d(source.getB(positions))
     cells = scenario.force_map.meshing if meshing is None else meshing
     out = np.empty((len(positions), 3))

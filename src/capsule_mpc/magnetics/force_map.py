@@ -19,6 +19,7 @@ import casadi as ca
 import magpylib as magpy
 import numpy as np
 from scipy.interpolate import RectBivariateSpline
+from scipy.spatial.transform import Rotation
 
 from ..atomic import atomic_path
 from ..config import Scenario
@@ -50,10 +51,14 @@ def _axes(scenario: Scenario) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return lead, lead.copy(), heights
 
 
-def force_map_key(scenario: Scenario) -> str:
-    """A hash of everything the table depends on (magnets, grid, meshing, magpylib version)."""
+def force_map_key(scenario: Scenario, epm_orientation: Rotation | None = None) -> str:
+    """A hash of everything the table depends on (magnets, mounting, grid, meshing, magpylib version).
+
+    The nominal table (``epm_orientation`` None) keeps the key it had before mounting errors
+    existed; a rotated EPM (the plant's truth) adds its rotation matrix to the hash.
+    """
     lead_x, _, heights = _axes(scenario)
-    payload = {
+    payload: dict[str, object] = {
         "format": _FORMAT_VERSION,
         "magpylib": magpy.__version__,
         "ipm": scenario.ipm.model_dump(mode="json"),
@@ -62,6 +67,8 @@ def force_map_key(scenario: Scenario) -> str:
         "heights": heights.round(9).tolist(),
         "meshing": scenario.force_map.meshing,
     }
+    if epm_orientation is not None:
+        payload["epm_orientation"] = np.round(epm_orientation.as_matrix(), 12).tolist()
     blob = json.dumps(payload, sort_keys=True).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
 
@@ -159,7 +166,13 @@ class ForceMap:
             )  # fmt: skip
 
 
-def force_map(scenario: Scenario, *, progress: bool = False, use_cache: bool = True) -> ForceMap:
+def force_map(
+    scenario: Scenario,
+    *,
+    progress: bool = False,
+    use_cache: bool = True,
+    epm_orientation: Rotation | None = None,
+) -> ForceMap:
     """The scenario's finite-magnet force map, from the disk cache or computed (and cached).
 
     Parameters
@@ -170,15 +183,17 @@ def force_map(scenario: Scenario, *, progress: bool = False, use_cache: bool = T
         Show a progress bar while computing.
     use_cache : bool
         Read and write the cache; False always recomputes and writes nothing.
+    epm_orientation : scipy.spatial.transform.Rotation, optional
+        Mounting rotation of the EPM (the plant's truth); None: the nominal array.
     """
-    key = force_map_key(scenario)
+    key = force_map_key(scenario, epm_orientation)
     path = cache_directory(scenario) / f"force_map_{key}.npz"
     if use_cache and path.exists():
         return ForceMap.load(path)
     lead_x, lead_y, heights = _axes(scenario)
     gx, gy, gh = np.meshgrid(lead_x, lead_y, heights, indexing="ij")
     leads = np.column_stack([gx.ravel(), gy.ravel()])
-    forces = finite_force(scenario, leads, gh.ravel(), progress=progress)
+    forces = finite_force(scenario, leads, gh.ravel(), progress=progress, epm_orientation=epm_orientation)
     table = ForceMap(lead_x, lead_y, heights, forces.reshape(*gx.shape, 3), key)
     if use_cache:
         table.save(path)

@@ -16,7 +16,7 @@ offset through the whole replay.
 
 Before ``t = 0`` (settle phase) and after the plan's end the EPM holds still
 (the correction keeps it at the plan's end pose). Every command passes the
-MPC's safety layer (:func:`capsule_mpc.mpc.safe_command`: speed, acceleration
+MPC's safety layer (:func:`capsule_mpc.safety.safe_command`: speed, acceleration
 and workspace limits).
 """
 
@@ -30,6 +30,7 @@ from ..baselines import DEFAULT_POSITION_GAIN_PER_S
 from ..config import Scenario
 from ..control import Command, Controller, Measurement, StepStats, register_controller
 from ..paths import ReferencePath
+from ..safety import safe_command
 from .core import Plan, cached_plan
 from .problem import PlannerOptions
 
@@ -80,9 +81,6 @@ class PlanReplay(Controller):
         self.u_prev = np.zeros(3)
 
     def _emit(self, u: np.ndarray, epm: np.ndarray, stats: StepStats) -> Command:
-        # Imported here: the MPC package may import the planner (plan as initial guess).
-        from ..mpc.controller import safe_command
-
         cmd, clipped = safe_command(u, self.u_prev, epm, self.scenario, self.frame_s)
         if clipped:
             stats.extra["clipped"] = 1.0

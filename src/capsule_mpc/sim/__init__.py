@@ -1,10 +1,12 @@
 """The simulated rig: plant, camera, actuator, closed-loop runner and run logs."""
 
 from .actuation import Actuator, SimpleArm, make_actuator, register_actuator
+from .friction_field import FrictionField, FrictionPatch
 from .log import LOG_COLUMNS, REQUIRED_COLUMNS, read_log, read_predictions, write_log, write_run
 from .plant import CapsulePlant, ForceField, MapForces, UniformForce
-from .runner import PathProgress, RealtimeStats, RunFlags, RunResult, realtime_scenario, simulate
+from .runner import PathProgress, RealtimeStats, RunFlags, RunResult, realtime_scenario, simulate, start_pose
 from .sensing import Camera
+from .truth import PlantTruth, TrueForces, draw_plant_truth
 
 __all__ = [
     "LOG_COLUMNS",
@@ -13,19 +15,25 @@ __all__ = [
     "Camera",
     "CapsulePlant",
     "ForceField",
+    "FrictionField",
+    "FrictionPatch",
     "MapForces",
     "PathProgress",
+    "PlantTruth",
     "RealtimeStats",
     "RunFlags",
     "RunResult",
     "SimpleArm",
+    "TrueForces",
     "UniformForce",
+    "draw_plant_truth",
     "make_actuator",
     "read_log",
     "read_predictions",
     "realtime_scenario",
     "register_actuator",
     "simulate",
+    "start_pose",
     "write_log",
     "write_run",
 ]

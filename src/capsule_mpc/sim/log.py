@@ -47,16 +47,15 @@ import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..atomic import atomic_path, write_text_atomic
 from ..config import dump_config
 from ..metrics import stack_predictions
-
-if TYPE_CHECKING:
-    from .runner import RunResult
+from .columns import INT_COLUMNS, LOG_COLUMNS, REQUIRED_COLUMNS, STR_COLUMNS
+from .runner import RunResult
 
 __all__ = [
     "INT_COLUMNS",
@@ -70,31 +69,6 @@ __all__ = [
     "write_run",
 ]
 
-#: Every column of a run log, in file order.
-LOG_COLUMNS: tuple[str, ...] = (
-    "t_s",
-    "epm_x_m", "epm_y_m", "epm_z_m",
-    "epm_vx_mps", "epm_vy_mps", "epm_vz_mps",
-    "capsule_x_m", "capsule_y_m", "capsule_z_m",
-    "capsule_vx_mps", "capsule_vy_mps",
-    "meas_x_m", "meas_y_m", "meas_capture_t_s",
-    "ref_x_m", "ref_y_m",
-    "cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps",
-    "force_x_n", "force_y_n", "force_att_n", "normal_force_n",
-    "plant_mu", "stuck", "progress_m",
-    "solve_ms", "solver_status", "solver_failed", "controller_ms",
-)  # fmt: skip
-#: Columns a log must have to be read (the interface other tools rely on).
-REQUIRED_COLUMNS: tuple[str, ...] = (
-    "t_s", "epm_x_m", "epm_y_m", "epm_z_m", "capsule_x_m", "capsule_y_m", "capsule_z_m",
-    "capsule_vx_mps", "capsule_vy_mps", "meas_x_m", "meas_y_m", "meas_capture_t_s",
-    "ref_x_m", "ref_y_m", "cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps", "normal_force_n",
-    "stuck", "solve_ms", "solver_status", "solver_failed",
-)  # fmt: skip
-#: Integer (0/1) columns.
-INT_COLUMNS: frozenset[str] = frozenset({"stuck", "solver_failed"})
-#: Text columns.
-STR_COLUMNS: frozenset[str] = frozenset({"solver_status"})
 #: File of a run's per-frame predicted capsule paths (only for controllers that predict).
 PREDICTIONS_FILE = "predictions.npz"
 

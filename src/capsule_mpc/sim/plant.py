@@ -2,28 +2,41 @@
 
 This is the ground truth controllers are judged against, deliberately not the
 controller's model (:mod:`capsule_mpc.dynamics`): forces come from the
-finite-magnet force map (magpylib, cubic splines), friction from the
-Dieterich-Ruina law with its state theta (paper eq. 5-7) plus a static
-breakaway threshold, and the integration is a fixed-step scheme at
-``sim.plant_rate_hz`` that handles sticking exactly.
+finite-magnet force map of the magnets as drawn (:mod:`.truth`), friction from
+the Dieterich-Ruina law with its state theta (paper eq. 5-7), regularised at
+v = 0 in the arcsinh form (Rice, Lapusta & Ranjith 2001; :meth:`RateStateFriction.mu_regularized`),
+scaled by the friction field over the plate, and the integration is a
+fixed-step scheme at ``sim.plant_rate_hz`` that handles sticking exactly.
 
-Integration scheme (one step of length dt, capsule mass m):
+Static friction comes from the state variable, not from a separate constant:
+a capsule at rest heals (theta grows by dt per step, paper eq. 6 with v = 0)
+and stays at rest while ``|F_xy| <= F_N mu(v_b, theta) + f_s``, the friction of
+a slide-hold-slide test reloaded at ``plant.breakaway_speed_mps`` = v_b
+(Dieterich 1972; Marone, Annu. Rev. Earth Planet. Sci. 26, 1998). With the
+paper's constants it is 0.15 right after a stop at 20 mm/s, 0.23 after 0.1 s
+and 0.26 after 1 s at rest. (The arcsinh law alone has no static friction: at
+rest it gives mu = 0, and with a > b a capsule would creep at ~0.5 mm/s under
+half the sliding force -- unlike a capsule on PVC, which sticks.)
+
+Integration scheme (one plant step of length dt, capsule mass m):
 
 1. ``F = (F_x, F_y, F_att)`` at the current lead ``e - p`` and EPM height; normal
    force ``F_N = F_att - m g`` (below_plate) or ``m g + F_att`` (on_plate).
    Leaving the force map or ``|lead - lead_eq| > sim.decouple_lead_m`` ends the
    run as *decoupled*; ``F_N <= 0`` as *dropped* (never clipped).
-2. A capsule at rest stays at rest while ``|F_xy| <= mu_s F_N + f_s``.
-3. Otherwise the trial velocity ``v* = v + dt F_xy / m`` is reduced along its own
-   direction by the friction impulse ``dt (mu F_N + f_s) / m``, with mu's speed
-   dependence linearised at the current speed (linearly implicit Euler, stable for
-   the stiff direct term a/|v|). If the impulse would reverse the velocity, the
-   capsule sticks (v = 0): no chatter and no energy gain.
-4. ``p += dt v`` (semi-implicit Euler); theta advances by the exact constant-speed
-   solution of paper eq. 7 (unconditionally stable although D_c/|v| << dt).
+2. A capsule at rest stays at rest while the breakaway condition above holds.
+3. Otherwise the step is split into substeps so the capsule slides at most
+   :data:`SLIP_PER_SUBSTEP` D_c per substep (theta evolves over a slip of D_c,
+   ~0.5 ms at 20 mm/s, so it is resolved rather than jumped to its steady state),
+   forces held over the step. In each substep the trial velocity
+   ``v* = v + h F_xy / m`` is reduced along its own direction by the friction
+   impulse ``h (mu F_N + f_s) / m``, with mu's speed dependence linearised at the
+   current speed (linearly implicit Euler, stable for the stiff direct term). If
+   the impulse would reverse the velocity, the capsule sticks (v = 0): no chatter
+   and no energy gain. ``p += h v``; theta advances by the exact constant-speed
+   solution of paper eq. 7.
 
-mu is evaluated with ``|v|`` floored at ``sim.friction_floor_speed_mps`` (the direct
-term -> -inf at rest) and clipped at 0.
+The tether drag grows with the tether paid out (the capsule's travelled distance).
 """
 
 from __future__ import annotations
@@ -39,11 +52,13 @@ from scipy.interpolate import RectBivariateSpline
 from ..config import Scenario
 from ..friction import RateStateFriction
 from ..magnetics import ForceMap, equilibrium_lead, force_map
+from .truth import PlantTruth, TrueForces
 
 __all__ = [
     "FAILURE_DECOUPLED",
     "FAILURE_DROPPED",
     "OK",
+    "SLIP_PER_SUBSTEP",
     "CapsulePlant",
     "ForceField",
     "MapForces",
@@ -54,6 +69,11 @@ __all__ = [
 OK = 0
 FAILURE_DECOUPLED = 1
 FAILURE_DROPPED = 2
+#: Largest slip per friction substep, in units of D_c: theta relaxes over a slip of D_c (paper eq. 7),
+#: so half of it per substep resolves the transient after breakaway.
+SLIP_PER_SUBSTEP = 0.5
+#: Cap on substeps per plant step (4.5 m/s at 1 kHz with D_c = 10 um: far beyond any EPM speed).
+MAX_SUBSTEPS = 1000
 
 
 class ForceField(Protocol):
@@ -156,13 +176,16 @@ class CapsulePlant:
     Parameters
     ----------
     scenario : Scenario
-        Capsule mass, plate setup and gravity, friction (mu0, mu_static, a, b, v*, D_c, f_s),
-        ``sim.decouple_lead_m`` and ``sim.friction_floor_speed_mps``.
+        The nominal rig: plate setup and gravity, friction constants (mu0, a, b, v*, D_c, f_s),
+        capsule mass and ``sim.decouple_lead_m``; the truth scales them.
     forces : ForceField, optional
-        The magnetic model; default the scenario's finite-magnet force map.
+        The magnetic model; default :class:`~.truth.TrueForces` of ``truth`` (the magnets as
+        drawn), or the nominal finite-magnet map when ``truth`` is None.
     equilibrium_lead_m : array_like (2,), optional
         Lead (m) at which the lateral force vanishes at the nominal EPM height; default computed
         from ``forces`` (the plant's own truth, used to place the capsule and to detect decoupling).
+    truth : PlantTruth, optional
+        The drawn rig (:func:`~.truth.draw_plant_truth`); None: the nominal rig (``ideal``).
 
     Attributes
     ----------
@@ -175,17 +198,33 @@ class CapsulePlant:
         scenario: Scenario,
         forces: ForceField | None = None,
         equilibrium_lead_m: np.ndarray | None = None,
+        truth: PlantTruth | None = None,
     ) -> None:
         self.scenario = scenario
-        self.forces: ForceField = forces if forces is not None else MapForces(force_map(scenario))
+        self.truth = truth
+        if forces is None:
+            forces = MapForces(force_map(scenario)) if truth is None else TrueForces(scenario, truth)
+        self.forces: ForceField = forces
         fr = scenario.friction
-        self.law = RateStateFriction.from_scenario(scenario)
-        self.mass_kg = scenario.capsule.mass_kg
-        self.weight_n = scenario.capsule.mass_kg * scenario.plate.gravity_mps2
+        val = (
+            (lambda name, nominal: nominal) if truth is None else (lambda name, nominal: getattr(truth, name))
+        )
+        self.law = RateStateFriction(
+            fr.mu0 * val("mu0_scale", 1.0),
+            fr.rate_state.a * val("a_scale", 1.0),
+            fr.rate_state.b * val("b_scale", 1.0),
+            fr.v_star_mps,
+            fr.d_c_m,
+        )
+        self.mass_kg = scenario.capsule.mass_kg * val("mass_scale", 1.0)
+        self.weight_n = self.mass_kg * scenario.plate.gravity_mps2
         self._below = scenario.plate.setup == "below_plate"
-        self.mu_static = fr.mu_static
-        self.tether_drag_n = fr.tether_drag_n
-        self.floor_speed_mps = scenario.sim.friction_floor_speed_mps
+        self.tether_drag_n = val("tether_drag_n", fr.tether_drag_n)
+        self.tether_growth_n_per_m = val("tether_drag_growth_n_per_m", 0.0)
+        self.breakaway_speed_mps = (
+            scenario.plant.breakaway_speed_mps if truth is None else truth.breakaway_speed_mps
+        )
+        self.friction_scale = (lambda x, y: 1.0) if truth is None else truth.friction_field.scale
         self._decouple2 = scenario.sim.decouple_lead_m**2
         if equilibrium_lead_m is None:
             equilibrium_lead_m = _field_equilibrium(self.forces, scenario.plate.epm_height_m)
@@ -203,11 +242,13 @@ class CapsulePlant:
 
         The default theta is D_c / v* (steady state at the reference speed); at rest theta then
         grows by dt per step (paper eq. 6 with v = 0), so the friction "heals" while stuck.
+        The travelled distance (tether paid out) restarts at 0.
         """
         self.px, self.py = float(position_m[0]), float(position_m[1])
         vel = (0.0, 0.0) if velocity_mps is None else (float(velocity_mps[0]), float(velocity_mps[1]))
         self.vx, self.vy = vel
         self.theta_s = self.law.d_c_m / self.law.v_star_mps if theta_s is None else float(theta_s)
+        self.travelled_m = 0.0
         self.force_n = (0.0, 0.0, 0.0)
         self.normal_force_n = math.nan
         self.mu = math.nan
@@ -228,6 +269,30 @@ class CapsulePlant:
         """Whether the capsule is at rest (held by static friction)."""
         return self.vx == 0.0 and self.vy == 0.0
 
+    def drag_n(self) -> float:
+        """Tether drag now, N: its base value plus its growth with the tether paid out."""
+        return self.tether_drag_n + self.tether_growth_n_per_m * self.travelled_m
+
+    def breakaway_mu(self, theta_s: float | None = None) -> float:
+        """Breakaway friction coefficient at the capsule's position for state ``theta_s`` (default: now)."""
+        theta = self.theta_s if theta_s is None else theta_s
+        return self.friction_scale(self.px, self.py) * self.law.mu_regularized(
+            self.breakaway_speed_mps, theta
+        )
+
+    def holding_ratio(self, lead_x_m: float, lead_y_m: float, height_m: float, theta_s: float) -> float:
+        """|F_xy| / (breakaway friction + drag) for the capsule at rest at this lead; > 1 slips.
+
+        ``inf`` where the lead is outside the force field or the capsule would drop.
+        """
+        f = self.forces.force(lead_x_m, lead_y_m, height_m)
+        if f is None:
+            return math.inf
+        f_n = f[2] - self.weight_n if self._below else self.weight_n + f[2]
+        if f_n <= 0:
+            return math.inf
+        return math.hypot(f[0], f[1]) / (self.breakaway_mu(theta_s) * f_n + self.drag_n())
+
     def evaluate_forces(self, epm_x_m: float, epm_y_m: float, epm_height_m: float) -> bool:
         """Update :attr:`force_n` / :attr:`normal_force_n` for the EPM at (x, y, height), m, without moving.
 
@@ -246,24 +311,6 @@ class CapsulePlant:
         """Kinetic energy 1/2 m |v|^2, J."""
         return 0.5 * self.mass_kg * (self.vx * self.vx + self.vy * self.vy)
 
-    def mu_and_slope(self, speed_mps: float, theta_s: float) -> tuple[float, float]:
-        """Rate-and-state mu (paper eq. 5) at a speed floored at the regularisation speed, and d mu/d|v|.
-
-        mu is clipped at 0 (its slope is then 0), and so is the slope below the floor speed.
-        """
-        law = self.law
-        s = max(speed_mps, self.floor_speed_mps)
-        ratio = law.v_star_mps / s
-        mu = (
-            law.mu0
-            - law.a * math.log(ratio + 1.0)
-            + law.b * math.log(law.v_star_mps * theta_s / law.d_c_m + 1.0)
-        )
-        if mu <= 0.0:
-            return 0.0, 0.0
-        slope = law.a * ratio / (s + law.v_star_mps) if speed_mps > self.floor_speed_mps else 0.0
-        return mu, slope
-
     def _advance_theta(self, speed_mps: float, dt_s: float) -> None:
         # Exact solution of theta' = 1 - |v| theta / D_c at constant |v| (paper eq. 7), written as
         # theta e^-x + dt (1 - e^-x)/x with x = |v| dt / D_c, which stays accurate as |v| -> 0.
@@ -273,17 +320,7 @@ class CapsulePlant:
         else:
             self.theta_s = self.theta_s * math.exp(-x) - dt_s * math.expm1(-x) / x
 
-    def step(self, dt_s: float, epm_x_m: float, epm_y_m: float, epm_height_m: float) -> int:
-        """Advance the capsule by ``dt_s`` (s) under the EPM at (x, y, height), m.
-
-        Returns
-        -------
-        int
-            :data:`OK`, :data:`FAILURE_DECOUPLED` or :data:`FAILURE_DROPPED`; on a failure the
-            state is left as it was and :attr:`failure` says why.
-        """
-        lx = epm_x_m - self.px
-        ly = epm_y_m - self.py
+    def _check_coupling(self, lx: float, ly: float, epm_height_m: float) -> int:
         dx = lx - self._eq[0]
         dy = ly - self._eq[1]
         if dx * dx + dy * dy > self._decouple2:
@@ -299,33 +336,63 @@ class CapsulePlant:
                 f"{epm_height_m * 1e3:.1f} mm left the force map"
             )
             return FAILURE_DECOUPLED
-        fx, fy, fatt = f
-        f_n = fatt - self.weight_n if self._below else self.weight_n + fatt
+        fatt = f[2]
         self.force_n = f
-        self.normal_force_n = f_n
-        if f_n <= 0.0:
-            self.failure = f"dropped: normal force F_N = {f_n:.4f} N <= 0 (attraction {fatt:.4f} N)"
+        self.normal_force_n = fatt - self.weight_n if self._below else self.weight_n + fatt
+        if self.normal_force_n <= 0.0:
+            self.failure = (
+                f"dropped: normal force F_N = {self.normal_force_n:.4f} N <= 0 (attraction {fatt:.4f} N)"
+            )
             return FAILURE_DROPPED
-        k = dt_s / self.mass_kg
+        return OK
+
+    def step(self, dt_s: float, epm_x_m: float, epm_y_m: float, epm_height_m: float) -> int:
+        """Advance the capsule by ``dt_s`` (s) under the EPM at (x, y, height), m.
+
+        Returns
+        -------
+        int
+            :data:`OK`, :data:`FAILURE_DECOUPLED` or :data:`FAILURE_DROPPED`; on a failure the
+            state is left as it was and :attr:`failure` says why.
+        """
+        status = self._check_coupling(epm_x_m - self.px, epm_y_m - self.py, epm_height_m)
+        if status != OK:
+            return status
+        fx, fy, _ = self.force_n
+        f_n = self.normal_force_n
+        law = self.law
+        scale = self.friction_scale(self.px, self.py)
+        drag = self.drag_n()
+        if self.vx == 0.0 and self.vy == 0.0:
+            if (
+                math.hypot(fx, fy)
+                <= scale * law.mu_regularized(self.breakaway_speed_mps, self.theta_s) * f_n + drag
+            ):
+                self.mu = math.nan  # held by static friction
+                self.theta_s += dt_s
+                return OK
         speed = math.hypot(self.vx, self.vy)
-        if speed == 0.0 and math.hypot(fx, fy) <= self.mu_static * f_n + self.tether_drag_n:
-            self.mu = math.nan  # held by static friction
-            self.theta_s += dt_s
-            return OK
-        tvx = self.vx + k * fx
-        tvy = self.vy + k * fy
-        trial = math.hypot(tvx, tvy)
-        mu, slope = self.mu_and_slope(speed, self.theta_s)
-        new = (trial - k * ((mu - slope * speed) * f_n + self.tether_drag_n)) / (1.0 + k * slope * f_n)
-        self.mu = mu
-        if new <= 0.0 or trial == 0.0:
-            self.vx = self.vy = 0.0  # friction would reverse the velocity: stick
-            self.theta_s += dt_s
-            return OK
-        scale = new / trial
-        self.vx = tvx * scale
-        self.vy = tvy * scale
-        self.px += dt_s * self.vx
-        self.py += dt_s * self.vy
-        self._advance_theta(new, dt_s)
+        n_sub = min(MAX_SUBSTEPS, max(1, math.ceil(speed * dt_s / (SLIP_PER_SUBSTEP * law.d_c_m))))
+        h = dt_s / n_sub
+        k = h / self.mass_kg
+        for i in range(n_sub):
+            tvx = self.vx + k * fx
+            tvy = self.vy + k * fy
+            trial = math.hypot(tvx, tvy)
+            mu = scale * law.mu_regularized(speed, self.theta_s)
+            slope = scale * law.mu_regularized_slope(speed, self.theta_s)
+            new = (trial - k * ((mu - slope * speed) * f_n + drag)) / (1.0 + k * slope * f_n)
+            self.mu = mu
+            if new <= 0.0 or trial == 0.0:
+                self.vx = self.vy = 0.0  # friction would reverse the velocity: stick
+                self.theta_s += h * (n_sub - i)  # at rest for the rest of the step
+                return OK
+            ratio = new / trial
+            self.vx = tvx * ratio
+            self.vy = tvy * ratio
+            self.px += h * self.vx
+            self.py += h * self.vy
+            self.travelled_m += h * new
+            self._advance_theta(new, h)
+            speed = new
         return OK

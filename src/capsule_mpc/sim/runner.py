@@ -1,29 +1,42 @@
-"""The closed loop: plant + camera + controller + actuator, run to completion, logged and scored.
+"""The closed loop: plant + camera + controller + actuator, run until the capsule rests, logged and scored.
 
 Timeline of a run. The plant steps at ``sim.plant_rate_hz``; camera frames
 fall on the plant steps nearest ``j / camera.rate_hz`` (j integer, so frames
 are on the plant grid with at most half a step of jitter). Time 0 is the start
-of the path. The run starts ``sim.settle_s`` earlier with the capsule at rest at
-the path's first point and the EPM above it at the plant's true equilibrium
-lead (height ``plate.epm_height_m``). During the settle phase (t < 0) the
+of the path; the run starts ``sim.settle_s`` earlier.
+
+Start (:func:`start_pose`), as an operator starts a real rig: the EPM is put
+(height ``plate.epm_height_m``) where the controller's *nominal* model says the
+capsule rests when it is at the path's first point; the capsule rests wherever
+static friction left it -- a lead drawn from the run's seed inside a fraction
+(``plant.start_dead_zone_fraction``) of the true static-friction dead zone, its
+friction healed by ``plant.rest_before_start_s`` at rest. The ``ideal`` preset
+keeps the reference start: the capsule at the path's first point, the EPM at the
+plant's true equilibrium above it. During the settle phase (t < 0) the
 controller is stepped on every frame (it sees the measurements, e.g. to
 calibrate) but the arm is held still: the applied command is zero.
 
 At each frame: the camera captures the true capsule position (delivered
-``camera.latency_frames`` later), the controller is called with the delivered
-measurement and the EPM's own position, its command goes to the actuator, and
-one log row is recorded (true states at the frame time).
+``camera.latency_frames`` later, with the true bias and noise of the draw), the
+controller is called with the delivered measurement and the EPM's own position,
+its command reaches the actuator ``plant.compute_delay_s`` later, and one log row
+is recorded (true states at the frame time; the command column holds the
+command computed at that frame).
 
 A run ends at the first of:
 
-* *completed*: t >= 0, the capsule's arc-length progress along the path has
-  reached ``length - sim.completion_tol_m`` and it is within
-  ``sim.completion_tol_m`` of the path's last point (completion time = that frame);
+* *at rest*: t >= the path's nominal duration and the capsule has been at rest
+  (slower than ``sim.rest_speed_mps``) for ``sim.rest_hold_s``; never while it moves;
 * *decoupled* / *dropped*: the plant failed (see :mod:`.plant`); a last row is
   logged at the failure time;
-* *stalled*: after the nominal duration, the EPM and the capsule have both been
-  at rest for ``sim.stall_s`` (nothing can change any more);
 * *timed out*: t reaches ``1.25 * nominal duration + sim.tail_s``.
+
+The run reports the arrival time (first frame within ``sim.completion_tol_m`` of
+the final waypoint with the progress at the path end), the final error at rest
+and whether it *stalled* (came to rest farther than that tolerance from the end);
+it is *completed* when it came to rest within it. Metrics cover the window from
+t = 0 to the run's end (:func:`capsule_mpc.metrics.run_metrics`); ``compare``
+scores the controllers of one draw on their common window.
 
 Real-time mode (``simulate(..., realtime=True)``, ``capsule-mpc simulate --realtime``):
 the loop is paced to the wall clock at the camera rate. Frame ``i`` (counted from
@@ -46,6 +59,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -54,12 +68,14 @@ from tqdm import tqdm
 
 from ..config import Scenario
 from ..control import Command, Controller, StepStats, make_controller
-from ..metrics import MOVING_SPEED_MPS, run_metrics
+from ..magnetics import model_equilibrium_lead
+from ..metrics import run_metrics
 from ..paths import ReferencePath
-from .actuation import Actuator, make_actuator
-from .log import INT_COLUMNS, LOG_COLUMNS, STR_COLUMNS
+from .actuation import Actuator, SimpleArm, make_actuator
+from .columns import INT_COLUMNS, LOG_COLUMNS, STR_COLUMNS
 from .plant import OK, CapsulePlant
 from .sensing import Camera
+from .truth import PlantTruth, draw_plant_truth
 
 __all__ = [
     "TIMEOUT_FACTOR",
@@ -69,6 +85,7 @@ __all__ = [
     "RunResult",
     "realtime_scenario",
     "simulate",
+    "start_pose",
 ]
 
 #: A run is cut off at TIMEOUT_FACTOR * nominal duration + sim.tail_s (issue #3).
@@ -77,6 +94,11 @@ TIMEOUT_FACTOR = 1.25
 _BAR_FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s simulated [{elapsed}]"
 #: How far (m) along the path the progress tracker looks back / ahead of its last value per frame.
 _PROGRESS_WINDOW_M = (0.03, 0.03)
+#: Half-width (m) of the box of leads around the true equilibrium searched for the start dead zone
+#: (the dead zone measured on the default rig spans about +-6 mm in x and +-22 mm in y).
+_DEAD_ZONE_SEARCH_M = 0.035
+#: Candidate leads drawn when searching the dead zone before giving up.
+_DEAD_ZONE_TRIES = 20000
 
 
 class PathProgress:
@@ -119,6 +141,7 @@ class RunFlags:
     """How a run ended."""
 
     completed: bool = False
+    at_rest: bool = False
     decoupled: bool = False
     dropped: bool = False
     stalled: bool = False
@@ -126,6 +149,16 @@ class RunFlags:
     failure: str = ""
     failure_t_s: float = math.nan
     invalid_commands: int = 0
+
+    def describe(self, final_error_mm: float) -> str:
+        """How the run ended, in words."""
+        if self.decoupled or self.dropped:
+            return self.failure
+        if self.completed:
+            return f"completed: at rest {final_error_mm:.2f} mm from the end"
+        if self.stalled:
+            return f"stalled: at rest {final_error_mm:.2f} mm from the end"
+        return f"timed out while the capsule still moved ({final_error_mm:.2f} mm from the end)"
 
 
 @dataclass
@@ -215,6 +248,8 @@ class RunResult:
         predicts nothing (and on a final failure row, where no step was taken).
     realtime : RealtimeStats or None
         Wall-clock pacing figures of a real-time run; None otherwise.
+    truth : PlantTruth or None
+        The plant's draw (None when a plant was passed in).
     """
 
     scenario: Scenario
@@ -232,6 +267,7 @@ class RunResult:
     meta: dict[str, Any] = field(default_factory=dict)
     predictions: list[np.ndarray | None] = field(default_factory=list)
     realtime: RealtimeStats | None = None
+    truth: PlantTruth | None = None
 
     @property
     def realtime_factor(self) -> float:
@@ -257,6 +293,7 @@ class RunResult:
                 "realtime_factor": self.realtime_factor,
             },
             "realtime": None if self.realtime is None else vars(self.realtime),
+            "plant": None if self.truth is None else self.truth.summary(),
         }
 
 
@@ -312,6 +349,112 @@ def _wait_until(deadline: float) -> float:
     return remaining
 
 
+def start_pose(
+    scenario: Scenario, plant: CapsulePlant, path: ReferencePath, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Where a run starts: the EPM position (3,), the capsule position (2,), m, and its theta, s.
+
+    Operator start (every preset but ``ideal``): the EPM over the path start at the equilibrium
+    lead of the controller's nominal model (``force_model``); the capsule at rest at a lead drawn
+    uniformly among the leads whose holding ratio (:meth:`CapsulePlant.holding_ratio`, with the
+    friction healed for ``rest_before_start_s``) is at most ``start_dead_zone_fraction``: inside
+    that fraction of the dead zone, so it does not move while the EPM is held still. Fraction 0:
+    at the true equilibrium. ``ideal``: the capsule at the path start, the EPM at the plant's true
+    equilibrium above it. The draw uses ``rng`` (the plant-truth stream of the run).
+    """
+    truth = plant.truth
+    height = scenario.plate.epm_height_m
+    start = np.asarray(path.start_m, dtype=float)
+    rest_s = 1.0 if truth is None else truth.rest_before_start_s
+    theta0 = plant.law.d_c_m / plant.law.v_star_mps + rest_s
+    if truth is None or truth.start_at_true_equilibrium:
+        return np.array([*(start + plant.equilibrium_lead_m), height]), start, theta0
+    epm_xy = start + model_equilibrium_lead(scenario, height)
+    fraction = truth.start_dead_zone_fraction
+    lead = plant.equilibrium_lead_m.copy()
+    if fraction > 0:
+        for _ in range(_DEAD_ZONE_TRIES):
+            cand = plant.equilibrium_lead_m + rng.uniform(-_DEAD_ZONE_SEARCH_M, _DEAD_ZONE_SEARCH_M, 2)
+            plant.px, plant.py = (epm_xy - cand).tolist()  # the friction field is read where it rests
+            if plant.holding_ratio(float(cand[0]), float(cand[1]), height, theta0) <= fraction:
+                lead = cand
+                break
+        else:  # pragma: no cover - the equilibrium itself always qualifies; only a pathological field
+            raise RuntimeError(f"no start lead found inside {fraction:.2f} of the dead zone")
+    return np.array([*epm_xy, height]), epm_xy - lead, theta0
+
+
+def _make_actuator(scenario: Scenario, truth: PlantTruth | None) -> Actuator:
+    """The scenario's actuator; the simple arm gets the draw's servo lag (the robot arm has its own)."""
+    if truth is not None and truth.servo_bandwidth_hz is not None and scenario.sim.actuator == "simple":
+        return SimpleArm(scenario, servo_bandwidth_hz=truth.servo_bandwidth_hz)
+    return make_actuator(scenario)
+
+
+class _Loop:
+    """One run's state between frames: plant, actuator, pending commands, log and end detection."""
+
+    def __init__(
+        self, scenario: Scenario, path: ReferencePath, plant: CapsulePlant, act: Actuator, delay_s: float
+    ) -> None:
+        self.scenario, self.path, self.plant, self.act = scenario, path, plant, act
+        self.dt = 1.0 / scenario.sim.plant_rate_hz
+        self.frame_s = 1.0 / scenario.camera.rate_hz
+        self.ratio = scenario.sim.plant_rate_hz / scenario.camera.rate_hz
+        self.delay_steps = round(delay_s / self.dt)
+        self.pending: deque[tuple[int, np.ndarray]] = deque()
+        self.tracker = PathProgress(path)
+        self.flags = RunFlags()
+        self.rest_s = 0.0
+        self.cmd_applied = np.zeros(3)
+
+    def advance(self, k: int, k_to: int) -> tuple[int, int]:
+        """Step the plant and the arm from plant step ``k`` to ``k_to``; returns (k, status)."""
+        step_plant, step_act, pending = self.plant.step, self.act.step_xyz, self.pending
+        status = OK
+        while k < k_to:
+            if pending and pending[0][0] <= k:
+                _, vel = pending.popleft()
+                self.act.set_velocity_command(k * self.dt, vel)
+            ex, ey, ez = step_act(self.dt)
+            status = step_plant(self.dt, ex, ey, ez)
+            if status != OK:
+                break
+            k += 1
+        return k, status
+
+    def command(self, k: int, t: float, vel: np.ndarray) -> None:
+        """Send the frame's command: applied ``delay_steps`` plant steps from now (0 at t < 0)."""
+        self.cmd_applied = vel if t >= 0 else np.zeros(3)
+        if self.delay_steps == 0:
+            self.act.set_velocity_command(t, self.cmd_applied)
+        else:
+            self.pending.append((k + self.delay_steps, self.cmd_applied))
+
+    def state_row(self, t: float) -> dict[str, Any]:
+        """The true states at frame time ``t``."""
+        plant, act = self.plant, self.act
+        row: dict[str, Any] = {"t_s": t, "capsule_x_m": plant.px, "capsule_y_m": plant.py, "capsule_z_m": 0.0}
+        row["capsule_vx_mps"], row["capsule_vy_mps"] = plant.vx, plant.vy
+        row.update(zip(("epm_x_m", "epm_y_m", "epm_z_m"), act.position_m.tolist()))
+        row.update(zip(("epm_vx_mps", "epm_vy_mps", "epm_vz_mps"), act.velocity_mps.tolist()))
+        ref = self.path.position(t)
+        row["ref_x_m"], row["ref_y_m"] = float(ref[0]), float(ref[1])
+        row.update(zip(("force_x_n", "force_y_n", "force_att_n"), plant.force_n))
+        row["normal_force_n"], row["plant_mu"] = plant.normal_force_n, plant.mu
+        row["stuck"] = int(plant.stuck)
+        row["progress_m"] = self.tracker.update(plant.position_m)
+        return row
+
+    def at_rest_after_end(self, t: float) -> bool:
+        """Whether the capsule has rested (speed < ``sim.rest_speed_mps``) for ``sim.rest_hold_s``
+        after the path's nominal end."""
+        slow = math.hypot(self.plant.vx, self.plant.vy) < self.scenario.sim.rest_speed_mps
+        resting = slow and t >= self.path.duration_s
+        self.rest_s = self.rest_s + self.frame_s if resting else 0.0
+        return self.rest_s >= self.scenario.sim.rest_hold_s - 1e-9
+
+
 def simulate(
     scenario: Scenario,
     controller: Controller | str,
@@ -329,19 +472,22 @@ def simulate(
     Parameters
     ----------
     scenario : Scenario
-        The rig (plant, camera, limits, sim settings) and the controller's settings.
+        The nominal rig (what the controller believes), the controller's settings, and the
+        ``plant`` section the simulated truth is drawn from.
     controller : Controller or str
         A controller instance or a registry name (:func:`capsule_mpc.control.make_controller`).
     path : ReferencePath
         The reference at its nominal speed.
     seed : int
-        Seed of the run's random generator (camera noise and drops).
+        Seed of the run: the plant draw and start offset (:func:`~.truth.draw_plant_truth`),
+        camera noise and drops.
     progress : bool
         Show a progress bar (appears only if the run takes longer than a second).
     actuator : Actuator, optional
-        The EPM carrier; default :func:`make_actuator` (``sim.actuator``).
+        The EPM carrier; default :func:`make_actuator` (``sim.actuator``; the simple arm with the
+        draw's servo lag).
     plant : CapsulePlant, optional
-        The plant; default the finite-magnet plant of ``scenario``.
+        The plant; default the finite-magnet plant of the draw.
     meta : dict, optional
         Provenance copied into :attr:`RunResult.meta` (e.g. ``config``, ``waypoints_file``).
     realtime : bool
@@ -359,84 +505,60 @@ def simulate(
     name = controller if isinstance(controller, str) else (ctrl.name or type(ctrl).__name__)
     if realtime:
         scenario = realtime_scenario(scenario)
-    rng = np.random.default_rng(seed)
-    sim, cam_cfg = scenario.sim, scenario.camera
-    dt = 1.0 / sim.plant_rate_hz
-    plant = plant if plant is not None else CapsulePlant(scenario)
-    act = actuator if actuator is not None else make_actuator(scenario)
-    camera = Camera(cam_cfg, rng)
-    tracker = PathProgress(path)
-
-    start = path.start_m
-    epm0 = np.array([*(start + plant.equilibrium_lead_m), scenario.plate.epm_height_m])
-    plant.reset(start)
+    truth = draw_plant_truth(scenario, seed) if plant is None else plant.truth
+    plant = plant if plant is not None else CapsulePlant(scenario, truth=truth)
+    act = actuator if actuator is not None else _make_actuator(scenario, truth)
+    if truth is None:
+        camera = Camera(scenario.camera, np.random.default_rng(seed))
+    else:
+        bias = (truth.camera_bias_x_m, truth.camera_bias_y_m)
+        camera = Camera(
+            scenario.camera, np.random.default_rng(seed), bias_m=bias, noise_std_m=truth.camera_noise_std_m
+        )
+    epm0, capsule0, theta0 = start_pose(scenario, plant, path, np.random.default_rng([seed, 2]))
+    plant.reset(capsule0, theta_s=theta0)
     act.reset(epm0)
     plant.evaluate_forces(*epm0.tolist())
     ctrl.reset(scenario, path, epm0.copy())
+    loop = _Loop(scenario, path, plant, act, 0.0 if truth is None else truth.compute_delay_s)
 
-    ratio = sim.plant_rate_hz / cam_cfg.rate_hz
-    j0 = math.ceil(-sim.settle_s * cam_cfg.rate_hz - 1e-9)
+    sim, rate = scenario.sim, scenario.camera.rate_hz
+    j0 = math.ceil(-sim.settle_s * rate - 1e-9)
     t_cut = TIMEOUT_FACTOR * path.duration_s + sim.tail_s
-    j_last = math.floor(t_cut * cam_cfg.rate_hz + 1e-9)
-    k = round(j0 * ratio)
-    k_first = k
+    j_last = math.floor(t_cut * rate + 1e-9)
+    k = k_first = round(j0 * loop.ratio)
     log = _Log(j_last - j0 + 2)
-    flags = RunFlags()
     stats: list[StepStats] = []
     predictions: list[np.ndarray | None] = []
-    period_s = 1.0 / cam_cfg.rate_hz
-    pacing = RealtimeStats(period_ms=period_s * 1e3) if realtime else None
-    completion = math.nan
-    rest_s = 0.0
-    tol = sim.completion_tol_m
-    end = path.end_m
-    cmd_applied = np.zeros(3)
+    pacing = RealtimeStats(period_ms=loop.frame_s * 1e3) if realtime else None
     bar = tqdm(
         total=round(t_cut + sim.settle_s, 1), desc=f"simulate {name}", disable=not progress, delay=1.0,
         leave=False, bar_format=_BAR_FORMAT,
     )  # fmt: skip
-    step_plant, step_act = plant.step, act.step_xyz
+    flags = loop.flags
     wall0 = time.perf_counter()
     for j in range(j0, j_last + 1):
-        slot_start = wall0 + (j - j0) * period_s
-        status = OK
-        for _ in range(round(j * ratio) - k):
-            ex, ey, ez = step_act(dt)
-            status = step_plant(dt, ex, ey, ez)
-            if status != OK:
-                break
-            k += 1
-        t = k * dt
-        pos = plant.position_m
-        row: dict[str, Any] = {"t_s": t, "capsule_x_m": pos[0], "capsule_y_m": pos[1], "capsule_z_m": 0.0}
-        row["capsule_vx_mps"], row["capsule_vy_mps"] = plant.vx, plant.vy
-        epm, epm_v = act.position_m, act.velocity_mps
-        row.update(zip(("epm_x_m", "epm_y_m", "epm_z_m"), epm.tolist()))
-        row.update(zip(("epm_vx_mps", "epm_vy_mps", "epm_vz_mps"), epm_v.tolist()))
-        ref = path.position(t)
-        row["ref_x_m"], row["ref_y_m"] = float(ref[0]), float(ref[1])
-        row.update(zip(("force_x_n", "force_y_n", "force_att_n"), plant.force_n))
-        row["normal_force_n"], row["plant_mu"] = plant.normal_force_n, plant.mu
-        row["stuck"] = int(plant.stuck)
-        row["progress_m"] = tracker.update(pos)
+        k, status = loop.advance(k, round(j * loop.ratio))
+        t = k * loop.dt
+        row = loop.state_row(t)
         if status != OK:
             flags.decoupled = plant.failure.startswith("decoupled")
             flags.dropped = not flags.decoupled
             flags.failure, flags.failure_t_s = plant.failure, t
-            row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), cmd_applied.tolist()))
+            row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), loop.cmd_applied.tolist()))
             row["solver_status"], row["solver_failed"] = "", 0
             log.add(row)
             predictions.append(None)
             break
-        meas = camera.frame(t, pos)
+        meas = camera.frame(t, plant.position_m)
+        slot_start = wall0 + (j - j0) * loop.frame_s
         if pacing is not None:
             pacing.slept_s += _wait_until(slot_start)
         c0 = time.perf_counter()
-        cmd = ctrl.step(t, meas, epm)
+        cmd = ctrl.step(t, meas, act.position_m)
         c1 = time.perf_counter()
-        row["controller_ms"] = (c1 - c0) * 1e3
         if pacing is not None:
-            pacing.record(t, c1 - c0, c1 - (slot_start + period_s))
+            pacing.record(t, c1 - c0, c1 - (slot_start + loop.frame_s))
         predictions.append(ctrl.predicted_capsule_path())
         vel = _check_command(cmd)
         step_stats = cmd.stats if isinstance(cmd, Command) else StepStats(status="invalid", failed=True)
@@ -444,41 +566,56 @@ def simulate(
             flags.invalid_commands += 1
             vel = np.zeros(3)
         stats.append(step_stats)
-        cmd_applied = vel if t >= 0 else np.zeros(3)
-        act.set_velocity_command(t, cmd_applied)
+        loop.command(k, t, vel)
         if meas.position_m is not None:
             row["meas_x_m"], row["meas_y_m"] = float(meas.position_m[0]), float(meas.position_m[1])
-        row["meas_capture_t_s"] = meas.capture_t_s
-        row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), cmd_applied.tolist()))
+        row["meas_capture_t_s"], row["controller_ms"] = meas.capture_t_s, (c1 - c0) * 1e3
+        row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), loop.cmd_applied.tolist()))
         row["solve_ms"], row["solver_status"] = step_stats.solve_ms, step_stats.status
         row["solver_failed"] = int(step_stats.failed)
         log.add(row)
-        bar.update(1.0 / cam_cfg.rate_hz)
-        if t >= 0 and row["progress_m"] >= path.length_m - tol and math.hypot(*(pos - end)) <= tol:
-            flags.completed, completion = True, t
-            break
-        at_rest = plant.stuck and float(np.linalg.norm(epm_v)) < MOVING_SPEED_MPS
-        rest_s = rest_s + 1.0 / cam_cfg.rate_hz if (at_rest and t >= path.duration_s) else 0.0
-        if rest_s >= sim.stall_s:
-            flags.stalled = True
+        bar.update(loop.frame_s)
+        if loop.at_rest_after_end(t):
+            flags.at_rest = True
             break
     else:
         flags.timed_out = True
     wall = time.perf_counter() - wall0
     bar.close()
     arrays = log.arrays()
-    metrics = run_metrics(arrays, path, completion_time_s=completion, deadline_ms=period_s * 1e3)
-    if pacing is not None:  # measured on the wall clock rather than from the reported solve times
-        metrics["deadline_misses"] = pacing.deadline_misses
-    metrics.update(
-        completed=flags.completed, decoupled=flags.decoupled, dropped=flags.dropped,
-        stalled=flags.stalled, timed_out=flags.timed_out, invalid_commands=flags.invalid_commands,
-    )  # fmt: skip
+    metrics = _score(arrays, path, scenario, flags, pacing)
     limits = act.limit_counts()
     metrics.update(limits)
     return RunResult(
         scenario=scenario, controller=name, seed=seed, path=path, log=arrays, metrics=metrics,
         flags=flags, step_stats=stats, limit_counts=limits, wall_time_s=wall,
-        sim_time_s=(k - k_first) * dt, plant_steps=k - k_first, meta=dict(meta or {}),
-        predictions=predictions, realtime=pacing,
+        sim_time_s=(k - k_first) * loop.dt, plant_steps=k - k_first, meta=dict(meta or {}),
+        predictions=predictions, realtime=pacing, truth=truth,
     )  # fmt: skip
+
+
+def _score(
+    arrays: dict[str, np.ndarray],
+    path: ReferencePath,
+    scenario: Scenario,
+    flags: RunFlags,
+    pacing: RealtimeStats | None,
+) -> dict[str, Any]:
+    """The run's metrics over its own window (t = 0 to its end) and the flags that say how it ended."""
+    tol = scenario.sim.completion_tol_m
+    end_s = float(arrays["t_s"][-1]) if len(arrays["t_s"]) else 0.0
+    metrics = run_metrics(
+        arrays, path, window_end_s=max(end_s, 0.0), arrival_tol_m=tol,
+        deadline_ms=1e3 / scenario.camera.rate_hz,
+    )  # fmt: skip
+    if pacing is not None:  # measured on the wall clock rather than from the reported solve times
+        metrics["deadline_misses"] = pacing.deadline_misses
+    near = metrics["final_error_mm"] <= tol * 1e3
+    flags.completed = flags.at_rest and near
+    flags.stalled = flags.at_rest and not near
+    metrics.update(
+        completed=flags.completed, at_rest=flags.at_rest, decoupled=flags.decoupled,
+        dropped=flags.dropped, stalled=flags.stalled, timed_out=flags.timed_out,
+        invalid_commands=flags.invalid_commands, outcome=flags.describe(metrics["final_error_mm"]),
+    )  # fmt: skip
+    return metrics

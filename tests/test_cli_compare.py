@@ -1,0 +1,192 @@
+"""``capsule-mpc compare --runs N``: aggregation over seeds, the table, the option, short end-to-end runs."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from capsule_mpc.cli import main
+from capsule_mpc.cli.compare import RUNS_FOLDER, aggregate_runs, compare_controllers, summary_table
+from capsule_mpc.config import load_config
+from capsule_mpc.metrics import run_metrics
+from capsule_mpc.paths import ReferencePath
+from capsule_mpc.sim import read_log
+
+#: Three seeds' runs of two controllers: "a" always finishes, "b" raises on the second seed.
+PER_SEED = [
+    {
+        "seed": 7,
+        "controllers": {
+            "a": {"tracking_rms_mm": 1.0, "arrival_time_s": 4.0, "decoupled": True, "solver_failures": 0,
+                  "run_dir": "x/7/a"},
+            "b": {"tracking_rms_mm": 5.0, "arrival_time_s": math.nan, "decoupled": False,
+                  "solver_failures": 3},
+        },
+    },
+    {
+        "seed": 8,
+        "controllers": {
+            "a": {"tracking_rms_mm": 2.5, "arrival_time_s": None, "decoupled": False, "solver_failures": 1,
+                  "run_dir": "x/8/a"},
+            "b": {"error": "RuntimeError: boom", "traceback": "..."},
+        },
+    },
+    {
+        "seed": 9,
+        "controllers": {
+            "a": {"tracking_rms_mm": 4.0, "arrival_time_s": 6.0, "decoupled": True, "solver_failures": 2,
+                  "run_dir": "x/9/a"},
+            "b": {"tracking_rms_mm": 7.0, "arrival_time_s": 3.0, "decoupled": np.True_, "solver_failures": 0},
+        },
+    },
+]  # fmt: skip
+
+
+def test_aggregate_mean_and_spread_against_numpy():
+    agg = aggregate_runs(PER_SEED)
+    assert list(agg) == ["a", "b"]
+    a = agg["a"]
+    values = np.array([1.0, 2.5, 4.0])
+    assert a["tracking_rms_mm"] == pytest.approx(np.mean(values))
+    spread = a["spread"]["tracking_rms_mm"]
+    assert spread["sd"] == pytest.approx(np.std(values, ddof=1))
+    assert (spread["min"], spread["max"], spread["n"]) == (1.0, 4.0, 3)
+    assert a["solver_failures"] == pytest.approx(1.0)
+    assert (a["n_runs"], a["n_failed"]) == (3, 0) and "errors" not in a and "error" not in a
+    assert "run_dir" not in a  # text: only in the per-seed runs
+
+
+def test_aggregate_counts_flags_and_leaves_out_nan_and_errors():
+    agg = aggregate_runs(PER_SEED)
+    a, b = agg["a"], agg["b"]
+    assert a["decoupled"] == 2 and b["decoupled"] == 1  # runs where true (a numpy bool counts too)
+    assert "decoupled" not in a["spread"]
+    # a's arrival: 4 and 6 (the JSON null is left out, as a NaN is).
+    assert a["arrival_time_s"] == pytest.approx(5.0)
+    assert a["spread"]["arrival_time_s"] == pytest.approx(
+        {"sd": math.sqrt(2), "min": 4.0, "max": 6.0, "n": 2}
+    )
+    # b: seed 8 raised; of the two runs left only one arrived.
+    assert (b["n_runs"], b["n_failed"], b["errors"]) == (2, 1, ["RuntimeError: boom"])
+    assert b["tracking_rms_mm"] == pytest.approx(6.0)
+    assert b["arrival_time_s"] == 3.0 and b["spread"]["arrival_time_s"]["sd"] == 0.0  # one value: sd 0
+    assert "error" not in b  # it did run on some seeds
+
+
+def test_aggregate_of_a_controller_that_always_raised():
+    per_seed = [
+        {"controllers": {"c": {"error": "ValueError: no"}}},
+        {"controllers": {"c": {"error": "E: 2"}}},
+    ]
+    c = aggregate_runs(per_seed)["c"]
+    assert c["error"] == "ValueError: no" and (c["n_runs"], c["n_failed"]) == (0, 2)
+    assert math.isnan(aggregate_runs([{"controllers": {"d": {"x_mm": math.nan}}}])["d"]["x_mm"])
+
+
+def test_table_shows_mean_and_sd_for_several_runs():
+    agg = aggregate_runs(PER_SEED)
+    several = summary_table(agg, runs=3)
+    row_a = next(line for line in several.splitlines() if line.startswith("| a |"))
+    assert "| 3/3 |" in row_a  # successful runs
+    assert f"2.50 ± {np.std([1.0, 2.5, 4.0], ddof=1):.2f}" in row_a
+    assert "5.00 ± 1.41 (2/3)" in row_a  # arrival: only two runs arrived
+    assert "| 2/3 |" in row_a  # decoupled in two runs
+    row_b = next(line for line in several.splitlines() if line.startswith("| b |"))
+    assert row_b.startswith("| b | 2/3 |")
+    assert several.splitlines()[0].count("|") == several.splitlines()[2].count("|")  # columns line up
+    one = summary_table(aggregate_runs(PER_SEED[:1]), runs=1)
+    assert "±" not in one and "| a | 1.00 |" in one
+    failed = summary_table({"c": {"error": "boom"}})
+    assert "| c | error: boom |" in failed
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "two"])
+def test_runs_below_one_exit_2_naming_the_option(tmp_path, capsys, value):
+    with pytest.raises(SystemExit) as exc:
+        main(["compare", "--out", str(tmp_path), "--runs", value])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--runs" in err and ">= 1" in err
+
+
+def test_compare_controllers_rejects_zero_runs(tmp_path, scenario):
+    path = ReferencePath(np.array([[0.0, 0.0], [0.01, 0.0]]), False, 0.02)
+    with pytest.raises(ValueError, match="runs"):
+        compare_controllers(scenario, path, tmp_path, 0, runs=0)
+
+
+@pytest.fixture
+def rectangle_config():
+    from pathlib import Path
+
+    return Path(__file__).resolve().parents[1] / "configs" / "rectangle.yaml"
+
+
+#: A short path (35 mm at 20 mm/s) so a run takes about a second.
+SHORT = ReferencePath(np.array([[0.0, 0.0], [0.02, 0.0], [0.02, 0.015]]), False, 0.02)
+
+
+def test_several_seeds_are_scored_on_a_common_window(tmp_path, table, rectangle_config, monkeypatch):
+    import capsule_mpc.sim as sim
+
+    real = sim.simulate
+
+    def flaky(scenario, name, path, seed, **kw):
+        if name == "paper_0.8v" and seed == 4:
+            raise RuntimeError("boom")
+        return real(scenario, name, path, seed, **kw)
+
+    monkeypatch.setattr(sim, "simulate", flaky)
+    scenario = load_config(rectangle_config)
+    out = tmp_path / "cmp"
+    summary = compare_controllers(
+        scenario, SHORT, out, 3, controllers=["follow", "paper_0.8v"], progress=False, runs=2
+    )
+    assert summary["runs_requested"] == 2 and summary["seeds"] == [3, 4]
+    assert [r["seed"] for r in summary["runs"]] == [3, 4]
+    written = json.loads((out / "summary.json").read_text())
+    assert written["seeds"] == [3, 4] and written["controllers"]["follow"]["n_runs"] == 2
+    for k, seed in enumerate([3, 4]):
+        entries = summary["runs"][k]["controllers"]
+        dirs = {
+            name: out / RUNS_FOLDER / f"seed_{seed}" / name for name, e in entries.items() if "error" not in e
+        }
+        logs = {name: read_log(d / "log.csv") for name, d in dirs.items()}
+        window = summary["runs"][k]["window_end_s"]
+        assert window == pytest.approx(max(float(log["t_s"][-1]) for log in logs.values()))
+        for name, log in logs.items():  # every run re-scored on the seed's window, as its run.json says
+            again = run_metrics(
+                log, SHORT, window_end_s=window, arrival_tol_m=scenario.sim.completion_tol_m,
+                deadline_ms=1e3 / scenario.camera.rate_hz,
+            )  # fmt: skip
+            assert entries[name]["tracking_rms_mm"] == pytest.approx(again["tracking_rms_mm"])
+            run_json = json.loads((dirs[name] / "run.json").read_text())
+            assert run_json["metrics"]["window_end_s"] == pytest.approx(window)
+            assert "decoupled" in entries[name]  # the runner's flags are kept
+    assert "RuntimeError: boom" in summary["runs"][1]["controllers"]["paper_0.8v"]["error"]
+    follow, paper = summary["controllers"]["follow"], summary["controllers"]["paper_0.8v"]
+    rms = [summary["runs"][k]["controllers"]["follow"]["tracking_rms_mm"] for k in range(2)]
+    assert rms[0] != rms[1]  # each seed its own plant and start
+    assert follow["tracking_rms_mm"] == pytest.approx(np.mean(rms))
+    assert follow["spread"]["tracking_rms_mm"]["sd"] == pytest.approx(np.std(rms, ddof=1))
+    assert (paper["n_runs"], paper["n_failed"]) == (1, 1)
+    assert summary["figures"] == ["trajectories.png", "errors.png", "metrics.png"]
+    for name in summary["figures"]:
+        assert (out / name).stat().st_size > 0
+    assert "±" in (out / "summary.md").read_text()
+
+
+def test_cli_runs_two_seeds(tmp_path, table, rectangle_config, capsys):
+    short = tmp_path / "short.csv"
+    short.write_text("x_m,y_m\n0.0,0.0\n0.02,0.0\n0.02,0.015\n")
+    out = tmp_path / "cmp"
+    args = ["compare", "--config", str(rectangle_config), "--out", str(out), "--waypoints", str(short)]
+    assert main([*args, "--controllers", "follow", "--runs", "2", "--seed", "11", "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "| follow | 2/2 |" in printed and "±" in printed and f"{RUNS_FOLDER}/seed_<S>" in printed
+    assert (out / RUNS_FOLDER / "seed_12" / "follow" / "log.csv").exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["seed"] == 11 and summary["seeds"] == [11, 12]
