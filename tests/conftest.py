@@ -15,9 +15,20 @@ from capsule_mpc.magnetics import ForceMap, force_map  # noqa: E402
 
 
 @pytest.fixture(scope="session")
-def scenario() -> Scenario:
-    """The packaged paper scenario."""
+def lab_scenario() -> Scenario:
+    """The packaged paper scenario as shipped: the plant drawn around it with the ``lab`` preset."""
     return load_config()
+
+
+@pytest.fixture(scope="session")
+def scenario(lab_scenario: Scenario) -> Scenario:
+    """The paper scenario with the ``ideal`` plant (the nominal rig itself): for tests of the
+    physics and the machinery that want no perturbation; rig-realism tests use ``lab_scenario``."""
+    ideal = lab_scenario.model_copy(
+        update={"plant": lab_scenario.plant.model_copy(update={"preset": "ideal"})}
+    )
+    ideal.source_path = lab_scenario.source_path
+    return ideal
 
 
 @pytest.fixture(scope="session")

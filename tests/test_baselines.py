@@ -33,8 +33,9 @@ def test_short_closed_loop_run_does_not_decouple(scenario, name):
     assert np.max(np.abs(res.log["capsule_x_m"][moving])) > 0.02  # the capsule really travelled
 
 
-def test_offset_calibrated_from_the_camera_is_the_actual_rest_lead(scenario):
+def test_offset_calibrated_from_the_camera_is_the_actual_rest_lead(lab_scenario):
     """On the lab rig the capsule rests anywhere in the dead zone: the baseline measures where."""
+    scenario = lab_scenario
     ctrl = make_controller("follow")
     res = simulate(scenario, ctrl, L_PATH, seed=3)
     truth = res.truth

@@ -86,7 +86,7 @@ def test_closed_loop_solve_statistics(report):
         assert rti["calls"] >= run["frames"] and rti["iterations_max"] == 1  # one SQP step per call
         assert _positive(rti["t_wall_QP_median_ms"]) and _positive(rti["wall_median_ms"])
         assert rti["t_wall_QP_median_ms"] < rti["wall_median_ms"]
-        assert run["metrics"]["completed"] and not run["metrics"]["decoupled"]
+        assert not run["metrics"]["decoupled"] and not run["metrics"]["dropped"]
         assert _positive(run["metrics"]["cross_track_rms_mm"])
 
 

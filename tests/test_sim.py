@@ -47,9 +47,10 @@ def uniform_plant(scenario, fx, fy=0.0, f_att=0.9):
     return CapsulePlant(loose, UniformForce(fx, fy, f_att), equilibrium_lead_m=np.zeros(2))
 
 
-def breakaway_n(scenario, f_att=0.9):
-    f_n = f_att - scenario.capsule.mass_kg * scenario.plate.gravity_mps2
-    return scenario.friction.mu_static * f_n + scenario.friction.tether_drag_n
+def breakaway_n(plant, f_att=0.9):
+    """The lateral force that breaks the capsule away in its current (healed) state, N."""
+    f_n = f_att - plant.weight_n
+    return plant.breakaway_mu() * f_n + plant.drag_n()
 
 
 # --- plant: forces ----------------------------------------------------------------------------------
@@ -77,8 +78,10 @@ def test_plant_equilibrium_is_the_force_maps(scenario, table):
 
 
 def test_sub_threshold_force_does_not_creep(scenario):
-    plant = uniform_plant(scenario, 0.999 * breakaway_n(scenario))
-    plant.reset(np.zeros(2))
+    probe = uniform_plant(scenario, 0.0)
+    probe.reset(np.zeros(2), theta_s=1.0)
+    plant = uniform_plant(scenario, 0.999 * breakaway_n(probe))
+    plant.reset(np.zeros(2), theta_s=1.0)
     for _ in range(10_000):  # 10 s at 1 kHz
         assert plant.step(DT, 0.0, 0.0, 0.095) == OK
     assert plant.px == 0.0 and plant.py == 0.0 and plant.stuck
@@ -87,7 +90,7 @@ def test_sub_threshold_force_does_not_creep(scenario):
 def test_sub_threshold_map_force_does_not_creep(scenario):
     plant = CapsulePlant(scenario)
     eq = plant.equilibrium_lead_m
-    plant.reset(np.zeros(2))
+    plant.reset(np.zeros(2), theta_s=1.0)  # rested 1 s: breakaway mu 0.26
     epm = (eq[0] + 0.004, eq[1], scenario.plate.epm_height_m)  # 4 mm off: below breakaway
     for _ in range(10_000):
         assert plant.step(DT, *epm) == OK
@@ -96,8 +99,10 @@ def test_sub_threshold_map_force_does_not_creep(scenario):
 
 
 def test_above_threshold_force_moves(scenario):
-    plant = uniform_plant(scenario, 0.0, 1.05 * breakaway_n(scenario))
-    plant.reset(np.zeros(2))
+    probe = uniform_plant(scenario, 0.0)
+    probe.reset(np.zeros(2), theta_s=1.0)
+    plant = uniform_plant(scenario, 0.0, 1.05 * breakaway_n(probe))
+    plant.reset(np.zeros(2), theta_s=1.0)
     for _ in range(200):
         assert plant.step(DT, 0.0, 0.0, 0.095) == OK
     assert plant.py > 1e-4 and plant.vy > 0 and abs(plant.px) < 1e-15
@@ -127,9 +132,11 @@ def test_constant_speed_drag_reaches_steady_friction(scenario, speed):
     for i in range(1, n + 1):
         assert plant.step(DT, eq[0] + speed * i * DT, eq[1], h) == OK
     assert plant.vx == pytest.approx(speed, rel=2e-3)
-    assert plant.theta_s == pytest.approx(plant.law.theta_steady(speed), rel=1e-3)
-    mu_ss = plant.law.mu_steady(speed)
+    theta_ss = plant.law.theta_steady(speed)
+    assert plant.theta_s == pytest.approx(theta_ss, rel=1e-3)
+    mu_ss = plant.law.mu_regularized(speed, theta_ss)
     assert plant.mu == pytest.approx(mu_ss, rel=1e-3)
+    assert mu_ss == pytest.approx(plant.law.mu_steady(speed), rel=5e-3)  # eq. 9, away from v = 0
     resist = mu_ss * plant.normal_force_n + scenario.friction.tether_drag_n
     assert plant.force_n[0] == pytest.approx(resist, rel=5e-3)
 
@@ -294,7 +301,7 @@ def test_settle_phase_holds_the_epm_and_feeds_frames(scenario):
 
 
 def test_capsule_that_cannot_follow_decouples_and_is_reported(scenario):
-    glued = tweak(scenario, "friction", mu0=1.5, mu_static=1.5)  # friction > any magnetic force
+    glued = tweak(scenario, "friction", mu0=1.5)  # breakaway friction > any magnetic force
     res = simulate(glued, Push([0.0, 0.02, 0.0]), SHORT, seed=0)
     assert res.flags.decoupled and not res.flags.dropped and res.metrics["decoupled"]
     assert res.flags.failure_t_s > 0
@@ -393,7 +400,7 @@ def test_realtime_run_keeps_pace_with_the_wall_clock(scenario):
     assert ctrl.scenario.mpc.enforce_deadline and run.scenario.mpc.enforce_deadline
     assert not scenario.mpc.enforce_deadline  # the caller's scenario is untouched
     assert run.summary()["realtime"]["frames"] == rt.frames
-    assert run.flags.completed
+    assert not run.flags.decoupled and not run.flags.dropped
 
 
 def test_slow_controller_misses_deadlines_but_commands_stay_finite_and_limited(scenario):

@@ -462,7 +462,7 @@ def _write_figures(
 
 def run(args: argparse.Namespace) -> int:
     """Compare the controllers; exit status 1 if any controller raised, 2 for an unknown one."""
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
+    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
     seed = scenario.sim.seed if args.seed is None else args.seed
     known = available_controllers()
     unknown = [n for n in args.controllers or [] if n not in known]

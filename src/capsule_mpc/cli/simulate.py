@@ -52,6 +52,12 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--speed", type=float, default=None, help="nominal path speed, m/s (overrides path.speed_mps)"
     )
+    p.add_argument(
+        "--plant",
+        choices=("ideal", "lab", "hard"),
+        default=None,
+        help="plant preset: the simulated truth around the nominal rig (overrides plant.preset)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -89,9 +95,12 @@ def register(sub: Any) -> None:
 
 
 def prepare_run(
-    config: str | Path | None, waypoints: str | Path | None, speed: float | None
+    config: str | Path | None,
+    waypoints: str | Path | None,
+    speed: float | None,
+    plant_preset: str | None = None,
 ) -> tuple[Scenario, ReferencePath, dict[str, Any]]:
-    """Load a scenario, apply the ``--waypoints`` / ``--speed`` overrides, and build the path.
+    """Load a scenario, apply the ``--waypoints`` / ``--speed`` / ``--plant`` overrides, and build the path.
 
     Also makes sure the finite-magnet force map is cached (computing it, with a progress bar,
     on first use). The returned scenario carries the overrides (``path.kind: waypoints`` with
@@ -105,9 +114,11 @@ def prepare_run(
     base = load_config(config)
     path = path_from_scenario(base, waypoints=waypoints, speed=speed)
     scenario = base
-    if waypoints is not None or speed is not None:
+    if waypoints is not None or speed is not None or plant_preset is not None:
         data = base.model_dump(mode="json", exclude_none=True)
         data["path"]["speed_mps"] = path.speed_mps
+        if plant_preset is not None:
+            data["plant"]["preset"] = plant_preset
         if waypoints is not None:
             data["path"]["kind"] = "waypoints"
             data["path"]["waypoints_file"] = str(Path(waypoints).resolve())
@@ -227,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
+    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
     seed = scenario.sim.seed if args.seed is None else args.seed
     result = simulate(
         scenario,
