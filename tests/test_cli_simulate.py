@@ -46,7 +46,8 @@ def test_compare_runs_every_controller_on_the_same_seed(tmp_path, short_path, ta
     assert summary["seed"] == load_config().sim.seed
     assert set(summary["controllers"]) == {"follow", "paper_0.8v"}
     for entry in summary["controllers"].values():
-        for key in ("cross_track_rms_mm", "cross_track_max_mm", "paper_std_mm", "arrival_time_s", "tracking_rms_mm", "final_error_mm",
+        for key in ("cross_track_rms_mm", "cross_track_max_mm", "paper_std_mm", "arrival_time_s",
+                    "tracking_rms_mm", "final_error_mm",
                     "nominal_time_s", "decoupled", "dropped", "solve_ms_median", "solve_ms_p99",
                     "solver_failures", "deadline_misses"):  # fmt: skip
             assert key in entry

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import casadi as ca
@@ -101,3 +102,48 @@ def test_rate_state_velocity_step_response(rs):
     jump = rs.mu(v2, th)
     assert jump > rs.mu_steady(v1)  # direct effect: mu rises with speed
     assert rs.mu_steady(v2) < jump  # evolution effect brings it down again
+
+
+# --- the plant's regularised law (arcsinh form) -----------------------------------------------------
+
+PLANT_LAW = RateStateFriction(mu0=0.22, a=0.045, b=0.015, v_star_mps=0.2, d_c_m=1e-5)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.003, 0.1), st.floats(1e-5, 100.0))
+def test_regularized_law_is_eq5_away_from_rest(v, theta):
+    """Away from v = 0 the arcsinh form equals eq. 5 to a / (4 x^2), x its argument (asinh x - ln 2x)."""
+    law = PLANT_LAW
+    x = v / (2 * (v + law.v_star_mps)) * math.exp(law.state_term(theta) / law.a)
+    eq5 = float(law.mu(v, theta))
+    assert law.mu_regularized(v, theta) == pytest.approx(eq5, abs=1.05 * law.a / (4 * x * x) + 1e-12)
+    if x > 10:
+        assert law.mu_regularized(v, theta) == pytest.approx(eq5, abs=2e-4)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-0.1, 0.1), st.floats(1e-5, 100.0))
+def test_regularized_law_is_odd_finite_and_increasing(v, theta):
+    mu = PLANT_LAW.mu_regularized(v, theta)
+    assert math.isfinite(mu)
+    assert PLANT_LAW.mu_regularized(-v, theta) == -mu
+    assert PLANT_LAW.mu_regularized(abs(v) * 1.01 + 1e-9, theta) > abs(mu)
+    assert PLANT_LAW.mu_regularized(0.0, theta) == 0.0
+    slope = PLANT_LAW.mu_regularized_slope(abs(v), theta)
+    assert math.isfinite(slope) and slope > 0
+
+
+@pytest.mark.parametrize("v", [0.0, 1e-6, 1e-3, 0.02])
+def test_regularized_slope_matches_finite_differences(v):
+    theta, h = 0.1, 1e-9
+    fd = (PLANT_LAW.mu_regularized(v + h, theta) - PLANT_LAW.mu_regularized(v, theta)) / h
+    assert PLANT_LAW.mu_regularized_slope(v, theta) == pytest.approx(fd, rel=1e-4)
+
+
+def test_breakaway_friction_heals_logarithmically_with_rest_time():
+    """Slide-hold-slide: the peak at a fixed reload speed grows by ~b ln(10) per decade of hold."""
+    peaks = [PLANT_LAW.mu_regularized(0.02, hold) for hold in (0.1, 1.0, 10.0, 100.0)]
+    steps = np.diff(peaks)
+    assert np.all(steps > 0)
+    np.testing.assert_allclose(steps, PLANT_LAW.b * math.log(10), rtol=0.02)
+    assert peaks[1] == pytest.approx(0.26, abs=0.005)  # 1 s at rest: the previous constant mu_s

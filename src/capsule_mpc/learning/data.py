@@ -206,6 +206,10 @@ class CSamples:
     excluded: dict[str, int]
 
 
+#: Normal forces at or below this (N) count as non-positive: a sample with F_N ~ 0 carries no
+#: friction information, and dividing by a subnormal F_N overflows (found by hypothesis).
+MIN_NORMAL_FORCE_N = 1e-9
+
 def per_sample_c(
     samples: FrictionSamples,
     constants: FrictionConstants,
@@ -240,7 +244,7 @@ def per_sample_c(
     reasons = {
         "below_speed_floor": ~(speed > speed_floor_mps),
         "log_ratio_small": np.abs(log_ratio) < min_log_ratio,
-        "normal_force_nonpositive": ~(np.asarray(samples.normal_n) > 0),
+        "normal_force_nonpositive": ~(np.asarray(samples.normal_n) > MIN_NORMAL_FORCE_N),
         **samples.flags,
     }
     left = np.ones(len(samples), dtype=bool)
