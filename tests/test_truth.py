@@ -109,6 +109,14 @@ def test_operator_start_is_inside_the_dead_zone(lab_scenario, seed):
     assert plant.stuck and np.array_equal(plant.position_m, capsule)
 
 
+def test_a_tiny_dead_zone_fraction_still_finds_a_start(lab_scenario):
+    tiny = with_plant(lab_scenario, start_dead_zone_fraction=0.01)
+    truth = draw_plant_truth(tiny, 10)
+    plant = CapsulePlant(tiny, truth=truth)
+    epm, capsule, theta = start_pose(tiny, plant, SHORT, np.random.default_rng([10, 2]))
+    assert plant.holding_ratio(*(epm[:2] - capsule), epm[2], theta) <= 0.01
+
+
 def test_no_run_ends_while_the_capsule_moves(lab_scenario):
     res = simulate(lab_scenario, "follow", SHORT, seed=2)
     log, sim = res.log, lab_scenario.sim

@@ -210,6 +210,7 @@ class CSamples:
 #: friction information, and dividing by a subnormal F_N overflows (found by hypothesis).
 MIN_NORMAL_FORCE_N = 1e-9
 
+
 def per_sample_c(
     samples: FrictionSamples,
     constants: FrictionConstants,

@@ -97,8 +97,10 @@ _PROGRESS_WINDOW_M = (0.03, 0.03)
 #: Half-width (m) of the box of leads around the true equilibrium searched for the start dead zone
 #: (the dead zone measured on the default rig spans about +-6 mm in x and +-22 mm in y).
 _DEAD_ZONE_SEARCH_M = 0.035
-#: Candidate leads drawn when searching the dead zone before giving up.
+#: Candidate leads drawn per search box when searching the dead zone.
 _DEAD_ZONE_TRIES = 20000
+#: Search boxes tried in turn, as fractions of the full one (small dead-zone fractions need small boxes).
+_DEAD_ZONE_BOXES = (1.0, 0.1, 0.01, 0.001)
 
 
 class PathProgress:
@@ -373,15 +375,32 @@ def start_pose(
     fraction = truth.start_dead_zone_fraction
     lead = plant.equilibrium_lead_m.copy()
     if fraction > 0:
+        lead = _draw_rest_lead(plant, epm_xy, height, theta0, fraction, rng)
+    return np.array([*epm_xy, height]), epm_xy - lead, theta0
+
+
+def _draw_rest_lead(
+    plant: CapsulePlant,
+    epm_xy: np.ndarray,
+    height: float,
+    theta0: float,
+    fraction: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """A lead drawn uniformly among those with holding ratio <= ``fraction`` (rejection sampling).
+
+    The box searched first spans the whole dead zone; a small fraction's set is a small region
+    around the equilibrium (the force grows about linearly with the offset), so when no candidate
+    lands in it the box shrinks (it still contains the set, so the draw stays uniform over it).
+    """
+    for box in _DEAD_ZONE_BOXES:
+        half = box * _DEAD_ZONE_SEARCH_M
         for _ in range(_DEAD_ZONE_TRIES):
-            cand = plant.equilibrium_lead_m + rng.uniform(-_DEAD_ZONE_SEARCH_M, _DEAD_ZONE_SEARCH_M, 2)
+            cand = plant.equilibrium_lead_m + rng.uniform(-half, half, 2)
             plant.px, plant.py = (epm_xy - cand).tolist()  # the friction field is read where it rests
             if plant.holding_ratio(float(cand[0]), float(cand[1]), height, theta0) <= fraction:
-                lead = cand
-                break
-        else:  # pragma: no cover - the equilibrium itself always qualifies; only a pathological field
-            raise RuntimeError(f"no start lead found inside {fraction:.2f} of the dead zone")
-    return np.array([*epm_xy, height]), epm_xy - lead, theta0
+                return np.asarray(cand, dtype=float)
+    return plant.equilibrium_lead_m.copy()  # fraction ~ 0: the equilibrium itself
 
 
 def _make_actuator(scenario: Scenario, truth: PlantTruth | None) -> Actuator:
