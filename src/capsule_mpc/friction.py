@@ -235,13 +235,11 @@ class RateStateFriction:
         if speed_mps == 0.0:  # the derivative of a asinh(x) at x = 0: a dx/dv
             return self.a * math.exp(psi / self.a - math.log(2.0 * self.v_star_mps))
         log_x = math.log(speed_mps / (2.0 * denom)) + psi / self.a
-        # a dx/dv / sqrt(1 + x^2) with dx/dv = x v* / (v (v + v*)), as x / sqrt(1 + x^2) for stability
-        ratio = (
-            1.0 / math.sqrt(1.0 + math.exp(-2.0 * log_x))
-            if log_x > 0
-            else math.exp(log_x) / math.sqrt(1.0 + math.exp(2.0 * log_x))
-        )
-        return self.a * self.v_star_mps / (speed_mps * denom) * ratio
+        if log_x > 0:  # x > 1: a dx/dv / sqrt(1 + x^2) with dx/dv = x v* / (v (v + v*)), overflow-free
+            return self.a * self.v_star_mps / (speed_mps * denom) / math.sqrt(1.0 + math.exp(-2.0 * log_x))
+        # x <= 1: dx/dv = exp(psi / a) v* / (2 (v + v*)^2), no division by a (possibly subnormal) v
+        dx_dv = math.exp(psi / self.a) * self.v_star_mps / (2.0 * denom * denom)
+        return self.a * dx_dv / math.sqrt(1.0 + math.exp(2.0 * log_x))
 
     def theta_rate(self, v: Any, theta: Any) -> Any:
         """theta' = 1 - |v| theta / D_c (paper eq. 6), 1/s * s = dimensionless."""
