@@ -29,7 +29,7 @@ def test_rectangle_targets():
     assert mpc["cross_track_rms_mm"] <= heuristic["cross_track_rms_mm"] / 3
     assert mpc["cross_track_rms_mm"] <= 1.0
     assert mpc["cross_track_max_mm"] <= heuristic["cross_track_max_mm"] / 2
-    assert mpc["completion_time_s"] <= 1.05 * mpc["nominal_time_s"]
+    assert mpc["arrival_time_s"] <= 1.05 * mpc["nominal_time_s"]
     assert not (mpc["decoupled"] or mpc["dropped"])
 
 
