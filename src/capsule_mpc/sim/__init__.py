@@ -3,10 +3,10 @@
 from .actuation import Actuator, SimpleArm, make_actuator, register_actuator
 from .friction_field import FrictionField, FrictionPatch
 from .log import LOG_COLUMNS, REQUIRED_COLUMNS, read_log, read_predictions, write_log, write_run
-from .plant import CapsulePlant, ForceField, MapForces, UniformForce
+from .plant import CapsulePlant, ForceField, MapForces, TrueForces, UniformForce
 from .runner import PathProgress, RealtimeStats, RunFlags, RunResult, realtime_scenario, simulate, start_pose
 from .sensing import Camera
-from .truth import PlantTruth, TrueForces, draw_plant_truth
+from .truth import PlantTruth, draw_plant_truth, nominal_plant_truth
 
 __all__ = [
     "LOG_COLUMNS",
@@ -28,6 +28,7 @@ __all__ = [
     "UniformForce",
     "draw_plant_truth",
     "make_actuator",
+    "nominal_plant_truth",
     "read_log",
     "read_predictions",
     "realtime_scenario",

@@ -52,7 +52,7 @@ from scipy.interpolate import RectBivariateSpline
 from ..config import Scenario
 from ..friction import RateStateFriction
 from ..magnetics import ForceMap, equilibrium_lead, force_map
-from .truth import PlantTruth, TrueForces
+from .truth import PlantTruth, nominal_plant_truth
 
 __all__ = [
     "FAILURE_DECOUPLED",
@@ -62,6 +62,7 @@ __all__ = [
     "CapsulePlant",
     "ForceField",
     "MapForces",
+    "TrueForces",
     "UniformForce",
 ]
 
@@ -160,6 +161,34 @@ class UniformForce:
         return self.f_x_n, self.f_y_n, self.f_att_n
 
 
+class TrueForces:
+    """The plant's force field: the table of the EPM as mounted, scaled by the true remanences.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The nominal magnets and the force-map grid.
+    truth : PlantTruth
+        The draw (remanence scales, height offset, mounting rotation).
+    """
+
+    def __init__(self, scenario: Scenario, truth: PlantTruth) -> None:
+        rotation = truth.epm_rotation
+        identity = np.allclose(rotation.as_matrix(), np.eye(3), atol=1e-15)
+        self.table = force_map(scenario, epm_orientation=None if identity else rotation)
+        self._map = MapForces(self.table)
+        self.scale = truth.epm_remanence_scale * truth.ipm_remanence_scale
+        self.height_offset_m = truth.epm_height_offset_m
+
+    def force(self, lead_x_m: float, lead_y_m: float, height_m: float) -> tuple[float, float, float] | None:
+        """``(F_x, F_y, F_att)``, N, with the EPM commanded at ``height_m`` (its true height is offset)."""
+        f = self._map.force(lead_x_m, lead_y_m, height_m + self.height_offset_m)
+        if f is None:
+            return None
+        s = self.scale
+        return s * f[0], s * f[1], s * f[2]
+
+
 def _field_equilibrium(field: ForceField, height_m: float) -> np.ndarray:
     def fn(lead: np.ndarray) -> np.ndarray:
         f = field.force(float(lead[0]), float(lead[1]), height_m)
@@ -180,12 +209,13 @@ class CapsulePlant:
         capsule mass and ``sim.decouple_lead_m``; the truth scales them.
     forces : ForceField, optional
         The magnetic model; default :class:`~.truth.TrueForces` of ``truth`` (the magnets as
-        drawn), or the nominal finite-magnet map when ``truth`` is None.
+        drawn; for the nominal truth, the nominal finite-magnet map).
     equilibrium_lead_m : array_like (2,), optional
         Lead (m) at which the lateral force vanishes at the nominal EPM height; default computed
         from ``forces`` (the plant's own truth, used to place the capsule and to detect decoupling).
     truth : PlantTruth, optional
-        The drawn rig (:func:`~.truth.draw_plant_truth`); None: the nominal rig (``ideal``).
+        The drawn rig (:func:`~.truth.draw_plant_truth`); None: the nominal rig
+        (:func:`~.truth.nominal_plant_truth`).
 
     Attributes
     ----------
@@ -201,30 +231,24 @@ class CapsulePlant:
         truth: PlantTruth | None = None,
     ) -> None:
         self.scenario = scenario
-        self.truth = truth
-        if forces is None:
-            forces = MapForces(force_map(scenario)) if truth is None else TrueForces(scenario, truth)
-        self.forces: ForceField = forces
+        self.truth = nominal_plant_truth(scenario) if truth is None else truth
+        truth = self.truth
+        self.forces: ForceField = TrueForces(scenario, truth) if forces is None else forces
         fr = scenario.friction
-        val = (
-            (lambda name, nominal: nominal) if truth is None else (lambda name, nominal: getattr(truth, name))
-        )
         self.law = RateStateFriction(
-            fr.mu0 * val("mu0_scale", 1.0),
-            fr.rate_state.a * val("a_scale", 1.0),
-            fr.rate_state.b * val("b_scale", 1.0),
+            fr.mu0 * truth.mu0_scale,
+            fr.rate_state.a * truth.a_scale,
+            fr.rate_state.b * truth.b_scale,
             fr.v_star_mps,
             fr.d_c_m,
         )
-        self.mass_kg = scenario.capsule.mass_kg * val("mass_scale", 1.0)
+        self.mass_kg = scenario.capsule.mass_kg * truth.mass_scale
         self.weight_n = self.mass_kg * scenario.plate.gravity_mps2
         self._below = scenario.plate.setup == "below_plate"
-        self.tether_drag_n = val("tether_drag_n", fr.tether_drag_n)
-        self.tether_growth_n_per_m = val("tether_drag_growth_n_per_m", 0.0)
-        self.breakaway_speed_mps = (
-            scenario.plant.breakaway_speed_mps if truth is None else truth.breakaway_speed_mps
-        )
-        self.friction_scale = (lambda x, y: 1.0) if truth is None else truth.friction_field.scale
+        self.tether_drag_n = truth.tether_drag_n
+        self.tether_growth_n_per_m = truth.tether_drag_growth_n_per_m
+        self.breakaway_speed_mps = truth.breakaway_speed_mps
+        self.friction_scale = truth.friction_field.scale
         self._decouple2 = scenario.sim.decouple_lead_m**2
         if equilibrium_lead_m is None:
             equilibrium_lead_m = _field_equilibrium(self.forces, scenario.plate.epm_height_m)
@@ -273,25 +297,39 @@ class CapsulePlant:
         """Tether drag now, N: its base value plus its growth with the tether paid out."""
         return self.tether_drag_n + self.tether_growth_n_per_m * self.travelled_m
 
-    def breakaway_mu(self, theta_s: float | None = None) -> float:
-        """Breakaway friction coefficient at the capsule's position for state ``theta_s`` (default: now)."""
-        theta = self.theta_s if theta_s is None else theta_s
-        return self.friction_scale(self.px, self.py) * self.law.mu_regularized(
-            self.breakaway_speed_mps, theta
-        )
+    def normal_force(self, f_att_n: float) -> float:
+        """F_N (N) for an attraction ``f_att_n`` (N): F_att - m g below the plate, m g + F_att on it."""
+        return f_att_n - self.weight_n if self._below else self.weight_n + f_att_n
 
-    def holding_ratio(self, lead_x_m: float, lead_y_m: float, height_m: float, theta_s: float) -> float:
+    def breakaway_mu(
+        self, theta_s: float | None = None, position_m: tuple[float, float] | None = None
+    ) -> float:
+        """Breakaway friction coefficient for state ``theta_s`` (default: now) at ``position_m``
+        (default: where the capsule is), dimensionless."""
+        theta = self.theta_s if theta_s is None else theta_s
+        x, y = (self.px, self.py) if position_m is None else position_m
+        return self.friction_scale(x, y) * self.law.mu_regularized(self.breakaway_speed_mps, theta)
+
+    def holding_ratio(
+        self,
+        lead_x_m: float,
+        lead_y_m: float,
+        height_m: float,
+        theta_s: float,
+        position_m: tuple[float, float] | None = None,
+    ) -> float:
         """|F_xy| / (breakaway friction + drag) for the capsule at rest at this lead; > 1 slips.
 
-        ``inf`` where the lead is outside the force field or the capsule would drop.
+        ``position_m`` is where it rests (the friction field is read there; default: where the
+        capsule is). ``inf`` where the lead is outside the force field or the capsule would drop.
         """
         f = self.forces.force(lead_x_m, lead_y_m, height_m)
         if f is None:
             return math.inf
-        f_n = f[2] - self.weight_n if self._below else self.weight_n + f[2]
+        f_n = self.normal_force(f[2])
         if f_n <= 0:
             return math.inf
-        return math.hypot(f[0], f[1]) / (self.breakaway_mu(theta_s) * f_n + self.drag_n())
+        return math.hypot(f[0], f[1]) / (self.breakaway_mu(theta_s, position_m) * f_n + self.drag_n())
 
     def evaluate_forces(self, epm_x_m: float, epm_y_m: float, epm_height_m: float) -> bool:
         """Update :attr:`force_n` / :attr:`normal_force_n` for the EPM at (x, y, height), m, without moving.
@@ -304,7 +342,7 @@ class CapsulePlant:
             self.normal_force_n = math.nan
             return False
         self.force_n = f
-        self.normal_force_n = f[2] - self.weight_n if self._below else self.weight_n + f[2]
+        self.normal_force_n = self.normal_force(f[2])
         return True
 
     def kinetic_energy_j(self) -> float:
@@ -338,7 +376,7 @@ class CapsulePlant:
             return FAILURE_DECOUPLED
         fatt = f[2]
         self.force_n = f
-        self.normal_force_n = fatt - self.weight_n if self._below else self.weight_n + fatt
+        self.normal_force_n = self.normal_force(fatt)
         if self.normal_force_n <= 0.0:
             self.failure = (
                 f"dropped: normal force F_N = {self.normal_force_n:.4f} N <= 0 (attraction {fatt:.4f} N)"
@@ -361,16 +399,12 @@ class CapsulePlant:
         fx, fy, _ = self.force_n
         f_n = self.normal_force_n
         law = self.law
-        scale = self.friction_scale(self.px, self.py)
         drag = self.drag_n()
-        if self.vx == 0.0 and self.vy == 0.0:
-            if (
-                math.hypot(fx, fy)
-                <= scale * law.mu_regularized(self.breakaway_speed_mps, self.theta_s) * f_n + drag
-            ):
-                self.mu = math.nan  # held by static friction
-                self.theta_s += dt_s
-                return OK
+        if self.vx == 0.0 and self.vy == 0.0 and math.hypot(fx, fy) <= self.breakaway_mu() * f_n + drag:
+            self.mu = math.nan  # held by static friction
+            self.theta_s += dt_s
+            return OK
+        scale = self.friction_scale(self.px, self.py)
         speed = math.hypot(self.vx, self.vy)
         n_sub = min(MAX_SUBSTEPS, max(1, math.ceil(speed * dt_s / (SLIP_PER_SUBSTEP * law.d_c_m))))
         h = dt_s / n_sub

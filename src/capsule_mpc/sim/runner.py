@@ -251,7 +251,7 @@ class RunResult:
     realtime : RealtimeStats or None
         Wall-clock pacing figures of a real-time run; None otherwise.
     truth : PlantTruth or None
-        The plant's draw (None when a plant was passed in).
+        The plant's draw (the plant's own truth when a plant was passed in; None only when built by hand).
     """
 
     scenario: Scenario
@@ -367,9 +367,9 @@ def start_pose(
     truth = plant.truth
     height = scenario.plate.epm_height_m
     start = np.asarray(path.start_m, dtype=float)
-    rest_s = 1.0 if truth is None else truth.rest_before_start_s
+    rest_s = truth.rest_before_start_s
     theta0 = plant.law.d_c_m / plant.law.v_star_mps + rest_s
-    if truth is None or truth.start_at_true_equilibrium:
+    if truth.start_at_true_equilibrium:
         return np.array([*(start + plant.equilibrium_lead_m), height]), start, theta0
     epm_xy = start + model_equilibrium_lead(scenario, height)
     fraction = truth.start_dead_zone_fraction
@@ -397,15 +397,15 @@ def _draw_rest_lead(
         half = box * _DEAD_ZONE_SEARCH_M
         for _ in range(_DEAD_ZONE_TRIES):
             cand = plant.equilibrium_lead_m + rng.uniform(-half, half, 2)
-            plant.px, plant.py = (epm_xy - cand).tolist()  # the friction field is read where it rests
-            if plant.holding_ratio(float(cand[0]), float(cand[1]), height, theta0) <= fraction:
+            rest_xy = (float(epm_xy[0] - cand[0]), float(epm_xy[1] - cand[1]))
+            if plant.holding_ratio(float(cand[0]), float(cand[1]), height, theta0, rest_xy) <= fraction:
                 return np.asarray(cand, dtype=float)
     return plant.equilibrium_lead_m.copy()  # fraction ~ 0: the equilibrium itself
 
 
-def _make_actuator(scenario: Scenario, truth: PlantTruth | None) -> Actuator:
+def _make_actuator(scenario: Scenario, truth: PlantTruth) -> Actuator:
     """The scenario's actuator; the simple arm gets the draw's servo lag (the robot arm has its own)."""
-    if truth is not None and truth.servo_bandwidth_hz is not None and scenario.sim.actuator == "simple":
+    if truth.servo_bandwidth_hz is not None and scenario.sim.actuator == "simple":
         return SimpleArm(scenario, servo_bandwidth_hz=truth.servo_bandwidth_hz)
     return make_actuator(scenario)
 
@@ -527,19 +527,16 @@ def simulate(
     truth = draw_plant_truth(scenario, seed) if plant is None else plant.truth
     plant = plant if plant is not None else CapsulePlant(scenario, truth=truth)
     act = actuator if actuator is not None else _make_actuator(scenario, truth)
-    if truth is None:
-        camera = Camera(scenario.camera, np.random.default_rng(seed))
-    else:
-        bias = (truth.camera_bias_x_m, truth.camera_bias_y_m)
-        camera = Camera(
-            scenario.camera, np.random.default_rng(seed), bias_m=bias, noise_std_m=truth.camera_noise_std_m
-        )
+    bias = (truth.camera_bias_x_m, truth.camera_bias_y_m)
+    camera = Camera(
+        scenario.camera, np.random.default_rng(seed), bias_m=bias, noise_std_m=truth.camera_noise_std_m
+    )
     epm0, capsule0, theta0 = start_pose(scenario, plant, path, np.random.default_rng([seed, 2]))
     plant.reset(capsule0, theta_s=theta0)
     act.reset(epm0)
     plant.evaluate_forces(*epm0.tolist())
     ctrl.reset(scenario, path, epm0.copy())
-    loop = _Loop(scenario, path, plant, act, 0.0 if truth is None else truth.compute_delay_s)
+    loop = _Loop(scenario, path, plant, act, truth.compute_delay_s)
 
     sim, rate = scenario.sim, scenario.camera.rate_hz
     j0 = math.ceil(-sim.settle_s * rate - 1e-9)

@@ -11,7 +11,7 @@ The draw uses its own random stream (``numpy.random.default_rng([seed, 1])``),
 separate from the camera's (``default_rng(seed)``), so an ``ideal`` run draws
 the same camera noise as before this module existed.
 
-How the truth enters the force model (:class:`TrueForces`): the plant's table
+How the truth enters the force model (:class:`capsule_mpc.sim.plant.TrueForces`): the plant's table
 is computed with magpylib for the EPM as it is mounted (tilted and yawed; a
 separate cache key per mounting), so the field's shape is the perturbed one.
 Remanence errors are applied as exact scale factors (for rigid magnets the
@@ -29,10 +29,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..config import PLANT_FIXED, PLANT_PRESET_RANGES, PlantConfig, Scenario
-from ..magnetics import force_map
 from .friction_field import FrictionField, FrictionPatch
 
-__all__ = ["PLANT_STREAM", "PlantTruth", "TrueForces", "draw_plant_truth"]
+__all__ = ["PLANT_STREAM", "PlantTruth", "draw_plant_truth", "nominal_plant_truth"]
 
 #: Second seed word of the plant-truth random stream (the camera uses the bare seed).
 PLANT_STREAM = 1
@@ -156,31 +155,7 @@ def draw_plant_truth(scenario: Scenario, seed: int) -> PlantTruth:
     )
 
 
-class TrueForces:
-    """The plant's force field: the table of the EPM as mounted, scaled by the true remanences.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The nominal magnets and the force-map grid.
-    truth : PlantTruth
-        The draw (remanence scales, height offset, mounting rotation).
-    """
-
-    def __init__(self, scenario: Scenario, truth: PlantTruth) -> None:
-        from .plant import MapForces  # the plant module builds on this one's draw
-
-        rotation = truth.epm_rotation
-        identity = np.allclose(rotation.as_matrix(), np.eye(3), atol=1e-15)
-        self.table = force_map(scenario, epm_orientation=None if identity else rotation)
-        self._map = MapForces(self.table)
-        self.scale = truth.epm_remanence_scale * truth.ipm_remanence_scale
-        self.height_offset_m = truth.epm_height_offset_m
-
-    def force(self, lead_x_m: float, lead_y_m: float, height_m: float) -> tuple[float, float, float] | None:
-        """``(F_x, F_y, F_att)``, N, with the EPM commanded at ``height_m`` (its true height is offset)."""
-        f = self._map.force(lead_x_m, lead_y_m, height_m + self.height_offset_m)
-        if f is None:
-            return None
-        s = self.scale
-        return s * f[0], s * f[1], s * f[2]
+def nominal_plant_truth(scenario: Scenario) -> PlantTruth:
+    """The nominal rig as a truth: what the ``ideal`` preset draws, with no overrides and no patches."""
+    plant = PlantConfig(preset="ideal", breakaway_speed_mps=scenario.plant.breakaway_speed_mps)
+    return draw_plant_truth(scenario.model_copy(update={"plant": plant}), seed=0)
