@@ -222,8 +222,10 @@ class RateStateFriction:
         if self.a == 0.0:  # the limit a -> 0: no direct effect, mu = psi while sliding
             return math.copysign(psi, v_mps)
         log_x = math.log(speed / (2.0 * (speed + self.v_star_mps))) + psi / self.a
-        mu = self.a * (log_x + math.log1p(math.sqrt(1.0 + math.exp(-2.0 * log_x))) if log_x > 0 else
-                       math.asinh(math.exp(log_x)))  # fmt: skip
+        if log_x > 0:  # asinh x = ln x + ln(1 + sqrt(1 + x^-2)): no exp(psi / a) overflow for large x
+            mu = self.a * (log_x + math.log1p(math.sqrt(1.0 + math.exp(-2.0 * log_x))))
+        else:
+            mu = self.a * math.asinh(math.exp(log_x))
         return math.copysign(mu, v_mps)
 
     def mu_regularized_slope(self, speed_mps: float, theta_s: float) -> float:
