@@ -499,3 +499,63 @@ def test_arm_does_not_import_the_simulator():
         for node in ast.walk(ast.parse(py.read_text())):
             if isinstance(node, ast.ImportFrom) and node.module:
                 assert not node.module.lstrip(".").startswith("sim"), f"{py.name} imports {node.module}"
+
+
+class NumberedCommands(Controller):
+    """Commands vx = n * 1e-5 m/s at its n-th frame from t = 0 (zero before), taking ``step_s``."""
+
+    name = "numbered"
+
+    def __init__(self, step_s=0.0):
+        self.step_s, self.frames = step_s, []
+
+    def reset(self, scenario, path, epm_position_m):
+        self.frames = []
+
+    def step(self, t_s, measurement, epm_position_m):
+        time.sleep(self.step_s)
+        if t_s < 0:
+            return Command(np.zeros(3), StepStats())
+        self.frames.append(t_s)
+        return Command(np.array([len(self.frames) * 1e-5, 0.0, 0.0]), StepStats())
+
+
+class RecordingArm(SimpleArm):
+    """The simple arm, recording (time, vx) of every command it receives from t = 0."""
+
+    def __init__(self, scenario):
+        super().__init__(scenario)
+        self.received = []
+
+    def set_velocity_command(self, t_s, velocity_mps):
+        if velocity_mps[0] > 0:
+            self.received.append((t_s, float(velocity_mps[0])))
+        super().set_velocity_command(t_s, velocity_mps)
+
+
+def arrivals(scenario, step_s):
+    """For each frame from t = 0: (frame time, time its command reached the arm)."""
+    ctrl, arm = NumberedCommands(step_s), RecordingArm(scenario)
+    simulate(scenario, ctrl, SHORT, seed=1, actuator=arm)
+    got = {round(vx / 1e-5): t for t, vx in arm.received}
+    assert sorted(got) == list(range(1, len(got) + 1))  # every command arrives, none skipped
+    assert len(got) >= len(ctrl.frames) - 2  # the last one or two may still be pending at the end
+    return np.array([(ctrl.frames[n - 1], got[n]) for n in sorted(got)])
+
+
+def test_fixed_compute_delay_applies_each_command_that_long_after_its_frame(scenario):
+    sc = tweak(short_settle(scenario, 0.2), "plant", compute_delay_s=0.005)
+    frame_t, applied_t = arrivals(sc, 0.0).T
+    np.testing.assert_allclose(applied_t - frame_t, 0.005, atol=1e-3 + 1e-9)
+
+
+def test_solve_time_delay_applies_each_command_when_its_step_ends(scenario):
+    sc = tweak(short_settle(scenario, 0.2), "plant", compute_delay_s=0.002, compute_delay_mode="solve_time")
+    frame_t, applied_t = arrivals(sc, 0.012).T
+    lag = applied_t - frame_t
+    assert lag.min() >= 0.012 + 0.002 - 1e-3  # never before the step has ended (sleep >= 12 ms)
+    assert np.median(lag) <= 0.012 + 0.002 + 0.005  # the step's own time, not a frame or more
+    assert np.all(np.diff(applied_t) > 0)  # in frame order
+    # The same controller under the fixed mode ignores the step's duration.
+    fixed_lag = np.subtract(*arrivals(tweak(sc, "plant", compute_delay_mode="fixed"), 0.012).T[::-1])
+    np.testing.assert_allclose(fixed_lag, 0.002, atol=1e-3 + 1e-9)

@@ -904,9 +904,19 @@ class PlantConfig(_Strict):
     )
     compute_delay_s: float | None = _drawn(
         "Time from a camera frame to its command reaching the arm (image processing, solve, "
-        "transport), s, [0, one camera period). lab U(2, 8) ms; hard U(5, 20) ms; ideal 0.",
+        "transport), s, [0, one camera period). lab U(2, 8) ms; hard U(5, 20) ms; ideal 0. With "
+        "compute_delay_mode 'solve_time' it is the part of the delay outside the controller.",
         ge=0,
         le=0.5,
+    )
+    compute_delay_mode: Literal["fixed", "solve_time"] = Field(
+        "fixed",
+        description=(
+            "How a frame's command is delayed: 'fixed' applies it compute_delay_s after the frame "
+            "(reproducible on any machine); 'solve_time' applies it when the controller's step ends "
+            "on this machine (its measured wall-clock time) plus compute_delay_s, as on a rig "
+            "whose loop waits for the solve. Commands are applied in frame order."
+        ),
     )
     camera_bias_x_m: float | None = _drawn(
         "Constant error of the camera-to-plate registration in x, m, [-0.005, 0.005]. lab U(-0.3, 0.3) "

@@ -19,9 +19,11 @@ calibrate) but the arm is held still: the applied command is zero.
 At each frame: the camera captures the true capsule position (delivered
 ``camera.latency_frames`` later, with the true bias and noise of the draw), the
 controller is called with the delivered measurement and the EPM's own position,
-its command reaches the actuator ``plant.compute_delay_s`` later, and one log row
-is recorded (true states at the frame time; the command column holds the
-command computed at that frame).
+its command reaches the actuator ``plant.compute_delay_s`` later (in the
+``solve_time`` mode of ``plant.compute_delay_mode``, when the controller's step
+has ended on this machine, plus that delay), and one log row is recorded (true
+states at the frame time; the command column holds the command computed at that
+frame).
 
 A run ends at the first of:
 
@@ -420,8 +422,10 @@ class _Loop:
         self.dt = 1.0 / scenario.sim.plant_rate_hz
         self.frame_s = 1.0 / scenario.camera.rate_hz
         self.ratio = scenario.sim.plant_rate_hz / scenario.camera.rate_hz
-        self.delay_steps = round(delay_s / self.dt)
+        self.delay_s = delay_s
+        self.solve_time_delay = scenario.plant.compute_delay_mode == "solve_time"
         self.pending: deque[tuple[int, np.ndarray]] = deque()
+        self.last_ready = -(2**62)
         self.tracker = PathProgress(path)
         self.flags = RunFlags()
         self.rest_s = 0.0
@@ -432,7 +436,7 @@ class _Loop:
         step_plant, step_act, pending = self.plant.step, self.act.step_xyz, self.pending
         status = OK
         while k < k_to:
-            if pending and pending[0][0] <= k:
+            while pending and pending[0][0] <= k:
                 _, vel = pending.popleft()
                 self.act.set_velocity_command(k * self.dt, vel)
             ex, ey, ez = step_act(self.dt)
@@ -442,13 +446,18 @@ class _Loop:
             k += 1
         return k, status
 
-    def command(self, k: int, t: float, vel: np.ndarray) -> None:
-        """Send the frame's command: applied ``delay_steps`` plant steps from now (0 at t < 0)."""
+    def command(self, k: int, t: float, vel: np.ndarray, step_s: float) -> None:
+        """Send the frame's command (zero at t < 0): applied ``plant.compute_delay_s`` from now, plus
+        the controller's measured ``step_s`` in ``solve_time`` mode, and never before the previous
+        frame's command (a rig's loop handles one frame at a time)."""
         self.cmd_applied = vel if t >= 0 else np.zeros(3)
-        if self.delay_steps == 0:
+        delay_s = self.delay_s + (step_s if self.solve_time_delay else 0.0)
+        ready = max(k + round(delay_s / self.dt), self.last_ready)
+        self.last_ready = ready
+        if ready <= k and not self.pending:
             self.act.set_velocity_command(t, self.cmd_applied)
         else:
-            self.pending.append((k + self.delay_steps, self.cmd_applied))
+            self.pending.append((ready, self.cmd_applied))
 
     def state_row(self, t: float) -> dict[str, Any]:
         """The true states at frame time ``t``."""
@@ -582,7 +591,7 @@ def simulate(
             flags.invalid_commands += 1
             vel = np.zeros(3)
         stats.append(step_stats)
-        loop.command(k, t, vel)
+        loop.command(k, t, vel, c1 - c0)
         if meas.position_m is not None:
             row["meas_x_m"], row["meas_y_m"] = float(meas.position_m[0]), float(meas.position_m[1])
         row["meas_capture_t_s"], row["controller_ms"] = meas.capture_t_s, (c1 - c0) * 1e3
