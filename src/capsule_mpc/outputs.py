@@ -1,0 +1,208 @@
+"""Output folders of the commands: one run per folder at a time, and a manifest of what it wrote.
+
+A command that writes into ``--out`` enters :func:`output_folder`, which
+
+1. refuses a path that is a file or cannot be created or written (:class:`OutputError`, exit 2);
+2. takes a lock file (``.capsule-mpc.lock``, created exclusively): a second command into the same
+   folder is refused while the first runs; a lock left by a process that no longer exists on
+   this host is taken over with a warning;
+3. removes what the previous command there produced, as listed in its manifest, so a folder never
+   mixes the outputs of two runs (files the user put there are never touched);
+4. on exit writes ``manifest.json``: the command, its arguments, the start and end times, how it
+   ended (``complete``, ``failed`` or ``interrupted``) and every file it wrote or replaced;
+5. if the command refused its input (:class:`~capsule_mpc.config.ConfigError`) after the folder
+   was prepared, removes what it wrote and the folder too if it created it: bad input leaves no
+   output.
+
+Single files are written atomically (:mod:`capsule_mpc.atomic`), so an interrupted command leaves
+complete files only, and the manifest says it was interrupted.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+import time
+import warnings
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+from .atomic import write_text_atomic
+from .config import ConfigError
+
+__all__ = ["LOCK_NAME", "MANIFEST_NAME", "OutputError", "output_folder", "read_manifest"]
+
+#: The manifest a command leaves in its output folder.
+MANIFEST_NAME = "manifest.json"
+#: The lock file present while a command writes into the folder.
+LOCK_NAME = ".capsule-mpc.lock"
+
+_Snapshot = dict[str, tuple[int, int]]
+
+
+class OutputError(ConfigError):
+    """An output folder that cannot be used (a file, not writable, or in use by another command)."""
+
+
+def read_manifest(folder: str | Path) -> dict | None:
+    """The manifest the last command left in ``folder``; ``None`` if there is none or it is unreadable."""
+    try:
+        data = json.loads((Path(folder) / MANIFEST_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def _acquire_lock(folder: Path, command: str) -> Path:
+    lock = folder / LOCK_NAME
+    info = {"pid": os.getpid(), "host": socket.gethostname(), "command": command, "since": time.time()}
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                held = json.loads(lock.read_text(encoding="utf-8"))
+                pid, host = int(held["pid"]), str(held["host"])
+            except (OSError, ValueError, KeyError, TypeError):
+                held, pid, host = {}, -1, ""
+            if host == socket.gethostname() and pid > 0 and not _pid_alive(pid):
+                warnings.warn(
+                    f"--out: {folder} was locked by process {pid}, which no longer runs; taking the lock",
+                    stacklevel=3,
+                )
+                lock.unlink(missing_ok=True)
+                continue
+            who = f"process {pid} on {host} ({held.get('command', '?')})" if held else "another command"
+            raise OutputError(
+                f"--out: {folder} is in use by {who}; use another folder, or delete {lock} if no "
+                "command is writing there"
+            ) from None
+        except OSError as exc:
+            raise OutputError(f"--out: cannot write into {folder}: {exc.strerror}") from None
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(info, fh)
+        return lock
+    raise OutputError(f"--out: could not take the lock {lock}")  # pragma: no cover - a race lost twice
+
+
+def _inside(folder: Path, rel: str) -> Path | None:
+    """``folder / rel`` if it stays inside ``folder`` (a manifest is data, not trusted paths)."""
+    path = (folder / rel).resolve()
+    root = folder.resolve()
+    return path if path != root and root in path.parents else None
+
+
+def _remove_files(folder: Path, rels: Sequence[str]) -> None:
+    """Remove the listed files, then the sub-folders that became empty."""
+    parents: set[Path] = set()
+    for rel in rels:
+        path = _inside(folder, rel)
+        if path is not None and path.is_file():
+            path.unlink()
+            parents.update(p for p in path.parents if folder.resolve() in p.parents)
+    for parent in sorted(parents, key=lambda p: len(p.parts), reverse=True):
+        if parent.is_dir() and not any(parent.iterdir()):
+            parent.rmdir()
+
+
+def _snapshot(folder: Path) -> _Snapshot:
+    """Every file under ``folder`` (relative path -> modification time, size), lock and manifest excluded."""
+    out: _Snapshot = {}
+    for path in folder.rglob("*"):
+        if path.is_file() and path.name not in (LOCK_NAME, MANIFEST_NAME):
+            st = path.stat()
+            out[path.relative_to(folder).as_posix()] = (st.st_mtime_ns, st.st_size)
+    return out
+
+
+def _written_since(folder: Path, before: _Snapshot) -> list[str]:
+    return sorted(rel for rel, sig in _snapshot(folder).items() if before.get(rel) != sig)
+
+
+@contextmanager
+def output_folder(
+    path: str | Path, command: str, *, replace_previous: bool = True, argv: Sequence[str] | None = None
+) -> Iterator[Path]:
+    """Prepare ``path`` for ``command``'s outputs and yield it; see the module docstring.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``--out`` folder (created with its parents).
+    command : str
+        The command's name, recorded in the lock and the manifest.
+    replace_previous : bool
+        Remove the files the previous command listed in its manifest (default). ``False`` keeps
+        them (a command that reuses earlier outputs as a cache); the manifest then lists the files
+        written by this command only.
+    argv : sequence of str, optional
+        The arguments recorded in the manifest; default ``sys.argv[1:]``.
+
+    Raises
+    ------
+    OutputError
+        ``path`` is a file, cannot be created or written, or another command holds its lock.
+    """
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"--out: {folder} exists and is not a folder")
+    created = not folder.exists()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"--out: cannot create {folder}: {exc.strerror}") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        if created:
+            folder.rmdir()
+        raise OutputError(f"--out: {folder} is not writable")
+    lock = _acquire_lock(folder, command)
+    try:
+        if replace_previous:
+            previous = read_manifest(folder)
+            if previous is not None:
+                files = previous.get("files", [])
+                _remove_files(folder, [f for f in files if isinstance(f, str)])
+        before = _snapshot(folder)
+        started = time.time()
+        status: str | None = "failed"
+        try:
+            yield folder
+            status = "complete"
+        except KeyboardInterrupt:
+            status = "interrupted"
+            raise
+        except ConfigError:
+            # Bad input found after the folder was prepared: leave nothing behind.
+            _remove_files(folder, _written_since(folder, before))
+            if replace_previous:  # the previous run's files are gone: its manifest too
+                (folder / MANIFEST_NAME).unlink(missing_ok=True)
+            status = None
+            raise
+        finally:
+            if status is not None:
+                manifest = {
+                    "command": command,
+                    "argv": list(sys.argv[1:] if argv is None else argv),
+                    "started": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(started)),
+                    "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                    "status": status,
+                    "files": _written_since(folder, before),
+                }
+                write_text_atomic(folder / MANIFEST_NAME, json.dumps(manifest, indent=2) + "\n")
+    finally:
+        lock.unlink(missing_ok=True)
+        if created and folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()

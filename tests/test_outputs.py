@@ -1,0 +1,128 @@
+"""Output folders: refusal of unusable paths, the lock, the manifest, and cleanup of earlier outputs."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+
+import pytest
+
+from capsule_mpc.config import ConfigError
+from capsule_mpc.outputs import LOCK_NAME, MANIFEST_NAME, OutputError, output_folder, read_manifest
+
+
+def test_manifest_lists_what_the_command_wrote_and_its_status(tmp_path):
+    out = tmp_path / "run"
+    with output_folder(out, "simulate", argv=["simulate", "--out", str(out)]) as folder:
+        assert (folder / LOCK_NAME).exists()
+        (folder / "log.csv").write_text("t\n")
+        (folder / "sub").mkdir()
+        (folder / "sub" / "a.json").write_text("{}")
+    m = read_manifest(out)
+    assert m["command"] == "simulate" and m["status"] == "complete"
+    assert m["files"] == ["log.csv", "sub/a.json"]
+    assert m["argv"] == ["simulate", "--out", str(out)]
+    assert not (out / LOCK_NAME).exists()
+
+
+def test_next_run_removes_the_previous_outputs_but_not_the_users_files(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    with output_folder(out, "simulate") as folder:
+        (folder / "predictions.npz").write_bytes(b"x")
+        (folder / "log.csv").write_text("old")
+        (folder / "runs" / "seed_0").mkdir(parents=True)
+        (folder / "runs" / "seed_0" / "log.csv").write_text("old")
+    with output_folder(out, "simulate") as folder:
+        assert not (folder / "predictions.npz").exists()  # the earlier mpc run's extra file is gone
+        assert not (folder / "runs").exists()  # and its emptied sub-folders
+        (folder / "log.csv").write_text("new")
+    assert (out / "notes.txt").read_text() == "mine"
+    assert read_manifest(out)["files"] == ["log.csv"]
+    assert sorted(p.name for p in out.iterdir()) == ["log.csv", MANIFEST_NAME, "notes.txt"]
+
+
+def test_keep_previous_lists_only_this_commands_files(tmp_path):
+    out = tmp_path / "cache"
+    with output_folder(out, "demonstrate") as folder:
+        (folder / "a.csv").write_text("1")
+    with output_folder(out, "demonstrate", replace_previous=False) as folder:
+        assert (folder / "a.csv").exists()
+        (folder / "b.csv").write_text("2")
+    assert read_manifest(out)["files"] == ["b.csv"]
+
+
+def test_a_second_command_into_a_locked_folder_is_refused(tmp_path):
+    out = tmp_path / "run"
+    with output_folder(out, "compare"):
+        with pytest.raises(OutputError, match=r"--out: .*in use by process \d+ .*\(compare\)"):
+            with output_folder(out, "simulate"):
+                pass
+        assert (out / LOCK_NAME).exists()  # the refused command did not release the holder's lock
+
+
+def test_a_stale_lock_is_taken_over_with_a_warning(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+
+    lock = {"pid": int(dead.stdout), "host": socket.gethostname(), "command": "simulate"}
+    (out / LOCK_NAME).write_text(json.dumps(lock))
+    with pytest.warns(UserWarning, match="no longer runs"), output_folder(out, "simulate") as folder:
+        (folder / "x").write_text("1")
+    assert read_manifest(out)["status"] == "complete"
+
+
+@pytest.mark.parametrize("status, exc", [("interrupted", KeyboardInterrupt), ("failed", RuntimeError)])
+def test_an_interrupted_or_crashed_command_says_so_and_keeps_its_complete_files(tmp_path, status, exc):
+    out = tmp_path / "run"
+    with pytest.raises(exc), output_folder(out, "plan") as folder:
+        (folder / "plan.json").write_text("{}")
+        raise exc()
+    m = read_manifest(out)
+    assert m["status"] == status and m["files"] == ["plan.json"]
+    assert not (out / LOCK_NAME).exists()
+
+
+def test_bad_input_found_late_leaves_no_output(tmp_path):
+    out = tmp_path / "new" / "run"
+    with pytest.raises(ConfigError, match="speed"), output_folder(out, "simulate") as folder:
+        (folder / "config.yaml").write_text("x")
+        raise ConfigError("path.speed_mps: must be <= 0.08")
+    assert not out.exists()
+
+
+def test_a_file_or_unwritable_path_is_refused_naming_it(tmp_path):
+    f = tmp_path / "file.txt"
+    f.write_text("x")
+    with pytest.raises(OutputError, match=rf"--out: {f} exists and is not a folder"):
+        with output_folder(f, "simulate"):
+            pass
+    with pytest.raises(OutputError, match=r"--out: cannot create .*file.txt/sub"):
+        with output_folder(f / "sub", "simulate"):
+            pass
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root can write into a read-only folder")
+def test_a_read_only_folder_is_refused(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o500)
+    with pytest.raises(OutputError, match="not writable"), output_folder(ro, "simulate"):
+        pass
+
+
+def test_a_manifest_cannot_remove_files_outside_its_folder(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep")
+    (out / MANIFEST_NAME).write_text(json.dumps({"files": ["../victim.txt", "/etc/hostname", 3]}))
+    with output_folder(out, "simulate"):
+        pass
+    assert victim.read_text() == "keep"
