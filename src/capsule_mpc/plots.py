@@ -45,6 +45,8 @@ DISTRIBUTION_METRICS: tuple[tuple[str, str], ...] = (
     ("cross_track_rms_mm", "cross-track RMS, mm"),
     ("final_error_mm", "final error, mm"),
 )
+#: Space left above the tallest bar for its value, as a fraction of the axis range.
+_BAR_HEADROOM = 0.15
 #: Width of a box in the distribution plot, in units of the controller spacing.
 _BOX_WIDTH = 0.5
 #: The runs' points are spread over +- this around their box (controller spacing units).
@@ -54,8 +56,14 @@ _STRIP_HALF_WIDTH = 0.15
 CORNER_MIN_TURN_RAD = math.radians(30.0)
 #: Half-width of the zoomed view of the corner in the prediction figure, m.
 PREDICTION_ZOOM_M = 0.012
+#: The direction-of-travel arrowhead sits this fraction of the path's length after its start.
+_DIRECTION_MARK_FRACTION = 0.08
+#: Colour of the shaded motion phase in the error figure (neutral: it belongs to no run).
+_WINDOW_SHADE = "0.4"
 #: Predicted paths drawn in the zoomed view (evenly spread over the frames near the corner).
 _PREDICTIONS_DRAWN = 12
+#: Colour map of the predicted paths by frame time (its scale is the figure's colour bar).
+_PREDICTION_CMAP = "autumn"
 
 Log = Mapping[str, np.ndarray]
 #: The metrics of one run (see :func:`capsule_mpc.metrics.run_metrics`).
@@ -82,6 +90,10 @@ def _save(fig: Any, out: str | Path) -> Path:
 def plot_trajectories(logs: Mapping[str, Log], path: ReferencePath, out: str | Path) -> Path:
     """Reference, EPM and capsule paths on the plate, one panel per controller (paper Fig. 7a).
 
+    Each panel marks the path's start and its direction of travel, and where the capsule was at
+    the end of the run, with its distance to the path's end (the run's final error) in the
+    legend, so a run that stalled shows where. The legend sits beside the panel, hiding no data.
+
     Parameters
     ----------
     logs : mapping of controller name to run log
@@ -95,22 +107,66 @@ def plot_trajectories(logs: Mapping[str, Log], path: ReferencePath, out: str | P
     n = max(len(logs), 1)
     cols = min(n, 2)
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 4.5 * rows), squeeze=False)
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(8.5 * cols, 4.5 * rows), squeeze=False, layout="constrained"
+    )
     ref = path.vertices_m * 1e3
     for ax, (name, log) in zip(axes.ravel(), logs.items()):
         ax.plot(ref[:, 0], ref[:, 1], "k--", lw=1, label="reference")
         ax.plot(log["epm_x_m"] * 1e3, log["epm_y_m"] * 1e3, "r-", lw=1.2, label="EPM")
         ax.plot(log["capsule_x_m"] * 1e3, log["capsule_y_m"] * 1e3, "b-", lw=1.2, label="capsule (IPM)")
+        _mark_path_ends(ax, path)
+        final = np.array([log["capsule_x_m"][-1], log["capsule_y_m"][-1]], dtype=float)
+        error_mm = float(np.hypot(*(final - path.end_m))) * 1e3
+        ax.plot(
+            *(final * 1e3),
+            "D",
+            color="b",
+            mec="k",
+            ms=7,
+            zorder=4,
+            label=f"capsule at the end of the run:\n{error_mm:.1f} mm from the path's end",
+        )
         ax.set_title(name)
         ax.set_xlabel("x, mm")
         ax.set_ylabel("y, mm")
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     for ax in axes.ravel()[len(logs) :]:
         ax.set_visible(False)
-    fig.tight_layout()
     return _save(fig, out)
+
+
+def _mark_path_ends(ax: Any, path: ReferencePath) -> None:
+    """The path's start, an arrowhead on it pointing the way of travel, and (if open) its end."""
+    start = path.start_m * 1e3
+    ax.plot(
+        *start,
+        "o",
+        color="k",
+        mfc="w",
+        mew=1.5,
+        ms=9,
+        zorder=4,
+        label="path start and end" if path.closed else "path start",
+    )
+    s = _DIRECTION_MARK_FRACTION * path.length_m
+    ahead = path.point_at_arc(s + _DIRECTION_MARK_FRACTION * path.length_m / 10)
+    here = path.point_at_arc(s)
+    heading_deg = math.degrees(math.atan2(ahead[1] - here[1], ahead[0] - here[0]))
+    # A triangle marker points up (+y) unrotated: turn it onto the heading.
+    ax.plot(
+        *(here * 1e3),
+        marker=(3, 0, heading_deg - 90.0),
+        color="k",
+        ms=10,
+        ls="none",
+        zorder=4,
+        label="direction of travel",
+    )
+    if not path.closed:
+        ax.plot(*(path.end_m * 1e3), "s", color="k", mfc="w", mew=1.5, ms=8, zorder=4, label="path end")
 
 
 def plot_errors(
@@ -121,6 +177,10 @@ def plot_errors(
 ) -> Path:
     """Cross-track error and EPM-IPM distance over time, all controllers (paper Fig. 8).
 
+    The motion phase, t = 0 until the last run is at rest (the window the runs are scored on),
+    is shaded once in grey; if the runs' motion phases end at different times, each run's end
+    is a dotted line in its colour, given in its legend label. One legend beside the panels.
+
     Parameters
     ----------
     logs : mapping of controller name to run log
@@ -129,27 +189,41 @@ def plot_errors(
     out : str or Path
         PNG file to write.
     motion_end_s : mapping of controller name to float, optional
-        End of each run's motion phase, s; the motion phases are shaded.
+        End of each run's motion phase, s (non-finite values are left out).
     """
     plt = _pyplot()
-    fig, (ax_ct, ax_pe) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
+    fig, (ax_ct, ax_pe) = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True, layout="constrained")
+    ends = {n: float(e) for n, e in (motion_end_s or {}).items() if n in logs and math.isfinite(float(e))}
+    differ = len(set(ends.values())) > 1
     for name, log in logs.items():
         t = log["t_s"]
         capsule = np.column_stack([log["capsule_x_m"], log["capsule_y_m"]])
-        (line,) = ax_ct.plot(t, path.distance_to(capsule) * 1e3, lw=1, label=name)
+        label = f"{name} (motion ends {ends[name]:.1f} s)" if differ and name in ends else name
+        (line,) = ax_ct.plot(t, path.distance_to(capsule) * 1e3, lw=1, label=label)
         d = np.hypot(log["epm_x_m"] - log["capsule_x_m"], log["epm_y_m"] - log["capsule_y_m"])
-        ax_pe.plot(t, d * 1e3, lw=1, color=line.get_color(), label=name)
-        if motion_end_s is not None and name in motion_end_s:
+        ax_pe.plot(t, d * 1e3, lw=1, color=line.get_color())
+        if differ and name in ends:
             for ax in (ax_ct, ax_pe):
-                ax.axvspan(0.0, motion_end_s[name], color=line.get_color(), alpha=0.06)
+                ax.axvline(ends[name], color=line.get_color(), ls=":", lw=1)
+    if ends:
+        end = max(ends.values())
+        until = "the last run stopped" if len(ends) > 1 else "the run stopped"
+        for ax in (ax_ct, ax_pe):
+            ax.axvspan(
+                0.0,
+                end,
+                color=_WINDOW_SHADE,
+                alpha=0.12,
+                lw=0,
+                label=f"motion phase (scored):\nt = 0 until {until}, {end:.1f} s",
+            )
     ax_ct.set_ylabel("cross-track error, mm")
-    ax_pe.set_ylabel("|P_E - P_I|, mm")
+    ax_pe.set_ylabel("EPM-capsule distance\n|P_E - P_I|, mm")
     ax_pe.set_xlabel("time, s (path starts at 0)")
     for ax in (ax_ct, ax_pe):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    ax_ct.set_title("tracking error over time (shaded: motion phase)")
-    fig.tight_layout()
+    ax_ct.set_title("tracking error over time")
+    fig.legend(*ax_ct.get_legend_handles_labels(), fontsize=8, loc="outside right upper")
     return _save(fig, out)
 
 
@@ -219,8 +293,13 @@ def plot_metrics(
             _draw_bars(ax, names, samples)
             ticks = names
         ax.set_xticks(range(len(names)), ticks, rotation=20)
-        ax.set_title(label, fontsize=10)
+        ax.set_ylabel(label, fontsize=9)
         ax.grid(axis="y", alpha=0.3)
+    if several:
+        fig.suptitle(
+            "dots: one run each; box: median and quartiles; whiskers: the furthest run within 1.5 IQR",
+            fontsize=9,
+        )
     fig.tight_layout()
     return _save(fig, out)
 
@@ -232,6 +311,7 @@ def _draw_bars(ax: Any, names: Sequence[str], samples: Mapping[str, np.ndarray])
     for bar, v in zip(bars, values):
         text = "n/a" if v is None else f"{v:.2f}"
         ax.annotate(text, (bar.get_x() + bar.get_width() / 2, bar.get_height()), ha="center", va="bottom")
+    ax.margins(y=_BAR_HEADROOM)  # room above the tallest bar for its value
 
 
 def _draw_distribution(ax: Any, names: Sequence[str], samples: Mapping[str, np.ndarray]) -> None:
@@ -294,7 +374,8 @@ def plot_prediction(
 
     Left: a :data:`PREDICTION_ZOOM_M` view of the first corner after t = 0 with the
     reference, the true capsule path and the paths predicted at frames near the corner (each
-    starting where the controller estimated the capsule one stage ahead; colour = frame time).
+    starting where the controller estimated the capsule one stage ahead; their colour is the frame
+    time, on the colour bar beside the view).
     Right: RMS and max distance between a prediction and where the capsule really was, against
     the look-ahead time (:func:`capsule_mpc.metrics.prediction_errors`), over the whole motion
     and over the corner frames.
@@ -334,7 +415,7 @@ def plot_prediction(
     zoom = min(PREDICTION_ZOOM_M, path.length_m / 4)
     window_s = 1.5 * zoom / path.speed_mps
     near = usable & (np.abs(t - t_c) <= window_s)
-    fig, (ax, ax_err) = plt.subplots(1, 2, figsize=(12, 5.2))
+    fig, (ax, ax_err) = plt.subplots(1, 2, figsize=(13, 6.2), layout="constrained")
     ref = path.vertices_m * 1e3
     ax.plot(ref[:, 0], ref[:, 1], "k--", lw=1, label="reference")
     ax.plot(
@@ -345,10 +426,10 @@ def plot_prediction(
         chosen = idx[
             np.unique(np.linspace(0, idx.size - 1, min(_PREDICTIONS_DRAWN, idx.size)).round().astype(int))
         ]
-        cmap = plt.get_cmap("autumn")
-        span = max(float(t[chosen[-1]] - t[chosen[0]]), 1e-9)
+        cmap = plt.get_cmap(_PREDICTION_CMAP)
+        frame_time = plt.Normalize(float(t[chosen[0]]), float(t[chosen[-1]]))
         for k, i in enumerate(chosen):
-            colour = cmap((t[i] - t[chosen[0]]) / span)
+            colour = cmap(frame_time(t[i]))
             xy = pred[i] * 1e3
             ax.plot(
                 xy[:, 0],
@@ -356,10 +437,20 @@ def plot_prediction(
                 "-",
                 color=colour,
                 lw=1,
-                label="predicted (colour: frame time)" if k == 0 else None,
+                label="predicted at a frame (colour bar: its time)" if k == 0 else None,
             )
-            ax.plot(xy[0, 0], xy[0, 1], "o", color=colour, ms=3)
-    ax.plot(*(corner * 1e3), "k+", ms=12, mew=1.5)
+            ax.plot(
+                xy[0, 0],
+                xy[0, 1],
+                "o",
+                color=colour,
+                ms=3,
+                label="estimate one stage ahead (where a prediction starts)" if k == 0 else None,
+            )
+        # The bar hangs off the zoomed axes itself, so it stays beside it whatever its aspect does.
+        bar = fig.colorbar(plt.cm.ScalarMappable(frame_time, cmap), cax=ax.inset_axes((1.03, 0.0, 0.04, 1.0)))
+        bar.set_label("frame time of the prediction, s (path starts at 0)")
+    ax.plot(*(corner * 1e3), "k+", ms=12, mew=1.5, ls="none", label="corner")
     # Centre the view inside the turn, so both legs of the corner are in it.
     d_in = corner - path.point_at_arc(s_c - zoom)
     d_out = path.point_at_arc(s_c + zoom) - corner
@@ -372,7 +463,7 @@ def plot_prediction(
     ax.set_ylabel("y, mm")
     ax.set_title(f"{title}: predicted vs actual capsule path, first corner (t ~ {t_c:.1f} s)", fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncols=2)
     for frames, label, style in ((usable, "whole motion", "-"), (near, "corner frames", "--")):
         if not np.any(frames):
             continue
@@ -385,6 +476,5 @@ def plot_prediction(
     ax_err.set_ylabel("|predicted - actual| capsule position, mm")
     ax_err.set_title("prediction error against look-ahead", fontsize=10)
     ax_err.grid(alpha=0.3)
-    ax_err.legend(fontsize=8)
-    fig.tight_layout()
+    ax_err.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncols=2)
     return _save(fig, out)
