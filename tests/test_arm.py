@@ -27,6 +27,7 @@ from capsule_mpc.arm import (
     check_workspace,
     default_max_deviation_m,
     export_arm_trajectory,
+    joint_figure,
     read_epm_plan_csv,
     read_joint_trajectory_csv,
     read_joint_trajectory_yaml,
@@ -580,3 +581,34 @@ def test_a_failed_write_leaves_no_files(scenario, tmp_path, monkeypatch):
     with pytest.raises(OSError, match="disk full"):
         export_arm_trajectory(scenario, t[keep], p[keep], out)
     assert not out.exists()
+
+
+def test_joint_figure_shows_every_limit_with_units(scenario, plan_joints):
+    _, joints = plan_joints
+    fig = joint_figure(joints)
+    axes = np.array(fig.axes).reshape(-1, 2)
+    for j, (ax_q, ax_dq) in enumerate(axes):
+        assert ax_q.get_ylabel() == f"q{j + 1} (rad)" and ax_dq.get_ylabel() == f"dq{j + 1} (rad/s)"
+        v_rated, v_allowed = joints.rated_velocity_radps[j], joints.velocity_limit_radps[j]
+        panels = (
+            (
+                ax_q,
+                (
+                    joints.rated_lower_rad[j],
+                    joints.rated_upper_rad[j],
+                    joints.lower_rad[j],
+                    joints.upper_rad[j],
+                ),
+            ),
+            (ax_dq, (-v_rated, v_rated, -v_allowed, v_allowed)),
+        )
+        for ax, limits in panels:
+            lo, hi = ax.get_ylim()
+            drawn = {round(float(line.get_ydata()[0]), 9) for line in ax.lines[1:]}
+            notes = " ".join(text.get_text() for text in ax.texts)
+            for value in limits:
+                if lo <= value <= hi:
+                    assert round(float(value), 9) in drawn  # in view: drawn as a red line
+                else:
+                    assert f"{value:+.2f}" in notes and "off-scale" in notes  # else named at the edge
+    assert "named at the panel edge" in fig._suptitle.get_text()

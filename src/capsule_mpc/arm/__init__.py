@@ -19,6 +19,7 @@ from .errors import ArmError, ExportCheckError, PlanError, SmoothingError, Unrea
 from .export import (
     ArmExport,
     export_arm_trajectory,
+    joint_figure,
     plot_joint_trajectory,
     read_epm_plan_csv,
     read_joint_trajectory_csv,
@@ -65,6 +66,7 @@ __all__ = [
     "check_workspace",
     "default_max_deviation_m",
     "export_arm_trajectory",
+    "joint_figure",
     "plot_joint_trajectory",
     "read_epm_plan_csv",
     "read_joint_trajectory_csv",

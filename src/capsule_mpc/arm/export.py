@@ -11,7 +11,7 @@ Files written to an output directory (each atomically: temp file, then rename):
     points with positions, velocities, accelerations [], effort [], time_from_start
     {sec, nanosec} relative to the first point).
 ``joint_trajectory.png``
-    Joint positions and velocities against time, with their limits.
+    Joint positions and velocities against time, with their limits (:func:`joint_figure`).
 ``arm_summary.json``
     Smoothing and IK figures (deviation from the plan, IK error, joint-limit use), the configured
     arm rate, and the final check (``check``: deviation from the plan and its tolerance).
@@ -51,6 +51,7 @@ __all__ = [
     "ArmExport",
     "arm_summary",
     "export_arm_trajectory",
+    "joint_figure",
     "plot_joint_trajectory",
     "read_epm_plan_csv",
     "read_joint_trajectory_csv",
@@ -186,11 +187,68 @@ def arm_summary(
     return summary
 
 
-def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
-    """Figure of joint positions (left) and velocities (right) against time, with their limits.
+def _limit_panel(
+    ax: Any,
+    t: np.ndarray,
+    y: np.ndarray,
+    rated: tuple[float, float],
+    allowed: tuple[float, float],
+    name: str,
+    label: str,
+    unit: str,
+) -> None:
+    """One panel: the data, its limits as red lines where they fall near the data (the y-range
+    grows to include them), and a red note at the top or bottom edge for each limit beyond it."""
+    ax.plot(t, y, lw=1.0, color="C0")
+    lo, hi = float(y.min()), float(y.max())
+    span = max(hi - lo, 1e-3)
+    view = [lo - 0.1 * span, hi + 0.1 * span]
+    above: list[str] = []
+    below: list[str] = []
+    for value, style, kind in (
+        (rated[0], "-", "URDF"),
+        (rated[1], "-", "URDF"),
+        (allowed[0], "--", "enforced"),
+        (allowed[1], "--", "enforced"),
+    ):
+        if lo - 2 * span <= value <= hi + 2 * span:
+            ax.axhline(value, color="C3", ls=style, lw=0.8)
+            view = [min(view[0], value - 0.05 * span), max(view[1], value + 0.05 * span)]
+        else:
+            (above if value > hi else below).append(f"{kind} {value:+.2f}")
+    ax.set_ylim(*view)
+    for notes, y_frac, va in ((above, 0.97, "top"), (below, 0.03, "bottom")):
+        if notes:
+            ax.text(
+                0.99,
+                y_frac,
+                f"off-scale limits: {', '.join(notes)} {unit}",
+                transform=ax.transAxes,
+                ha="right",
+                va=va,
+                color="C3",
+                fontsize=6,
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1},
+            )
+    margin = min(lo - allowed[0], allowed[1] - hi)
+    ax.set_title(
+        f"{name}: [{lo:+.3f}, {hi:+.3f}] {unit}, enforced limit [{allowed[0]:+.2f}, {allowed[1]:+.2f}], "
+        f"margin {margin:.2f}",
+        fontsize=8,
+    )
+    ax.set_ylabel(f"{label} ({unit})", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.ticklabel_format(axis="y", useOffset=False)
 
-    Each panel's title gives the closest approach to the limit; limit lines are drawn where they
-    fall near the data (URDF limit solid, enforced limit with margin dashed).
+
+def joint_figure(joints: JointTrajectory) -> Any:
+    """Figure (matplotlib ``Figure``, Agg canvas, no pyplot) of joint positions (left) and velocities
+    (right) against time, with their limits.
+
+    Each panel's title gives the range, the enforced limit and the closest approach to it. Limits
+    near the data are drawn as red lines (URDF limit solid, enforced limit with margin dashed) and
+    the y-range includes them; limits far beyond the data are named in red at the panel's top or
+    bottom edge instead (drawing them would flatten the data to a line).
     """
     # A Figure with its own Agg canvas: no pyplot, no global backend switch (safe in notebooks).
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -203,40 +261,41 @@ def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
     stride = max(1, math.ceil(len(joints) / _PLOT_MAX_POINTS))
     t = joints.t_s[::stride]
     for j in range(n):
-        q_limits = (
+        v_rated, v_allowed = joints.rated_velocity_radps[j], joints.velocity_limit_radps[j]
+        _limit_panel(
+            axes[j, 0],
+            t,
+            joints.q_rad[::stride, j],
             (joints.rated_lower_rad[j], joints.rated_upper_rad[j]),
             (joints.lower_rad[j], joints.upper_rad[j]),
+            joints.joint_names[j],
+            f"q{j + 1}",
+            "rad",
         )
-        v_rated, v_allowed = joints.rated_velocity_radps[j], joints.velocity_limit_radps[j]
-        v_limits = ((-v_rated, v_rated), (-v_allowed, v_allowed))
-        panels = (
-            (axes[j, 0], joints.q_rad[:, j], *q_limits, "rad"),
-            (axes[j, 1], joints.dq_radps[:, j], *v_limits, "rad/s"),
+        _limit_panel(
+            axes[j, 1],
+            t,
+            joints.dq_radps[::stride, j],
+            (-v_rated, v_rated),
+            (-v_allowed, v_allowed),
+            joints.joint_names[j],
+            f"dq{j + 1}",
+            "rad/s",
         )
-        for ax, y, rated, allowed, unit in panels:
-            ax.plot(t, y[::stride], lw=1.0, color="C0")
-            lo, hi = float(y.min()), float(y.max())
-            span = max(hi - lo, 1e-3)
-            view = [lo - 0.1 * span, hi + 0.1 * span]
-            for value, style in ((rated[0], "-"), (rated[1], "-"), (allowed[0], "--"), (allowed[1], "--")):
-                if lo - 2 * span <= value <= hi + 2 * span:
-                    ax.axhline(value, color="C3", ls=style, lw=0.8)
-                    view = [min(view[0], value - 0.05 * span), max(view[1], value + 0.05 * span)]
-            ax.set_ylim(*view)
-            margin = min(lo - allowed[0], allowed[1] - hi)
-            ax.set_title(
-                f"{joints.joint_names[j]}: [{lo:+.3f}, {hi:+.3f}] {unit}, "
-                f"limit [{allowed[0]:+.2f}, {allowed[1]:+.2f}], margin {margin:.2f}",
-                fontsize=8,
-            )
-            ax.tick_params(labelsize=7)
-            ax.ticklabel_format(axis="y", useOffset=False)
-    axes[0, 0].set_ylabel("q", fontsize=8)
-    axes[0, 1].set_ylabel("dq", fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("t (s)", fontsize=8)
-    fig.suptitle("Joint trajectories (red: URDF limit solid, enforced limit dashed)", fontsize=10)
+    fig.suptitle(
+        "Joint trajectories (red lines: URDF limit solid, enforced limit dashed; "
+        "limits beyond the plotted range are named at the panel edge)",
+        fontsize=10,
+    )
     fig.tight_layout()
+    return fig
+
+
+def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
+    """Write :func:`joint_figure` as a PNG (atomically); returns the path."""
+    fig = joint_figure(joints)
     out = Path(path)
     with atomic_path(out) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
