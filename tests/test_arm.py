@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 
 import numpy as np
@@ -12,19 +14,26 @@ from hypothesis import strategies as st
 
 from capsule_mpc import ConfigError, Scenario
 from capsule_mpc.arm import (
+    ArmError,
     ArmKinematics,
     CartesianLimits,
+    ExportCheckError,
     IKTracker,
+    PlanError,
     SmoothingError,
     UnreachableTargetError,
     VelocitySmoother,
+    check_epm_plan,
     check_workspace,
+    default_max_deviation_m,
     export_arm_trajectory,
+    joint_figure,
     read_epm_plan_csv,
     read_joint_trajectory_csv,
     read_joint_trajectory_yaml,
     smooth_waypoints,
     solve_trajectory,
+    verify_arm_trajectory,
 )
 from capsule_mpc.arm.export import thin_waypoints
 from capsule_mpc.cli import main
@@ -40,9 +49,10 @@ RUCKIG_PRECISION_M = 1e-8
 LIMIT_TOL = 1.0 + 1e-9
 
 
-def tweak(scenario: Scenario, **arm: object) -> Scenario:
+def tweak(scenario: Scenario, limits: dict[str, object] | None = None, **arm: object) -> Scenario:
     data = scenario.model_dump(mode="json")
     data["arm"].update(arm)
+    data["limits"].update(limits or {})
     return config_from_dict(data)
 
 
@@ -325,10 +335,11 @@ def test_unreachable_point_is_a_clear_error_before_anything_is_written(scenario,
     t = np.array([0.0, 10.0])
     p = np.array([[0.0, 0.0, 0.095], [0.0, 0.8, 0.095]])  # 1.25 m from the base: beyond the UR5's reach
     out = tmp_path / "out"
+    wide = tweak(scenario, limits={"workspace_max_m": [0.18, 0.9, 0.105]})  # else refused as outside
     with pytest.raises(
         UnreachableTargetError, match=r"EPM position \(\+0\.0000, \+0\.\d+, \+0\.0950\) m at t = "
     ) as e:
-        export_arm_trajectory(scenario, t, p, out)
+        export_arm_trajectory(wide, t, p, out)
     assert 0.0 < e.value.t_s < 10.0 and 0.3 < e.value.position_m[1] < 0.8
     assert "not reachable" in str(e.value) and "No joint command was sent" in str(e.value)
     assert not out.exists()
@@ -419,8 +430,16 @@ def test_plan_csv_reader_variants_and_errors(tmp_path):
     np.testing.assert_array_equal(t, [0.0, 0.5])
     with pytest.raises(ValueError, match="no z column"):
         read_epm_plan_csv(f)
-    f.write_text("t_s,epm_x_m,epm_y_m,epm_z_m\n0,0.0,0.0,0.095\n0.5,abc,0.0,0.095\n")
-    with pytest.raises(ValueError, match=r"row 3 .*not a number"):
+    f.write_text("t_s,epm_x_m,epm_y_m,epm_z_m\n0,0.0,0.0,0.095\n\n0.5,abc,0.0,0.095\n")
+    with pytest.raises(
+        ValueError, match=r"plan\.csv: data row 2 \(line 4\), epm_x_m: not a number, got 'abc'"
+    ):
+        read_epm_plan_csv(f)
+    f.write_text("\ufeffx_m,y_m,z_m,t\n0,0,0.09,0\n0.001,0,0.09,0.5\n")  # byte-order mark, other names
+    t, p = read_epm_plan_csv(f)
+    np.testing.assert_array_equal(p[1], [0.001, 0.0, 0.09])
+    f.write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff")
+    with pytest.raises(ValueError, match=r"plan\.csv: not a UTF-8 text CSV"):
         read_epm_plan_csv(f)
     f.write_text("time,a,b\n0,1,2\n")
     with pytest.raises(ValueError, match="needs a time column"):
@@ -452,7 +471,144 @@ def test_cli_arm_export(tmp_path, capsys):
     assert (tmp_path / "o" / "joint_trajectory.yaml").exists()
     assert not (tmp_path / "o" / "joint_trajectory.png").exists()
     far = tmp_path / "far.csv"
-    far.write_text("t_s,epm_x_m,epm_y_m,epm_z_m\n0,0,0,0.095\n5,0,0.9,0.095\n")
-    assert main(["arm-export", "--plan", str(far), "--out", str(tmp_path / "far")]) == 1
-    assert "not reachable" in capsys.readouterr().err
+    far.write_text("t_s,epm_x_m,epm_y_m,epm_z_m\n0,0,0,0.095\n15,0,0.9,0.095\n")
+    assert main(["arm-export", "--plan", str(far), "--out", str(tmp_path / "far")]) == 2
+    err = capsys.readouterr().err
+    assert "far.csv: data row 2 (t_s = 15), epm_y_m: must be in the EPM workspace [-0.13, 0.13] m" in err
     assert not (tmp_path / "far").exists()
+
+
+# --- checks of the plan and of the exported trajectory ----------------------------------------------
+
+
+@pytest.mark.parametrize("speed", [0.02, 0.045])
+def test_plans_the_arm_rounds_within_the_tolerance_pass_the_row_checks(scenario, speed):
+    # Velocity steps at the start and at every corner: beyond the acceleration limit exactly, but
+    # within it given the tolerance (the smoothing's deviation: 1.2 / 4.1 mm).
+    t, p = rectangle_plan(speed)
+    check_epm_plan(scenario, t, p, default_max_deviation_m(scenario))
+    assert default_max_deviation_m(scenario) == pytest.approx(0.2 * scenario.limits.max_lead_m)
+
+
+def test_summary_stores_the_configured_arm_rate(scenario, tmp_path):
+    t, p = rectangle_plan(0.02)
+    keep = t <= 0.5
+    for rate in (500.0, 300.0):
+        res = export_arm_trajectory(tweak(scenario, arm_rate_hz=rate), t[keep], p[keep], tmp_path, plot=False)
+        assert res.summary["arm_rate_hz"] == rate  # not 1 / median(diff(t)) = 499.99999999999955
+        assert json.loads(res.paths["summary"].read_text())["arm_rate_hz"] == rate
+        check = res.summary["check"]
+        assert check["tolerance_m"] == pytest.approx(0.005)
+        assert check["max_deviation_m"] < check["tolerance_m"]
+        assert check["max_fk_error_m"] <= scenario.arm.ik_position_tolerance_m
+
+
+def test_a_deviation_beyond_the_tolerance_is_refused_even_past_the_row_checks(
+    scenario, tmp_path, monkeypatch
+):
+    # The issue's 5 cm step between two rows: the row check refuses it; without that check, the
+    # check of the result still does (a 49 mm deviation), and nothing is written.
+    t, p = rectangle_plan(0.02)
+    keep = t <= 2.0
+    t, p = t[keep], p[keep].copy()
+    p[30:, 0] += 0.05
+    with pytest.raises(
+        PlanError, match=r"data row 31 \(t_s = 1\), epm_x_m: moves \+50\.67 mm from data row 30"
+    ):
+        export_arm_trajectory(scenario, t, p, tmp_path / "a")
+    monkeypatch.setattr("capsule_mpc.arm.export.check_epm_plan", lambda *args: None)
+    with pytest.raises(ExportCheckError, match=r"between data rows 30 and 31 .* and up to 4\d\.\d\d mm") as e:
+        export_arm_trajectory(scenario, t, p, tmp_path / "b")
+    assert "the tolerance is 5.00 mm" in str(e.value) and isinstance(e.value, ArmError)
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+@pytest.fixture(scope="module")
+def short_export(scenario, limits, kin):
+    t, p = rectangle_plan(0.02)
+    keep = t <= 1.0
+    cart = smooth_waypoints(t[keep], p[keep], limits, RATE_HZ)
+    return t[keep], p[keep], cart, solve_trajectory(kin, cart.t_s, cart.position_m, cart.velocity_mps)
+
+
+@pytest.mark.parametrize(
+    ("corrupt", "message"),
+    [
+        ("fk", r"forward kinematics of the joint positions is 0\.001 m from the setpoint"),
+        ("joint_limit", r"joint 6 \(wrist_3_joint\) would be at -6\.\d+ rad, outside its limits"),
+        ("joint_speed", r"joint 1 \(shoulder_pan_joint\) would move at \+3\.0000 rad/s"),
+        ("setpoint_speed", r"setpoint velocity .* beyond the per-axis limit"),
+        ("workspace", r"the EPM would be 5\.000 mm outside the workspace"),
+        ("nan", r"not finite"),
+    ],
+)
+def test_the_result_is_verified_before_it_is_written(scenario, kin, short_export, corrupt, message):
+    t_plan, p_plan, cart, joints = short_export
+    q, dq = joints.q_rad.copy(), joints.dq_radps.copy()
+    cart_pos, cart_vel = cart.position_m.copy(), cart.velocity_mps.copy()
+    k = 200
+    if corrupt == "fk":  # the setpoint moved 1 mm, the joints not
+        cart_pos[k, 0] += 0.001
+    elif corrupt == "joint_limit":  # the same pose a turn of the wrist away: beyond its limit
+        q[k, 5] -= 2 * np.pi
+    elif corrupt == "joint_speed":
+        dq[k, 0] = 3.0
+    elif corrupt == "setpoint_speed":
+        cart_vel[k, 1] = 0.2
+    elif corrupt == "workspace":  # the floor raised 5 mm above the trajectory (z = 0.095 m)
+        tweaked = tweak(scenario, limits={"workspace_min_m": [-0.18, -0.13, 0.1]})
+        with pytest.raises(ExportCheckError, match=message):
+            verify_arm_trajectory(tweaked, kin, t_plan, p_plan, cart, joints, 0.005)
+        return
+    else:
+        q[k, 2] = np.nan
+    bad_cart = dataclasses.replace(cart, position_m=cart_pos, velocity_mps=cart_vel)
+    bad_joints = dataclasses.replace(joints, q_rad=q, dq_radps=dq)
+    with pytest.raises(ExportCheckError, match=message) as e:
+        verify_arm_trajectory(scenario, kin, t_plan, p_plan, bad_cart, bad_joints, 0.005)
+    assert e.value.t_s == pytest.approx(cart.t_s[k])
+    verify_arm_trajectory(scenario, kin, t_plan, p_plan, cart, joints, 0.005)  # the original passes
+
+
+def test_a_failed_write_leaves_no_files(scenario, tmp_path, monkeypatch):
+    def broken_plot(joints, path):
+        raise OSError(f"{path}: disk full")
+
+    monkeypatch.setattr("capsule_mpc.arm.export.plot_joint_trajectory", broken_plot)
+    t, p = rectangle_plan(0.02)
+    keep = t <= 0.5
+    out = tmp_path / "out"
+    with pytest.raises(OSError, match="disk full"):
+        export_arm_trajectory(scenario, t[keep], p[keep], out)
+    assert not out.exists()
+
+
+def test_joint_figure_shows_every_limit_with_units(scenario, plan_joints):
+    _, joints = plan_joints
+    fig = joint_figure(joints)
+    axes = np.array(fig.axes).reshape(-1, 2)
+    for j, (ax_q, ax_dq) in enumerate(axes):
+        assert ax_q.get_ylabel() == f"q{j + 1} (rad)" and ax_dq.get_ylabel() == f"dq{j + 1} (rad/s)"
+        v_rated, v_allowed = joints.rated_velocity_radps[j], joints.velocity_limit_radps[j]
+        panels = (
+            (
+                ax_q,
+                (
+                    joints.rated_lower_rad[j],
+                    joints.rated_upper_rad[j],
+                    joints.lower_rad[j],
+                    joints.upper_rad[j],
+                ),
+            ),
+            (ax_dq, (-v_rated, v_rated, -v_allowed, v_allowed)),
+        )
+        for ax, limits in panels:
+            lo, hi = ax.get_ylim()
+            drawn = {round(float(line.get_ydata()[0]), 9) for line in ax.lines[1:]}
+            notes = " ".join(text.get_text() for text in ax.texts)
+            for value in limits:
+                if lo <= value <= hi:
+                    assert round(float(value), 9) in drawn  # in view: drawn as a red line
+                else:
+                    assert f"{value:+.2f}" in notes and "off-scale" in notes  # else named at the edge
+    assert "named at the panel edge" in fig._suptitle.get_text()

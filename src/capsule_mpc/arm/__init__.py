@@ -5,16 +5,21 @@
 * :mod:`~capsule_mpc.arm.kinematics` -- the UR5 with its base and the EPM mount
   (:class:`ArmKinematics`), warm-started damped-least-squares IK along a trajectory
   (:class:`IKTracker`, :func:`solve_trajectory`), workspace check.
+* :mod:`~capsule_mpc.arm.checks` -- every row of a plan checked before the arm is asked to
+  follow it, and the arm trajectory checked (against the plan, the workspace, the limits)
+  before it is written.
 * :mod:`~capsule_mpc.arm.export` -- CSV / ROS JointTrajectory YAML / figure
   (:func:`export_arm_trajectory`).
 * :mod:`~capsule_mpc.arm.robot_actuator` -- :class:`RobotArmActuator`, the simulator's
   ``sim.actuator: robot`` (registered when this package is imported).
 """
 
-from .errors import ArmError, SmoothingError, UnreachableTargetError
+from .checks import ExportCheck, check_epm_plan, default_max_deviation_m, verify_arm_trajectory
+from .errors import ArmError, ExportCheckError, PlanError, SmoothingError, UnreachableTargetError
 from .export import (
     ArmExport,
     export_arm_trajectory,
+    joint_figure,
     plot_joint_trajectory,
     read_epm_plan_csv,
     read_joint_trajectory_csv,
@@ -45,22 +50,29 @@ __all__ = [
     "ArmKinematics",
     "CartesianLimits",
     "CartesianTrajectory",
+    "ExportCheck",
+    "ExportCheckError",
     "IKStats",
     "IKTracker",
     "JointTrajectory",
+    "PlanError",
     "RobotArmActuator",
     "SmoothingError",
     "SmoothingStats",
     "UnreachableTargetError",
     "VelocitySmoother",
     "WorkspaceReport",
+    "check_epm_plan",
     "check_workspace",
+    "default_max_deviation_m",
     "export_arm_trajectory",
+    "joint_figure",
     "plot_joint_trajectory",
     "read_epm_plan_csv",
     "read_joint_trajectory_csv",
     "read_joint_trajectory_yaml",
     "smooth_waypoints",
     "solve_trajectory",
+    "verify_arm_trajectory",
     "write_arm_outputs",
 ]

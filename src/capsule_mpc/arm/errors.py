@@ -1,10 +1,11 @@
-"""Errors of the arm side: each names the time and the EPM position it happened at."""
+"""Errors of the arm side: each names the time and the EPM position it happened at (a refused plan:
+the data row and field)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ArmError", "SmoothingError", "UnreachableTargetError"]
+__all__ = ["ArmError", "ExportCheckError", "PlanError", "SmoothingError", "UnreachableTargetError"]
 
 
 class ArmError(ValueError):
@@ -50,4 +51,55 @@ class UnreachableTargetError(ArmError):
         return (
             f"EPM position {self._where()} at t = {self.t_s:.4f} s is not reachable by the arm: "
             f"{self.reason}. No joint command was sent."
+        )
+
+
+class PlanError(ArmError):
+    """An EPM plan refused before anything is computed or written (``reason``), naming the data row
+    (1-based, counted after the header; None for the plan as a whole) and the field.
+
+    Parameters
+    ----------
+    reason : str
+        What is wrong and the allowed range.
+    row : int, optional
+        The 1-based data row (the first row after the header is 1).
+    field : str, optional
+        The column (``t_s``, ``epm_x_m``, ``epm_y_m``, ``epm_z_m``).
+    t_s : float, optional
+        The row's time, s (NaN when unknown).
+    position_m : array_like (3,), optional
+        The row's EPM position, m (NaN when unknown).
+    """
+
+    def __init__(
+        self,
+        reason: str,
+        *,
+        row: int | None = None,
+        field: str | None = None,
+        t_s: float = float("nan"),
+        position_m: np.ndarray | None = None,
+    ) -> None:
+        self.row = row
+        self.field = field
+        super().__init__(t_s, np.full(3, np.nan) if position_m is None else position_m, reason)
+
+    def _message(self) -> str:
+        where = []
+        if self.row is not None:
+            where.append(f"data row {self.row}" + (f" (t_s = {self.t_s:g})" if np.isfinite(self.t_s) else ""))
+        if self.field is not None:
+            where.append(self.field)
+        return f"{', '.join(where)}: {self.reason}" if where else self.reason
+
+
+class ExportCheckError(ArmError):
+    """The computed arm trajectory failed its final check (``reason``: which check, by how much, and
+    the tolerance): it deviates from the plan, leaves the workspace or a joint limit. Raised before
+    anything is written."""
+
+    def _message(self) -> str:
+        return (
+            f"the arm trajectory fails its check at t = {self.t_s:.4f} s, EPM {self._where()}: {self.reason}"
         )

@@ -11,9 +11,13 @@ Files written to an output directory (each atomically: temp file, then rename):
     points with positions, velocities, accelerations [], effort [], time_from_start
     {sec, nanosec} relative to the first point).
 ``joint_trajectory.png``
-    Joint positions and velocities against time, with their limits.
+    Joint positions and velocities against time, with their limits (:func:`joint_figure`).
 ``arm_summary.json``
-    Smoothing and IK figures (deviation from the plan, IK error, joint-limit use).
+    Smoothing and IK figures (deviation from the plan, IK error, joint-limit use), the configured
+    arm rate, and the final check (``check``: deviation from the plan and its tolerance).
+
+Nothing is written unless the plan's rows and the computed trajectory pass their checks
+(:mod:`~capsule_mpc.arm.checks`).
 
 Floats are written with ``repr`` (shortest round-trip form), so the YAML and the CSV hold the
 same numbers exactly.
@@ -34,6 +38,7 @@ import yaml
 
 from ..atomic import atomic_path
 from ..config import Scenario
+from .checks import ExportCheck, check_epm_plan, default_max_deviation_m, verify_arm_trajectory
 from .kinematics import ArmKinematics, JointTrajectory, solve_trajectory
 from .smoothing import CartesianLimits, CartesianTrajectory, smooth_waypoints
 
@@ -46,6 +51,7 @@ __all__ = [
     "ArmExport",
     "arm_summary",
     "export_arm_trajectory",
+    "joint_figure",
     "plot_joint_trajectory",
     "read_epm_plan_csv",
     "read_joint_trajectory_csv",
@@ -141,16 +147,24 @@ def _write_joint_yaml(path: Path, joints: JointTrajectory) -> Path:
 
 
 def arm_summary(
-    cart: CartesianTrajectory, joints: JointTrajectory, limits: CartesianLimits
+    cart: CartesianTrajectory,
+    joints: JointTrajectory,
+    limits: CartesianLimits,
+    rate_hz: float,
+    check: ExportCheck | None = None,
 ) -> dict[str, Any]:
-    """Figures of an arm trajectory: duration, Cartesian limit use, IK accuracy, joint-limit use."""
-    dt = float(np.median(np.diff(cart.t_s))) if len(cart) > 1 else math.nan
+    """Figures of an arm trajectory: duration, Cartesian limit use, IK accuracy, joint-limit use.
+
+    ``rate_hz`` (the configured arm rate, Hz) is stored as given, not re-derived from the time
+    grid; ``check`` (the final check's figures) is stored under ``check`` when given.
+    """
+    dt = 1.0 / rate_hz
     jerk = np.diff(cart.position_m, 3, axis=0) / dt**3 if len(cart) > 3 else np.zeros((0, 3))
     q_margin = np.minimum(joints.q_rad - joints.rated_lower_rad, joints.rated_upper_rad - joints.q_rad)
     summary: dict[str, Any] = {
         "n_setpoints": len(cart),
         "duration_s": float(cart.t_s[-1] - cart.t_s[0]),
-        "arm_rate_hz": 1.0 / dt if math.isfinite(dt) and dt > 0 else math.nan,
+        "arm_rate_hz": float(rate_hz),
         "max_speed_mps": np.abs(cart.velocity_mps).max(axis=0).tolist(),
         "max_accel_mps2": np.abs(cart.acceleration_mps2).max(axis=0).tolist(),
         "max_fd_jerk_mps3": (np.abs(jerk).max(axis=0) if len(jerk) else np.zeros(3)).tolist(),
@@ -168,14 +182,73 @@ def arm_summary(
     }
     if cart.stats is not None:
         summary["smoothing"] = asdict(cart.stats)
+    if check is not None:
+        summary["check"] = asdict(check)
     return summary
 
 
-def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
-    """Figure of joint positions (left) and velocities (right) against time, with their limits.
+def _limit_panel(
+    ax: Any,
+    t: np.ndarray,
+    y: np.ndarray,
+    rated: tuple[float, float],
+    allowed: tuple[float, float],
+    name: str,
+    label: str,
+    unit: str,
+) -> None:
+    """One panel: the data, its limits as red lines where they fall near the data (the y-range
+    grows to include them), and a red note at the top or bottom edge for each limit beyond it."""
+    ax.plot(t, y, lw=1.0, color="C0")
+    lo, hi = float(y.min()), float(y.max())
+    span = max(hi - lo, 1e-3)
+    view = [lo - 0.1 * span, hi + 0.1 * span]
+    above: list[str] = []
+    below: list[str] = []
+    for value, style, kind in (
+        (rated[0], "-", "URDF"),
+        (rated[1], "-", "URDF"),
+        (allowed[0], "--", "enforced"),
+        (allowed[1], "--", "enforced"),
+    ):
+        if lo - 2 * span <= value <= hi + 2 * span:
+            ax.axhline(value, color="C3", ls=style, lw=0.8)
+            view = [min(view[0], value - 0.05 * span), max(view[1], value + 0.05 * span)]
+        else:
+            (above if value > hi else below).append(f"{kind} {value:+.2f}")
+    ax.set_ylim(*view)
+    for notes, y_frac, va in ((above, 0.97, "top"), (below, 0.03, "bottom")):
+        if notes:
+            ax.text(
+                0.99,
+                y_frac,
+                f"off-scale limits: {', '.join(notes)} {unit}",
+                transform=ax.transAxes,
+                ha="right",
+                va=va,
+                color="C3",
+                fontsize=6,
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1},
+            )
+    margin = min(lo - allowed[0], allowed[1] - hi)
+    ax.set_title(
+        f"{name}: [{lo:+.3f}, {hi:+.3f}] {unit}, enforced limit [{allowed[0]:+.2f}, {allowed[1]:+.2f}], "
+        f"margin {margin:.2f}",
+        fontsize=8,
+    )
+    ax.set_ylabel(f"{label} ({unit})", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.ticklabel_format(axis="y", useOffset=False)
 
-    Each panel's title gives the closest approach to the limit; limit lines are drawn where they
-    fall near the data (URDF limit solid, enforced limit with margin dashed).
+
+def joint_figure(joints: JointTrajectory) -> Any:
+    """Figure (matplotlib ``Figure``, Agg canvas, no pyplot) of joint positions (left) and velocities
+    (right) against time, with their limits.
+
+    Each panel's title gives the range, the enforced limit and the closest approach to it. Limits
+    near the data are drawn as red lines (URDF limit solid, enforced limit with margin dashed) and
+    the y-range includes them; limits far beyond the data are named in red at the panel's top or
+    bottom edge instead (drawing them would flatten the data to a line).
     """
     # A Figure with its own Agg canvas: no pyplot, no global backend switch (safe in notebooks).
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -188,40 +261,41 @@ def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
     stride = max(1, math.ceil(len(joints) / _PLOT_MAX_POINTS))
     t = joints.t_s[::stride]
     for j in range(n):
-        q_limits = (
+        v_rated, v_allowed = joints.rated_velocity_radps[j], joints.velocity_limit_radps[j]
+        _limit_panel(
+            axes[j, 0],
+            t,
+            joints.q_rad[::stride, j],
             (joints.rated_lower_rad[j], joints.rated_upper_rad[j]),
             (joints.lower_rad[j], joints.upper_rad[j]),
+            joints.joint_names[j],
+            f"q{j + 1}",
+            "rad",
         )
-        v_rated, v_allowed = joints.rated_velocity_radps[j], joints.velocity_limit_radps[j]
-        v_limits = ((-v_rated, v_rated), (-v_allowed, v_allowed))
-        panels = (
-            (axes[j, 0], joints.q_rad[:, j], *q_limits, "rad"),
-            (axes[j, 1], joints.dq_radps[:, j], *v_limits, "rad/s"),
+        _limit_panel(
+            axes[j, 1],
+            t,
+            joints.dq_radps[::stride, j],
+            (-v_rated, v_rated),
+            (-v_allowed, v_allowed),
+            joints.joint_names[j],
+            f"dq{j + 1}",
+            "rad/s",
         )
-        for ax, y, rated, allowed, unit in panels:
-            ax.plot(t, y[::stride], lw=1.0, color="C0")
-            lo, hi = float(y.min()), float(y.max())
-            span = max(hi - lo, 1e-3)
-            view = [lo - 0.1 * span, hi + 0.1 * span]
-            for value, style in ((rated[0], "-"), (rated[1], "-"), (allowed[0], "--"), (allowed[1], "--")):
-                if lo - 2 * span <= value <= hi + 2 * span:
-                    ax.axhline(value, color="C3", ls=style, lw=0.8)
-                    view = [min(view[0], value - 0.05 * span), max(view[1], value + 0.05 * span)]
-            ax.set_ylim(*view)
-            margin = min(lo - allowed[0], allowed[1] - hi)
-            ax.set_title(
-                f"{joints.joint_names[j]}: [{lo:+.3f}, {hi:+.3f}] {unit}, "
-                f"limit [{allowed[0]:+.2f}, {allowed[1]:+.2f}], margin {margin:.2f}",
-                fontsize=8,
-            )
-            ax.tick_params(labelsize=7)
-            ax.ticklabel_format(axis="y", useOffset=False)
-    axes[0, 0].set_ylabel("q", fontsize=8)
-    axes[0, 1].set_ylabel("dq", fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("t (s)", fontsize=8)
-    fig.suptitle("Joint trajectories (red: URDF limit solid, enforced limit dashed)", fontsize=10)
+    fig.suptitle(
+        "Joint trajectories (red lines: URDF limit solid, enforced limit dashed; "
+        "limits beyond the plotted range are named at the panel edge)",
+        fontsize=10,
+    )
     fig.tight_layout()
+    return fig
+
+
+def plot_joint_trajectory(joints: JointTrajectory, path: str | Path) -> Path:
+    """Write :func:`joint_figure` as a PNG (atomically); returns the path."""
+    fig = joint_figure(joints)
     out = Path(path)
     with atomic_path(out) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
@@ -232,26 +306,38 @@ def write_arm_outputs(
     out_dir: str | Path,
     cart: CartesianTrajectory,
     joints: JointTrajectory,
-    limits: CartesianLimits,
+    summary: dict[str, Any],
     *,
     plot: bool = True,
 ) -> dict[str, Path]:
-    """Write the export files of an already computed arm trajectory; returns their paths by kind."""
+    """Write the export files of an already computed and checked arm trajectory; returns their
+    paths by kind. If a write fails, the files this call already wrote are removed (and the folder,
+    if this call created it) before the error is raised: no partial export is left."""
     out = Path(out_dir)
-    paths = {
-        "epm_csv": _write_epm_csv(out / EPM_CSV, cart),
-        "joint_csv": _write_joint_csv(out / JOINT_CSV, joints),
-        "joint_yaml": _write_joint_yaml(out / JOINT_YAML, joints),
-    }
-    summary = arm_summary(cart, joints, limits)
+    created = not out.exists()
     text = json.dumps(summary, indent=2)
 
     def write_summary(f: IO[str]) -> None:
         f.write(text + "\n")
 
-    paths["summary"] = _atomic_write(out / SUMMARY_JSON, write_summary)
+    writers: list[tuple[str, Callable[[], Path]]] = [
+        ("epm_csv", lambda: _write_epm_csv(out / EPM_CSV, cart)),
+        ("joint_csv", lambda: _write_joint_csv(out / JOINT_CSV, joints)),
+        ("joint_yaml", lambda: _write_joint_yaml(out / JOINT_YAML, joints)),
+        ("summary", lambda: _atomic_write(out / SUMMARY_JSON, write_summary)),
+    ]
     if plot:
-        paths["joint_png"] = plot_joint_trajectory(joints, out / JOINT_PNG)
+        writers.append(("joint_png", lambda: plot_joint_trajectory(joints, out / JOINT_PNG)))
+    paths: dict[str, Path] = {}
+    try:
+        for kind, write in writers:
+            paths[kind] = write()
+    except BaseException:
+        for written in paths.values():
+            written.unlink(missing_ok=True)
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise
     return paths
 
 
@@ -298,25 +384,35 @@ def export_arm_trajectory(
     out_dir: str | Path,
     *,
     plot: bool = True,
+    max_deviation_m: float | None = None,
 ) -> ArmExport:
     """EPM Cartesian trajectory -> Ruckig setpoints at the arm rate -> IK -> files for the robot.
 
-    Everything is computed and checked (reach, joint position and velocity limits) before the
-    first file is written.
+    Every row of the plan is checked first (:func:`~capsule_mpc.arm.checks.check_epm_plan`:
+    finite, times strictly increasing, steps within the speed and acceleration limits, inside the
+    workspace), and the arm trajectory is checked before the first file is written
+    (:func:`~capsule_mpc.arm.checks.verify_arm_trajectory`: forward kinematics within the IK
+    tolerance of the setpoints and within ``max_deviation_m`` of the plan, inside the workspace,
+    joint and Cartesian limits). A failure raises and writes nothing.
 
     Parameters
     ----------
     scenario : Scenario
         ``arm`` (rate, Ruckig limits, robot placement, IK, look-ahead), ``limits``, ``camera``.
     t_s : array_like (N,)
-        Times of the EPM positions, s, strictly increasing (a plan at the camera rate, or a log;
-        samples faster than ``arm.plan_waypoint_rate_hz`` -- default the camera rate -- are thinned).
+        Times of the EPM positions, s, strictly increasing, N >= 2 (a plan at the camera rate, or
+        a log; samples faster than ``arm.plan_waypoint_rate_hz`` -- default the camera rate -- are
+        thinned after the check).
     epm_positions : array_like (N, 3)
         EPM centre (x, y, height) in the world, m.
     out_dir : str or Path
         Directory for the files (created if needed).
     plot : bool, optional
         Also write ``joint_trajectory.png`` (default True).
+    max_deviation_m : float, optional
+        Tolerance on the EPM's distance from the plan, m, > 0; default
+        :func:`~capsule_mpc.arm.checks.default_max_deviation_m` (a fifth of ``limits.max_lead_m``,
+        5 mm by default).
 
     Returns
     -------
@@ -325,24 +421,33 @@ def export_arm_trajectory(
 
     Raises
     ------
-    ValueError
-        Malformed input (the row is named).
+    PlanError
+        A row of the plan is malformed or beyond the limits (1-based data row and field named).
     UnreachableTargetError, SmoothingError
-        The arm cannot follow (time and position named); nothing is written.
+        The arm cannot follow (time and position named).
+    ExportCheckError
+        The arm trajectory fails its final check (time, position, check and tolerance named).
+    OSError
+        A file cannot be written (the files of this export already written are removed).
+
+    All but ``OSError`` are :class:`~capsule_mpc.arm.ArmError`; nothing is written on any of them.
     """
     arm = scenario.arm
+    tolerance = default_max_deviation_m(scenario) if max_deviation_m is None else float(max_deviation_m)
+    if not (tolerance > 0 and math.isfinite(tolerance)):
+        raise ValueError(f"max_deviation_m: must be a finite number > 0, got {max_deviation_m}")
     t = np.asarray(t_s, dtype=float)
     p = np.asarray(epm_positions, dtype=float)
-    if t.ndim != 1 or p.shape != (t.shape[0], 3):
-        raise ValueError(f"epm_positions: must have shape ({t.shape[0]}, 3) to match t_s, got {p.shape}")
-    rate = arm.plan_waypoint_rate_hz or scenario.camera.rate_hz
-    keep = thin_waypoints(t, rate) if np.all(np.isfinite(t)) else np.arange(t.shape[0])
+    check_epm_plan(scenario, t, p, tolerance)
+    keep = thin_waypoints(t, arm.plan_waypoint_rate_hz or scenario.camera.rate_hz)
     limits = CartesianLimits.from_scenario(scenario)
     cart = smooth_waypoints(t[keep], p[keep], limits, arm.arm_rate_hz, arm.plan_lookahead_s)
     kin = ArmKinematics(arm)
     joints = solve_trajectory(kin, cart.t_s, cart.position_m, cart.velocity_mps)
-    paths = write_arm_outputs(out_dir, cart, joints, limits, plot=plot)
-    return ArmExport(paths, cart, joints, arm_summary(cart, joints, limits))
+    check = verify_arm_trajectory(scenario, kin, t, p, cart, joints, tolerance)
+    summary = arm_summary(cart, joints, limits, arm.arm_rate_hz, check)
+    paths = write_arm_outputs(out_dir, cart, joints, summary, plot=plot)
+    return ArmExport(paths, cart, joints, summary)
 
 
 def read_epm_plan_csv(
@@ -351,7 +456,8 @@ def read_epm_plan_csv(
     """Times and EPM positions of a plan CSV (``t_s`` and ``epm_x_m, epm_y_m, epm_z_m``).
 
     Also accepted: ``epm_height_m`` for z, ``x_m, y_m[, z_m]``, and ``t`` for the time. Without a
-    z column every z is ``default_height_m``.
+    z column every z is ``default_height_m``. A UTF-8 byte-order mark is ignored; blank lines are
+    skipped. The values are only parsed here: :func:`export_arm_trajectory` checks them.
 
     Returns
     -------
@@ -361,13 +467,20 @@ def read_epm_plan_csv(
     Raises
     ------
     ValueError
-        Missing columns, or a row with a non-numeric value (the row is named).
+        Not UTF-8 text, missing columns, or a value that is not a number (the file, the 1-based
+        data row, its line and the column are named).
     """
     path = Path(path)
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        fields = reader.fieldnames or []
-        rows = list(reader)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            reader = csv.DictReader(f)
+            fields = reader.fieldnames or []
+            rows = [(reader.line_num, row) for row in reader]
+    except UnicodeDecodeError as exc:
+        raise ValueError(
+            f"{path}: not a UTF-8 text CSV ({exc.reason} at byte {exc.start}); expected a header "
+            "t_s,epm_x_m,epm_y_m[,epm_z_m] and one row of numbers per line"
+        ) from None
     t_col = next((c for c in ("t_s", "t") if c in fields), None)
     pos_cols = next((cols for cols in _PLAN_POSITION_COLUMNS if all(c in fields for c in cols)), None)
     if t_col is None or pos_cols is None:
@@ -379,13 +492,17 @@ def read_epm_plan_csv(
         raise ValueError(f"{path}: has no z column ({pos_cols}) and no default height was given")
     t = np.empty(len(rows))
     p = np.empty((len(rows), 3))
-    for i, row in enumerate(rows):
-        try:
-            t[i] = float(row[t_col])
-            xyz = [float(row[c]) for c in pos_cols]
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{path}: row {i + 2} (line {i + 2}): not a number ({exc})") from None
-        p[i] = xyz if len(xyz) == 3 else [*xyz, default_height_m]
+    for i, (line, row) in enumerate(rows):
+        xyz = []
+        for col in (t_col, *pos_cols):
+            try:
+                xyz.append(float(row[col]))
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"{path}: data row {i + 1} (line {line}), {col}: not a number, got {row[col]!r}"
+                ) from None
+        t[i] = xyz[0]
+        p[i] = xyz[1:] if len(xyz) == 4 else [*xyz[1:], default_height_m]
     return t, p
 
 

@@ -260,7 +260,8 @@ class ArmKinematics:
         return (
             f"joint {j + 1} ({self.joint_names[j]}) would move at {dq[j]:+.4f} rad/s, beyond its "
             f"allowed {self.velocity_limit_radps[j]:.4f} rad/s ({self.config.joint_velocity_fraction:g} "
-            f"x rated {self.rated_velocity_radps[j]:g}); the point is near a singularity"
+            f"x rated {self.rated_velocity_radps[j]:g}): the arm is near a singularity there, or the EPM "
+            "moves too fast for it"
         )
 
     def newton_solve(self, J: np.ndarray, rhs: np.ndarray) -> np.ndarray:

@@ -1,4 +1,10 @@
-"""``capsule-mpc arm-export``: an EPM plan CSV -> jerk-limited setpoints -> joint commands for the robot."""
+"""``capsule-mpc arm-export``: an EPM plan CSV -> jerk-limited setpoints -> joint commands for the robot.
+
+Exit status: 0 when the files were written; 2 when nothing was written: an unreadable or malformed
+plan, a row beyond the limits or outside the workspace (the file, the 1-based data row and the
+field are named), a trajectory the arm cannot follow or that fails its final check (time and EPM
+position named), a bad config, or an output folder that cannot be written.
+"""
 
 from __future__ import annotations
 
@@ -22,7 +28,11 @@ def register(sub: Any) -> None:
             "Smooth an EPM Cartesian trajectory (CSV with t_s, epm_x_m, epm_y_m[, epm_z_m]) with "
             "Ruckig at the arm rate, solve the UR5 inverse kinematics, and write epm_trajectory.csv, "
             "joint_trajectory.csv, joint_trajectory.yaml (ROS JointTrajectory), joint_trajectory.png "
-            "and arm_summary.json."
+            "and arm_summary.json. Every row is checked first (finite, times strictly increasing, "
+            "steps within the speed and acceleration limits, inside the EPM workspace) and the "
+            "result before it is written (forward kinematics within a fifth of limits.max_lead_m "
+            "of the plan, workspace, joint limits). Exit status 0 when written; 2 when nothing was "
+            "written (the message names the file and data row, or the time)."
         ),
     )
     p.add_argument("--plan", required=True, help="EPM trajectory CSV (e.g. epm_plan.csv or a run log)")
@@ -33,26 +43,28 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Export ``--plan`` into ``--out``; 1 if the arm cannot follow it (nothing written), else 0."""
+    """Export ``--plan`` into ``--out``; 2 if anything fails (nothing written), else 0."""
     scenario = load_config(args.config)
     try:
         t, p = read_epm_plan_csv(args.plan, default_height_m=scenario.plate.epm_height_m)
         wall0 = time.perf_counter()
         result = export_arm_trajectory(scenario, t, p, args.out, plot=not args.no_plot)
     except (ArmError, ValueError, OSError) as exc:
-        print(f"capsule-mpc arm-export: {exc}", file=sys.stderr)
-        return 1
+        where = f"{args.plan}: " if isinstance(exc, ArmError) else ""
+        print(f"capsule-mpc arm-export: {where}{exc} (nothing written)", file=sys.stderr)
+        return 2
     wall = time.perf_counter() - wall0
     s = result.summary
     smoothing = s.get("smoothing", {})
+    check = s["check"]
     ik = s["ik"]
     rate, n_set, dur = s["arm_rate_hz"], s["n_setpoints"], s["duration_s"]
-    print(f"{len(t)} plan points -> {n_set} setpoints at {rate:.0f} Hz ({dur:.2f} s)")
-    dev_max = smoothing.get("max_deviation_m", 0.0) * 1e3
+    print(f"{len(t)} plan points -> {n_set} setpoints at {rate:g} Hz ({dur:.2f} s)")
     dev_rms = smoothing.get("rms_deviation_m", 0.0) * 1e3
     lag = smoothing.get("end_lag_s", 0.0)
     print(
-        f"  Ruckig: deviation from the plan max {dev_max:.2f} mm, rms {dev_rms:.2f} mm; end {lag:.3f} s late"
+        f"  EPM deviation from the plan max {check['max_deviation_m'] * 1e3:.2f} mm (tolerance "
+        f"{check['tolerance_m'] * 1e3:.2f} mm), rms {dev_rms:.2f} mm; end {lag:.3f} s late"
     )
     jerk = max(s["max_fd_jerk_mps3"])
     print(f"  worst finite-difference jerk {jerk:.4f} m/s^3 (limit {max(s['limits']['jerk_mps3'])})")
@@ -62,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     used = max(a / b for a, b in zip(s["max_joint_speed_radps"], s["joint_speed_limit_radps"]))
     margin = min(s["min_joint_margin_rad"])
     print(f"  joints: closest to a position limit {margin:.3f} rad; speed {used:.1%} of allowed")
-    print(f"  Ruckig + IK + files: {wall:.2f} s")
+    print(f"  Ruckig + IK + checks + files: {wall:.2f} s")
     for kind, path in result.paths.items():
         print(f"  {kind:10s} {path}")
     return 0
