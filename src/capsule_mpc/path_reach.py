@@ -17,7 +17,9 @@ leaves the waypoint (:func:`~capsule_mpc.learning.predict.steady_lead` with the
 controller's friction law). Along a segment the steady lead is constant, so the EPM
 runs the segment shifted by it, and the workspace box being convex, checking both
 ends of every segment covers the segment. :func:`check_epm_workspace` refuses a path
-whose needs come closer than :data:`EPM_WORKSPACE_MARGIN_M` to the box.
+whose needs come closer than :data:`EPM_WORKSPACE_MARGIN_M` to the box, and a speed at
+which a segment's steady lead lies farther than the coupling limit ``limits.max_lead_m``
+from the rest lead (no controller leads that far; the capsule would lose the magnet).
 """
 
 from __future__ import annotations
@@ -37,13 +39,14 @@ from .paths import ReferencePath
 __all__ = ["EPM_WORKSPACE_MARGIN_M", "EpmNeed", "check_epm_workspace", "epm_positions_needed"]
 
 #: Room (m) the EPM needs beyond the nominal model's steady positions, on every side of the
-#: workspace box. Measured on the rectangle config, ``lab`` plant, seeds 0 and 1 (issue 11): the
-#: EPM went beyond the box of its nominal positions by up to 8.6 mm (mpc: it swings out at the
-#: corners to turn the capsule; the plant's true lead is also ~1.5 mm longer than the model's),
-#: 5.6 mm (follow, paper_0.8v: they keep the capsule's start offset in the dead zone). On an L
-#: path with its corner at the -x or +y face, the actuator clamped the EPM with the corner's
-#: needs 0, 3 or 6 mm inside the face and never at 10 mm (follow and mpc, 16 runs). The
-#: ``hard`` plant swings further (17 mm seen): it is a stress test, not what a path is sized for.
+#: workspace box. Measured with the ``lab`` plant, seeds 0 and 1 (issue 11): on the rectangle and
+#: pipe configs the EPM went beyond the box of its nominal positions by up to 8.6 mm (mpc: it
+#: swings out at the corners to turn the capsule; the plant's true lead is also ~1.5 mm longer
+#: than the model's) and 5.6 mm (follow, paper_0.8v: they keep the capsule's start offset in the
+#: dead zone). On an L path with its corner at the -x or +y face, the actuator clamped the EPM
+#: in runs with the corner's needs 0, 3 or 6 mm inside the face (the mpc still completed, follow
+#: stalled at 0 mm), and in none of the 8 runs (follow, mpc) at 10 mm. The ``hard`` plant swings
+#: further (17 mm seen): it is a stress test, not what a path is sized for.
 EPM_WORKSPACE_MARGIN_M = 0.010
 
 
@@ -80,8 +83,11 @@ def _heading(u: np.ndarray) -> str:
     return f"({u[0]:+.2f}, {u[1]:+.2f})"
 
 
-def _steady_leads(scenario: Scenario, path: ReferencePath, height_m: float) -> list[np.ndarray]:
-    """The nominal model's steady lead along each segment of ``path`` at its speed, m (2,) each."""
+def _steady_leads(
+    scenario: Scenario, path: ReferencePath, directions: np.ndarray, rest_m: np.ndarray, height_m: float
+) -> list[np.ndarray]:
+    """The nominal model's steady lead along each segment (unit ``directions``) at the path's speed,
+    m (2,) each; refused beyond the coupling limit from the rest lead ``rest_m``."""
     from .learning.predict import steady_lead  # the learning package is heavy: load it only here
 
     law = SteadyFrictionLaw.from_scenario(scenario)
@@ -90,10 +96,7 @@ def _steady_leads(scenario: Scenario, path: ReferencePath, height_m: float) -> l
         warnings.simplefilter("ignore", NegativeFrictionWarning)
         mu = float(law.mu(path.speed_mps))
     force_fn = capsule_force_function(scenario)
-    rest = model_equilibrium_lead(scenario, height_m)
     coupling = scenario.limits.max_lead_m
-    segments = np.diff(path.vertices_m, axis=0)
-    directions = segments / np.hypot(segments[:, 0], segments[:, 1])[:, None]
     leads: list[np.ndarray] = []
     cache: dict[tuple[float, float], np.ndarray] = {}
     for i, u in enumerate(directions):
@@ -107,7 +110,7 @@ def _steady_leads(scenario: Scenario, path: ReferencePath, height_m: float) -> l
                     f"{where}: the nominal {scenario.force_model} model finds no steady lead (the magnet "
                     f"cannot pull the capsule against friction mu = {mu:.3g}): {' '.join(str(exc).split())}"
                 ) from None
-            off = float(np.hypot(*(lead - rest)))
+            off = float(np.hypot(*(lead - rest_m)))
             if off > coupling:
                 raise ConfigError(
                     f"{where}: the nominal {scenario.force_model} model needs the EPM {off * 1e3:.1f} mm "
@@ -141,14 +144,14 @@ def epm_positions_needed(scenario: Scenario, path: ReferencePath) -> list[EpmNee
     Raises
     ------
     ConfigError
-        If the nominal model has no steady lead at the path's speed along some segment.
+        If the nominal model has no steady lead at the path's speed along some segment, or
+        one farther than ``limits.max_lead_m`` from the rest lead.
     """
     height = scenario.plate.epm_height_m
     rest = model_equilibrium_lead(scenario, height)
-    leads = _steady_leads(scenario, path, height)
-    vertices = path.vertices_m
-    directions = np.diff(vertices, axis=0)
-    directions /= np.hypot(directions[:, 0], directions[:, 1])[:, None]
+    segments = np.diff(path.vertices_m, axis=0)
+    directions = segments / np.hypot(segments[:, 0], segments[:, 1])[:, None]
+    leads = _steady_leads(scenario, path, directions, rest, height)
     n_wp, n_seg = len(path.waypoints_m), len(leads)
     speed = f"at {path.speed_mps:g} m/s"
     needs: list[EpmNeed] = []
