@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -21,11 +22,17 @@ def short_path(tmp_path):
     return f
 
 
+def run_status(out):
+    """The exit status ``simulate`` owes the run in ``out``: 0 completed, 1 failed."""
+    return 0 if json.loads((out / "run.json").read_text())["flags"]["completed"] else 1
+
+
 def test_simulate_writes_a_complete_run(tmp_path, short_path, capsys, table):
     out = tmp_path / "run"
     args = ["simulate", "--controller", "follow", "--out", str(out), "--seed", "3"]
-    assert main([*args, "--waypoints", str(short_path), "--speed", "0.03", "--no-progress"]) == 0
+    status = main([*args, "--waypoints", str(short_path), "--speed", "0.03", "--no-progress"])
     assert {p.name for p in out.iterdir()} >= {"log.csv", "config.yaml", "run.json", "trajectories.png"}
+    assert status == run_status(out)
     run = json.loads((out / "run.json").read_text())
     assert run["seed"] == 3 and run["controller"] == "follow" and run["speed_mps"] == 0.03
     assert run["waypoints_file"] == str(short_path.resolve())
@@ -151,9 +158,8 @@ def quick_config(tmp_path):
 def test_simulate_realtime_reports_deadline_misses(tmp_path, short_path, quick_config, capsys, table):
     out = tmp_path / "rt"
     args = ["simulate", "--controller", "follow", "--config", str(quick_config), "--out", str(out)]
-    assert (
-        main([*args, "--waypoints", str(short_path), "--speed", "0.04", "--realtime", "--no-progress"]) == 0
-    )
+    status = main([*args, "--waypoints", str(short_path), "--speed", "0.04", "--realtime", "--no-progress"])
+    assert status == run_status(out)
     run = json.loads((out / "run.json").read_text())
     rt = run["realtime"]
     assert rt["frames"] > 30 and rt["period_ms"] == pytest.approx(1e3 / 30)
@@ -168,7 +174,7 @@ def test_simulate_realtime_reports_deadline_misses(tmp_path, short_path, quick_c
 def test_simulate_mpc_writes_predictions_and_arm_outputs(tmp_path, short_path, quick_config, capsys, table):
     out = tmp_path / "mpc"
     args = ["simulate", "--controller", "mpc", "--config", str(quick_config), "--out", str(out)]
-    assert main([*args, "--waypoints", str(short_path), "--no-progress"]) == 0
+    assert main([*args, "--waypoints", str(short_path), "--no-progress"]) == run_status(out)
     names = {p.name for p in out.iterdir()}
     assert {"mpc_prediction.png", "predictions.npz", "epm_trajectory.csv", "joint_trajectory.csv",
             "joint_trajectory.yaml", "joint_trajectory.png"} <= names  # fmt: skip
@@ -192,7 +198,9 @@ def test_simulate_reports_an_arm_that_cannot_follow(
     monkeypatch.setattr("capsule_mpc.arm.export_arm_trajectory", unreachable)
     out = tmp_path / "arm"
     args = ["simulate", "--controller", "follow", "--arm", "--config", str(quick_config), "--out", str(out)]
-    assert main([*args, "--waypoints", str(short_path), "--speed", "0.04", "--no-progress"]) == 0
+    assert main([*args, "--waypoints", str(short_path), "--speed", "0.04", "--no-progress"]) == run_status(
+        out
+    )
     err = capsys.readouterr().err
     assert "cannot follow" in err and "joint 2 leaves its position limit" in err and "skipped" in err
     assert (out / "log.csv").exists() and not (out / "joint_trajectory.csv").exists()
@@ -219,3 +227,74 @@ def test_compare_with_mpc_adds_solver_figures_and_prediction(tmp_path, short_pat
     assert entry["solver_failures"] == int(log["solver_failed"].sum())
     assert summary["controllers"]["follow"]["solve_ms_median"] is None  # follow does not solve
     assert "deadline misses" in (out / "summary.md").read_text()
+
+
+# --- how a run ended: said in words, and in the exit status (issue 11, item 4) -------------------------
+
+
+def simulate_follow(tmp_path, config_text, waypoints, *extra):
+    """``simulate --controller follow`` with a config derived from paper.yaml; (status, stdout, run.json)."""
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("base: paper\nsim: {settle_s: 0.5" + config_text + "}\n")
+    out = tmp_path / "run"
+    args = ["simulate", "--controller", "follow", "--config", str(cfg), "--out", str(out)]
+    status = main([*args, "--waypoints", str(waypoints), "--speed", "0.03", "--no-progress", *extra])
+    return status, out, json.loads((out / "run.json").read_text())
+
+
+def check_summary(text, run):
+    """The first line says how the run ended and which limits acted, as run.json records them."""
+    first = text.splitlines()[0]
+    assert first.startswith(f"follow: {run['metrics']['outcome']}")
+    for name, count in run["limit_counts"].items():
+        assert (f" in {count} " in first) == (count > 0), name
+    assert not re.search(r"\bnan\b", text)  # "arrival nan s" was printed before
+    assert not re.search(r"[ ;]0x real time", text)  # a run slower than real time: "0.6x", not "0x"
+    return first
+
+
+def test_simulate_says_a_stalled_run_stalled_and_exits_1(tmp_path, short_path, capsys, table):
+    status, out, run = simulate_follow(tmp_path, "", short_path, "--seed", "3")
+    assert run["flags"]["stalled"] and status == 1
+    first = check_summary(capsys.readouterr().out, run)
+    short = run["metrics"]["final_error_mm"]
+    assert first.startswith(f"follow: stalled {short:.2f} mm short of the end (at rest, ")
+    assert "actuator limits: acceleration-limited in" in first
+    assert (out / "log.csv").exists() and (out / "trajectories.png").exists()  # the run is still written
+
+
+def test_simulate_says_a_run_cut_off_timed_out_and_exits_1(tmp_path, short_path, capsys, table):
+    status, _, run = simulate_follow(tmp_path, ", tail_s: 0.5", short_path, "--seed", "3")
+    assert run["flags"]["timed_out"] and status == 1
+    text = capsys.readouterr().out
+    assert check_summary(text, run).startswith("follow: timed out at t = ")
+    assert "never arrived (nominal" in text
+
+
+def test_simulate_says_when_a_run_decoupled_and_exits_1(tmp_path, short_path, capsys, table):
+    """A sticky patch on the path, and a plant that lets go of the capsule early."""
+    patch = "{x_range_m: [0.01, 0.03], y_range_m: [-0.01, 0.03], scale: 10}"
+    config = ", decouple_lead_m: 0.006}\nplant: {preset: ideal, friction_patches: [" + patch + "]"
+    status, _, run = simulate_follow(tmp_path, config, short_path)
+    assert run["flags"]["decoupled"] and status == 1
+    first = check_summary(capsys.readouterr().out, run)
+    assert first.startswith(
+        f"follow: decoupled: |lead - equilibrium lead| = {'6.0'} mm > sim.decouple_lead_m"
+    )
+    assert f"at t = {run['flags']['failure_t_s']:.3f} s" in first
+
+
+def test_simulate_exits_0_when_the_run_completed(tmp_path, short_path, capsys, table):
+    status, _, run = simulate_follow(tmp_path, ", completion_tol_m: 0.01", short_path, "--seed", "3")
+    assert run["flags"]["completed"] and status == 0
+    text = capsys.readouterr().out
+    assert check_summary(text, run).startswith("follow: completed: at rest ")
+
+
+def test_simulate_help_documents_the_exit_statuses(capsys):
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "Exit status: 0 the run completed" in help_text
+    assert "1 the run failed (stalled, timed out, decoupled or dropped" in help_text
+    assert "2 a bad config, waypoint file or option" in help_text

@@ -559,3 +559,72 @@ def test_solve_time_delay_applies_each_command_when_its_step_ends(scenario):
     # The same controller under the fixed mode ignores the step's duration.
     fixed_lag = np.subtract(*arrivals(tweak(sc, "plant", compute_delay_mode="fixed"), 0.012).T[::-1])
     np.testing.assert_allclose(fixed_lag, 0.002, atol=1e-3 + 1e-9)
+
+
+# --- how a run ended, in words (issue 11, item 4) ------------------------------------------------------
+
+
+def test_limit_text_names_every_limit_that_acted_with_its_unit():
+    from capsule_mpc.sim.runner import limit_text
+
+    counts = {"speed_clipped_frames": 2, "accel_limited_steps": 0, "workspace_clamped_steps": 181}
+    assert limit_text(counts) == (
+        "actuator limits: speed-clipped in 2 commands, clamped by the workspace in 181 axis-steps"
+    )
+    assert limit_text({"workspace_braking_ticks": 7}) == (
+        "actuator limits: braked at the workspace boundary in 7 arm ticks"
+    )
+    assert (
+        limit_text({"jerk_limited_ticks": 3}) == "actuator limits: jerk limited ticks 3"
+    )  # unknown: by name
+    assert limit_text({"accel_limited_steps": 0, "speed_clipped_frames": 0}) == ""
+
+
+def test_describe_says_how_far_short_and_when_it_was_cut_off():
+    from capsule_mpc.sim import RunFlags
+
+    stalled = RunFlags(at_rest=True, stalled=True)
+    assert stalled.describe(16.321, 42.04) == (
+        "stalled 16.32 mm short of the end (at rest, 42.0 mm of the path not covered)"
+    )
+    assert RunFlags(timed_out=True).describe(5.2, 3.0, 21.437) == (
+        "timed out at t = 21.44 s while the capsule still moved, 5.20 mm from the end, "
+        "3.0 mm of the path not covered"
+    )
+    done = RunFlags(at_rest=True, completed=True)
+    assert done.describe(0.58, 0.0) == "completed: at rest 0.58 mm from the end"
+    failed = RunFlags(decoupled=True, failure="decoupled: |lead - equilibrium lead| = 36.0 mm > 35 mm")
+    assert failed.describe(25.0, 10.0) == failed.failure
+
+
+def test_a_run_held_at_the_workspace_face_reports_the_clamps_and_the_stall(scenario):
+    """The EPM pushed into a small workspace: clamped, the capsule stops short; both said in words."""
+    boxed = tweak(tweak(scenario, "sim", settle_s=0.2), "limits", workspace_min_m=[-0.03, -0.13, 0.085])
+    res = simulate(boxed, Push([-0.02, 0.0, 0.0]), SHORT, seed=0)
+    clamps = res.limit_counts["workspace_clamped_steps"]
+    assert res.flags.stalled and res.failed and clamps > 0
+    text = res.outcome_text()
+    left = SHORT.length_m * 1e3 - res.log["progress_m"][-1] * 1e3
+    assert text.startswith(f"stalled {res.metrics['final_error_mm']:.2f} mm short of the end (at rest, ")
+    assert f"{left:.1f} mm of the path not covered)" in text
+    assert f"clamped by the workspace in {clamps} axis-steps" in text
+    assert res.metrics["outcome"] in text  # run.json holds the same words
+
+
+def test_a_decoupled_run_says_when(scenario):
+    glued = tweak(scenario, "friction", mu0=1.5)
+    res = simulate(glued, Push([0.0, 0.02, 0.0]), SHORT, seed=0)
+    assert res.failed
+    assert res.outcome_text().startswith(f"{res.flags.failure} at t = {res.flags.failure_t_s:.3f} s")
+
+
+def test_completed_or_failed_is_judged_against_the_completion_tolerance(scenario):
+    """The same run (follow comes to rest about 1 mm from the end): failed at 0.5 mm, completed at 2 mm."""
+    runs = {
+        tol: simulate(tweak(scenario, "sim", settle_s=0.2, completion_tol_m=tol), "follow", SHORT, seed=0)
+        for tol in (0.0005, 0.002)
+    }
+    strict, loose = runs[0.0005], runs[0.002]
+    assert 0.5 < strict.metrics["final_error_mm"] < 2
+    assert strict.failed and strict.outcome_text().startswith("stalled ")
+    assert not loose.failed and loose.outcome_text().startswith("completed: at rest ")

@@ -9,6 +9,15 @@ also ``predictions.npz`` and ``mpc_prediction.png``; for the MPC (or with
 
 ``--realtime`` paces the loop to the wall clock at the camera rate and reports
 deadline misses (:func:`capsule_mpc.sim.simulate`).
+
+The console summary says first, in words, how the run ended
+(:meth:`capsule_mpc.sim.RunResult.outcome_text`): completed, stalled N mm short of the end,
+timed out, decoupled or dropped (with the time), and every limit the actuator enforced
+(clamped by the workspace, acceleration-limited, speed-clipped: how many times).
+
+Exit status: 0 the run completed (the capsule came to rest within ``sim.completion_tol_m`` of
+the path's end); 1 the run failed (stalled, timed out, decoupled or dropped: the run's files
+are still written); 2 a bad config, waypoint file or option (nothing is run or written).
 """
 
 from __future__ import annotations
@@ -20,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..config import Scenario, config_from_dict, load_config
 from ..magnetics import force_map
+from ..path_reach import check_epm_workspace
 from ..paths import ReferencePath, path_from_scenario
 
 if TYPE_CHECKING:
@@ -27,6 +37,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ARM_CONTROLLERS",
+    "EXIT_COMPLETED",
+    "EXIT_RUN_FAILED",
     "PREDICTION_FIGURE",
     "add_run_arguments",
     "export_run_arm",
@@ -41,6 +53,14 @@ __all__ = [
 ARM_CONTROLLERS = ("mpc",)
 #: File name of the predicted-vs-actual figure.
 PREDICTION_FIGURE = "mpc_prediction.png"
+#: Exit status of a run that completed / failed (stalled, timed out, decoupled, dropped); bad input is 2.
+EXIT_COMPLETED, EXIT_RUN_FAILED = 0, 1
+#: The exit statuses, for the command's help.
+_EXIT_HELP = (
+    "Exit status: 0 the run completed (the capsule came to rest within sim.completion_tol_m of the "
+    "path's end); 1 the run failed (stalled, timed out, decoupled or dropped; its files are still "
+    "written); 2 a bad config, waypoint file or option."
+)
 
 
 def add_run_arguments(p: argparse.ArgumentParser) -> None:
@@ -72,8 +92,11 @@ def register(sub: Any) -> None:
             "and mpc_prediction.png (predicted vs actual capsule path at the first corner). For mpc, or "
             "with --arm, the EPM trajectory actually run is turned into UR5 joint commands "
             "(epm_trajectory.csv, joint_trajectory.csv/.yaml/.png, arm_summary.json); if the arm cannot "
-            "follow it, that is reported and the arm files are skipped."
+            "follow it, that is reported and the arm files are skipped. The summary says how the run "
+            "ended (completed, stalled N mm short of the end, timed out, decoupled, dropped) and how "
+            "often the actuator's limits acted (workspace clamps, acceleration, speed)."
         ),
+        epilog=_EXIT_HELP,
     )
     add_run_arguments(p)
     p.add_argument(
@@ -103,13 +126,21 @@ def prepare_run(
     """Load a scenario, apply the ``--waypoints`` / ``--speed`` / ``--plant`` overrides, and build the path.
 
     Also makes sure the finite-magnet force map is cached (computing it, with a progress bar,
-    on first use). The returned scenario carries the overrides (``path.kind: waypoints`` with
-    the absolute file, ``path.speed_mps``), so its dump beside the results reproduces the run.
+    on first use), and refuses a path whose EPM would have to leave its workspace
+    (:func:`capsule_mpc.path_reach.check_epm_workspace`). The returned scenario carries the
+    overrides (``path.kind: waypoints`` with the absolute file, ``path.speed_mps``), so its
+    dump beside the results reproduces the run.
 
     Returns
     -------
     (Scenario, ReferencePath, dict)
         The scenario actually used, its reference path and provenance for ``run.json``.
+
+    Raises
+    ------
+    ConfigError
+        A bad config, override or waypoint file, or a path the EPM cannot follow inside its
+        workspace (naming the waypoint).
     """
     base = load_config(config)
     path = path_from_scenario(base, waypoints=waypoints, speed=speed)
@@ -125,6 +156,7 @@ def prepare_run(
         scenario = config_from_dict(data)
         scenario.source_path = base.source_path
     force_map(scenario, progress=True)  # computed once and cached: show progress on a fresh machine
+    check_epm_workspace(scenario, path, source=waypoints)  # the EPM leads the capsule: room for it?
     meta = {
         "config": str(base.source_path) if base.source_path else None,
         "waypoints_file": str(Path(waypoints).resolve()) if waypoints is not None else None,
@@ -194,14 +226,18 @@ def export_run_arm(result: RunResult, out_dir: str | Path) -> dict[str, Path] | 
 
 
 def _print_result(result: RunResult, out: Path) -> None:
-    m, f = result.metrics, result.flags
-    print(
-        f"{result.controller}: tracking RMS {m['tracking_rms_mm']:.2f} mm (max {m['tracking_max_mm']:.2f}), "
-        f"cross-track RMS {m['cross_track_rms_mm']:.2f} mm (max {m['cross_track_max_mm']:.2f}), "
-        f"paper STD {m['paper_std_mm']:.2f} mm, arrival {m['arrival_time_s']:.2f} s "
-        f"(nominal {m['nominal_time_s']:.2f} s), final error {m['final_error_mm']:.2f} mm"
+    m = result.metrics
+    print(f"{result.controller}: {result.outcome_text()}")
+    arrival = m["arrival_time_s"]
+    arrived = (
+        f"arrived at t = {arrival:.2f} s" if arrival == arrival else "never arrived"  # NaN: never
     )
-    print(f"  {m['outcome']}" + (f" at t = {f.failure_t_s:.3f} s" if f.failure else ""))
+    print(
+        f"  tracking RMS {m['tracking_rms_mm']:.2f} mm (max {m['tracking_max_mm']:.2f}), "
+        f"cross-track RMS {m['cross_track_rms_mm']:.2f} mm (max {m['cross_track_max_mm']:.2f}), "
+        f"paper STD {m['paper_std_mm']:.2f} mm, {arrived} (nominal {m['nominal_time_s']:.2f} s), "
+        f"final error {m['final_error_mm']:.2f} mm"
+    )
     if m["solve_ms_median"] == m["solve_ms_median"]:  # not NaN: the controller reports solves
         print(
             f"  solve time median {m['solve_ms_median']:.2f} ms, p99 {m['solve_ms_p99']:.2f} ms, max "
@@ -221,12 +257,21 @@ def _print_result(result: RunResult, out: Path) -> None:
     else:
         print(
             f"  solves over the frame period ({1e3 / result.scenario.camera.rate_hz:.1f} ms): "
-            f"{m['deadline_misses']}; {result.realtime_factor:.0f}x real time; results in {out}"
+            f"{m['deadline_misses']}; {result.realtime_factor:.2g}x real time; results in {out}"
         )
 
 
 def run(args: argparse.Namespace) -> int:
-    """Simulate ``--controller`` and write the run, its figures and (for mpc / ``--arm``) the arm files."""
+    """Simulate ``--controller`` and write the run, its figures and (for mpc / ``--arm``) the arm files.
+
+    Returns
+    -------
+    int
+        :data:`EXIT_COMPLETED` (0) if the run completed, :data:`EXIT_RUN_FAILED` (1) if it
+        stalled, timed out, decoupled or dropped (its files are written all the same), 2 for an
+        unknown controller (a bad config or waypoint file raises :class:`~capsule_mpc.ConfigError`,
+        which ``main`` turns into 2).
+    """
     from ..control import available_controllers
     from ..plots import plot_errors, plot_trajectories
     from ..sim import simulate, write_run
@@ -258,4 +303,4 @@ def run(args: argparse.Namespace) -> int:
     want_arm = args.arm if args.arm is not None else args.controller in ARM_CONTROLLERS
     if want_arm:
         export_run_arm(result, out)
-    return 0
+    return EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED

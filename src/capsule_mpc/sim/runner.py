@@ -80,11 +80,13 @@ from .sensing import Camera
 from .truth import PlantTruth, draw_plant_truth
 
 __all__ = [
+    "LIMIT_WORDS",
     "TIMEOUT_FACTOR",
     "PathProgress",
     "RealtimeStats",
     "RunFlags",
     "RunResult",
+    "limit_text",
     "realtime_scenario",
     "simulate",
     "start_pose",
@@ -92,6 +94,14 @@ __all__ = [
 
 #: A run is cut off at TIMEOUT_FACTOR * nominal duration + sim.tail_s (issue #3).
 TIMEOUT_FACTOR = 1.25
+#: Each actuator limit counter (:meth:`~capsule_mpc.actuation.Actuator.limit_counts`) in words:
+#: (what the limit did, what the count counts).
+LIMIT_WORDS: dict[str, tuple[str, str]] = {
+    "workspace_clamped_steps": ("clamped by the workspace", "axis-steps"),
+    "workspace_braking_ticks": ("braked at the workspace boundary", "arm ticks"),
+    "speed_clipped_frames": ("speed-clipped", "commands"),
+    "accel_limited_steps": ("acceleration-limited", "axis-steps"),
+}
 #: Progress bar layout: simulated seconds out of the cut-off time.
 _BAR_FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s simulated [{elapsed}]"
 #: How far (m) along the path the progress tracker looks back / ahead of its last value per frame.
@@ -154,15 +164,45 @@ class RunFlags:
     failure_t_s: float = math.nan
     invalid_commands: int = 0
 
-    def describe(self, final_error_mm: float) -> str:
-        """How the run ended, in words."""
+    def describe(
+        self, final_error_mm: float, path_left_mm: float = math.nan, end_t_s: float = math.nan
+    ) -> str:
+        """How the run ended, in words.
+
+        Parameters
+        ----------
+        final_error_mm : float
+            Distance from the capsule's last position to the path's end, mm.
+        path_left_mm : float
+            Arc length of the path the capsule's progress did not reach, mm (NaN: not said).
+        end_t_s : float
+            Time of the run's last frame, s (NaN: not said); a timed-out run names it.
+        """
         if self.decoupled or self.dropped:
             return self.failure
+        left = "" if math.isnan(path_left_mm) else f", {path_left_mm:.1f} mm of the path not covered"
         if self.completed:
             return f"completed: at rest {final_error_mm:.2f} mm from the end"
         if self.stalled:
-            return f"stalled: at rest {final_error_mm:.2f} mm from the end"
-        return f"timed out while the capsule still moved ({final_error_mm:.2f} mm from the end)"
+            return f"stalled {final_error_mm:.2f} mm short of the end (at rest{left})"
+        cut = "" if math.isnan(end_t_s) else f" at t = {end_t_s:.2f} s"
+        return f"timed out{cut} while the capsule still moved, {final_error_mm:.2f} mm from the end{left}"
+
+
+def limit_text(limit_counts: dict[str, int]) -> str:
+    """The actuator's limit counts (:meth:`~capsule_mpc.actuation.Actuator.limit_counts`) in words.
+
+    Only the limits that acted are named; an empty string if none did. The simple arm counts
+    workspace clamps and acceleration limits per plant step and axis ("axis-steps"), speed clips
+    per command; the robot arm its workspace braking per arm tick. A counter without words here
+    is given by its name.
+    """
+    parts = []
+    for name, count in limit_counts.items():
+        if count:
+            words, unit = LIMIT_WORDS.get(name, (name.replace("_", " "), ""))
+            parts.append(f"{words} in {count} {unit}" if unit else f"{words} {count}")
+    return "actuator limits: " + ", ".join(parts) if parts else ""
 
 
 @dataclass
@@ -272,6 +312,29 @@ class RunResult:
     predictions: list[np.ndarray | None] = field(default_factory=list)
     realtime: RealtimeStats | None = None
     truth: PlantTruth | None = None
+
+    @property
+    def failed(self) -> bool:
+        """Whether the run failed: it did not come to rest within ``sim.completion_tol_m`` of the
+        end (stalled, timed out, decoupled or dropped)."""
+        return not self.flags.completed
+
+    def outcome_text(self) -> str:
+        """How the run ended, in words, for a console line.
+
+        The outcome (:meth:`RunFlags.describe`: completed, stalled N mm short of the end, timed
+        out, decoupled or dropped with its time), commands the runner replaced by a stop, and
+        every limit the actuator enforced (:func:`limit_text`). ``capsule-mpc simulate`` prints
+        it first; it is the same text for each controller of a comparison.
+        """
+        f = self.flags
+        text = str(self.metrics["outcome"])
+        if f.decoupled or f.dropped:
+            text += f" at t = {f.failure_t_s:.3f} s"
+        if f.invalid_commands:
+            text += f"; {f.invalid_commands} invalid commands replaced by a stop"
+        limits = limit_text(self.limit_counts)
+        return f"{text}; {limits}" if limits else text
 
     @property
     def realtime_factor(self) -> float:
@@ -636,11 +699,14 @@ def _score(
     if pacing is not None:  # measured on the wall clock rather than from the reported solve times
         metrics["deadline_misses"] = pacing.deadline_misses
     near = metrics["final_error_mm"] <= tol * 1e3
+    progress = arrays["progress_m"]
+    left_mm = max(path.length_m - float(progress[-1]), 0.0) * 1e3 if len(progress) else math.nan
     flags.completed = flags.at_rest and near
     flags.stalled = flags.at_rest and not near
+    outcome = flags.describe(metrics["final_error_mm"], left_mm, end_s)
     metrics.update(
         completed=flags.completed, at_rest=flags.at_rest, decoupled=flags.decoupled,
         dropped=flags.dropped, stalled=flags.stalled, timed_out=flags.timed_out,
-        invalid_commands=flags.invalid_commands, outcome=flags.describe(metrics["final_error_mm"]),
+        invalid_commands=flags.invalid_commands, outcome=outcome,
     )  # fmt: skip
     return metrics
