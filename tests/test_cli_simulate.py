@@ -12,6 +12,7 @@ import yaml
 
 from capsule_mpc.cli import main
 from capsule_mpc.config import load_config
+from capsule_mpc.outputs import MANIFEST_NAME, read_manifest
 from capsule_mpc.sim import read_log
 
 
@@ -185,6 +186,22 @@ def test_simulate_mpc_writes_predictions_and_arm_outputs(tmp_path, short_path, q
     assert joints[-1, 0] >= log["t_s"][-1] - 1e-9
     text = capsys.readouterr().out
     assert "solve time median" in text and "arm:" in text
+    assert set(read_manifest(out)["files"]) == names - {MANIFEST_NAME}
+    # A follow run into the same folder replaces the mpc run: no stale predictions or arm files.
+    follow = ["simulate", "--controller", "follow", "--config", str(quick_config), "--out", str(out)]
+    main([*follow, "--waypoints", str(short_path), "--no-progress"])
+    after = {p.name for p in out.iterdir()}
+    assert after == {"log.csv", "config.yaml", "run.json", "trajectories.png", "errors.png", MANIFEST_NAME}
+    assert read_manifest(out)["command"] == "simulate" and read_manifest(out)["status"] == "complete"
+
+
+def test_simulate_refuses_an_out_that_is_a_file_before_running(tmp_path, short_path, capsys):
+    f = tmp_path / "taken.txt"
+    f.write_text("keep")
+    args = ["simulate", "--controller", "follow", "--waypoints", str(short_path), "--out", str(f)]
+    assert main(args) == 2
+    assert f"--out: {f} exists and is not a folder" in capsys.readouterr().err
+    assert f.read_text() == "keep"
 
 
 def test_simulate_reports_an_arm_that_cannot_follow(

@@ -10,9 +10,9 @@ A command that writes into ``--out`` enters :func:`output_folder`, which
    mixes the outputs of two runs (files the user put there are never touched);
 4. on exit writes ``manifest.json``: the command, its arguments, the start and end times, how it
    ended (``complete``, ``failed`` or ``interrupted``) and every file it wrote or replaced;
-5. if the command refused its input (:class:`~capsule_mpc.config.ConfigError`) after the folder
-   was prepared, removes what it wrote and the folder too if it created it: bad input leaves no
-   output.
+5. if the command refused its input (:class:`~capsule_mpc.config.ConfigError`, or the command's
+   own refusals) after the folder was prepared, removes what it wrote and the folder too if it
+   created it: bad input leaves no output.
 
 Single files are written atomically (:mod:`capsule_mpc.atomic`), so an interrupted command leaves
 complete files only, and the manifest says it was interrupted.
@@ -134,7 +134,12 @@ def _written_since(folder: Path, before: _Snapshot) -> list[str]:
 
 @contextmanager
 def output_folder(
-    path: str | Path, command: str, *, replace_previous: bool = True, argv: Sequence[str] | None = None
+    path: str | Path,
+    command: str,
+    *,
+    replace_previous: bool = True,
+    argv: Sequence[str] | None = None,
+    refusals: tuple[type[BaseException], ...] = (ConfigError,),
 ) -> Iterator[Path]:
     """Prepare ``path`` for ``command``'s outputs and yield it; see the module docstring.
 
@@ -150,6 +155,9 @@ def output_folder(
         written by this command only.
     argv : sequence of str, optional
         The arguments recorded in the manifest; default ``sys.argv[1:]``.
+    refusals : tuple of exception types
+        Exceptions that mean the command refused its input (default ``ConfigError``): what it
+        wrote is removed, and the folder too if this call created it.
 
     Raises
     ------
@@ -184,7 +192,7 @@ def output_folder(
         except KeyboardInterrupt:
             status = "interrupted"
             raise
-        except ConfigError:
+        except refusals:
             # Bad input found after the folder was prepared: leave nothing behind.
             _remove_files(folder, _written_since(folder, before))
             if replace_previous:  # the previous run's files are gone: its manifest too

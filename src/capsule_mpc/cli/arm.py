@@ -15,6 +15,7 @@ from typing import Any
 
 from ..arm import ArmError, export_arm_trajectory, read_epm_plan_csv
 from ..config import load_config
+from ..outputs import output_folder
 
 __all__ = ["register", "run"]
 
@@ -48,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         t, p = read_epm_plan_csv(args.plan, default_height_m=scenario.plate.epm_height_m)
         wall0 = time.perf_counter()
-        result = export_arm_trajectory(scenario, t, p, args.out, plot=not args.no_plot)
+        with output_folder(args.out, "arm-export", refusals=(ArmError, ValueError)) as out:
+            result = export_arm_trajectory(scenario, t, p, out, plot=not args.no_plot)
     except (ArmError, ValueError, OSError) as exc:
         where = f"{args.plan}: " if isinstance(exc, ArmError) else ""
         print(f"capsule-mpc arm-export: {where}{exc} (nothing written)", file=sys.stderr)

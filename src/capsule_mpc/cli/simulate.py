@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..config import Scenario, config_from_dict, load_config
 from ..magnetics import force_map
+from ..outputs import output_folder
 from ..path_reach import check_epm_workspace
 from ..paths import ReferencePath, path_from_scenario
 
@@ -285,22 +286,23 @@ def run(args: argparse.Namespace) -> int:
         return 2
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
     seed = scenario.sim.seed if args.seed is None else args.seed
-    result = simulate(
-        scenario,
-        args.controller,
-        path,
-        seed,
-        progress=not args.no_progress,
-        meta=meta,
-        realtime=args.realtime,
-    )
-    out = write_run(result, args.out)
-    logs = {result.controller: result.log}
-    plot_trajectories(logs, path, out / "trajectories.png")
-    plot_errors(logs, path, out / "errors.png", {result.controller: result.metrics["motion_end_s"]})
-    write_prediction_figure(result, out / PREDICTION_FIGURE)
-    _print_result(result, out)
-    want_arm = args.arm if args.arm is not None else args.controller in ARM_CONTROLLERS
-    if want_arm:
-        export_run_arm(result, out)
+    with output_folder(args.out, "simulate") as out:
+        result = simulate(
+            scenario,
+            args.controller,
+            path,
+            seed,
+            progress=not args.no_progress,
+            meta=meta,
+            realtime=args.realtime,
+        )
+        write_run(result, out)
+        logs = {result.controller: result.log}
+        plot_trajectories(logs, path, out / "trajectories.png")
+        plot_errors(logs, path, out / "errors.png", {result.controller: result.metrics["motion_end_s"]})
+        write_prediction_figure(result, out / PREDICTION_FIGURE)
+        _print_result(result, out)
+        want_arm = args.arm if args.arm is not None else args.controller in ARM_CONTROLLERS
+        if want_arm:
+            export_run_arm(result, out)
     return EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
