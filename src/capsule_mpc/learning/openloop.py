@@ -25,10 +25,11 @@ Two pieces of evidence, either of which makes a log closed-loop:
    the EPM, which happens open loop too, is not mistaken for the EPM reacting to the
    capsule. A p-value below :data:`FEEDBACK_P_VALUE` flags feedback.
 
-   Measured (``simulate --config configs/rectangle.yaml``, lab plant, seed 0): the MPC's log
-   gives Q = 551 (p ~ 1e-113); the 15 default ``demonstrate`` logs give Q = 1-18 (p >= 0.02).
-   The test needs neither a constant speed nor straight paths, so an open-loop replay of a
-   planned trajectory (the ``plan`` controller: varying speed) passes. With a noiseless
+   Measured (lab plant): MPC runs give Q = 241-551 (``simulate --config configs/rectangle.yaml
+   --controller mpc``, seeds 0-2) and 399 (``configs/pipe.yaml``); open-loop runs give Q = 1-18
+   (33 ``demonstrate`` runs: the default set and ``--repeats 2 --seed 5``; the mean, 7, is the
+   chi^2's 8), ``paper_0.8v`` 5 and ``plan`` 6.5 on rectangle.yaml. The test needs neither a
+   constant speed nor straight paths, so the plan replay (open loop, varying speed) passes. With a noiseless
    camera it has nothing to go on and finds no feedback; the metadata still does.
 """
 
