@@ -463,6 +463,15 @@ def test_noise_that_swamps_c_is_flagged_as_imprecise_and_unresolved(scenario, co
     assert abs(q.constant_c - 0.03) < q.constant_c_half_width
 
 
+def test_an_exact_fit_through_too_few_samples_is_flagged(scenario, constants):
+    """Two samples fix a line exactly (SSE 0) but say nothing about its precision."""
+    q = learn_friction(
+        synthetic_samples(TRUE_C, constants, 2, traction_noise_n=0.003), scenario, degree=1
+    ).quality
+    assert q.weak and q.rel_half_width_max == np.inf and q.to_dict()["rel_half_width_max"] is None
+    assert any("too few to fix 2 coefficient(s) and the noise" in r for r in q.reasons)
+
+
 def test_repeated_samples_do_not_look_more_precise(scenario, constants):
     """Each sample repeated 10 times (as a filter spreads one measurement over its window) counts once."""
     samples = synthetic_samples(TRUE_C, constants, 300, traction_noise_n=0.003, seed=2)

@@ -61,7 +61,7 @@ class LearningResult:
     loop_checks : tuple of LoopCheck
         Per run log: whether it is an open-loop demonstration (empty for samples).
     timings_s : dict of str to float
-        Wall time of each stage, s (``samples``, ``c``, ``fit``).
+        Wall time of each stage, s (``samples``, ``loop_check``, ``c``, ``fit``, ``quality``).
     """
 
     samples: FrictionSamples
@@ -143,6 +143,7 @@ def learn_friction(
         ) from None
     t2 = time.perf_counter()
     quality = assess_fit(fit, cs.speed_mps, cs.c, scenario.path.speed_mps)
+    t3 = time.perf_counter()
     model = LearnedFrictionModel(
         coefficients=[float(p) for p in fit.coefficients],
         validity_mps=fit.validity_mps,
@@ -161,7 +162,13 @@ def learn_friction(
         sources=list(samples.sources),
     )
     return LearningResult(
-        samples, cs, fit, model, constants, quality, timings_s={"c": t1 - t0, "fit": t2 - t1}
+        samples,
+        cs,
+        fit,
+        model,
+        constants,
+        quality,
+        timings_s={"c": t1 - t0, "fit": t2 - t1, "quality": t3 - t2},
     )
 
 

@@ -244,20 +244,20 @@ def assess_fit(
     p_shape = _shape_p_value(fit, c, tau)
     reasons = []
     if rel[k] > MAX_REL_HALF_WIDTH:
+        held = (
+            f"the {n} samples hold only ~{n_eff:.0f} independent ones (their noise is correlated over "
+            f"{tau:.1f} samples)"
+        )
+        advice = "record more demonstration runs" + (", or lower --degree" if fit.degree > 0 else "")
         if np.isfinite(half[k]):
-            detail = (
-                f"c = {c_grid[k]:.4f} +- {half[k]:.4f} (95 %) at {grid[k] * 1e3:.1f} mm/s, "
-                f"+-{rel[k]:.0%} of c (limit +-{MAX_REL_HALF_WIDTH:.0%})"
+            reasons.append(
+                f"imprecise: c = {c_grid[k]:.4f} +- {half[k]:.4f} (95 %) at {grid[k] * 1e3:.1f} mm/s, "
+                f"+-{rel[k]:.0%} of c (limit +-{MAX_REL_HALF_WIDTH:.0%}); {held}: {advice}"
             )
         else:
-            detail = (
-                f"~{n_eff:.1f} independent samples cannot fix {fit.degree + 1} coefficients and the noise"
+            reasons.append(
+                f"imprecise: {held}, too few to fix {fit.degree + 1} coefficient(s) and the noise: {advice}"
             )
-        reasons.append(
-            f"imprecise: {detail}. The {n} samples hold only ~{n_eff:.0f} independent ones (their "
-            f"noise is correlated over {tau:.1f} samples): record more or longer demonstrations, or "
-            "lower --degree"
-        )
     if p_shape is not None and p_shape > SHAPE_P_VALUE and swing > MAX_REL_SWING * abs(mean_c):
         reasons.append(
             f"shape not resolved: c(v) swings from {c_grid.min():.4f} to {c_grid.max():.4f} over "
