@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import warnings
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from capsule_mpc.learning import (
     FrictionSamples,
     LearningDataError,
     LogOptions,
+    check_open_loop,
     fit_c_polynomial,
     learn_friction,
     learn_from_logs,
@@ -34,7 +36,9 @@ from capsule_mpc.learning import (
     write_model,
     write_samples_csv,
 )
+from capsule_mpc.learning.openloop import FEEDBACK_P_VALUE
 from capsule_mpc.learning.plots import save_figures
+from capsule_mpc.learning.quality import MAX_REL_HALF_WIDTH, correlation_time
 
 #: A smooth c(v) of the plant's order (c ~ a - b = 0.03), highest power first.
 TRUE_C = (2000.0, -150.0, 3.0, 0.02, 0.03)
@@ -214,24 +218,34 @@ def synthetic_log(
     long_gap: tuple[int, int] | None = None,
     seed: int = 0,
     write_capture: bool = True,
+    feedback_gain_per_s: float = 0.0,
 ) -> Path:
     """A run log of a capsule sliding steadily behind an EPM moving straight at constant speed.
 
     The capsule sits at the steady lead the given c(v) predicts (dipole model), seen by a
-    camera with noise, latency and dropped frames, in the simulator's column format.
+    camera with noise, latency and dropped frames, in the simulator's column format. With
+    ``feedback_gain_per_s`` > 0 the EPM is closed-loop: each frame it adds gain x (reference -
+    measured capsule) to the preset velocity, so it reacts to the camera noise.
     """
     u = np.asarray(direction) / np.linalg.norm(direction)
     law = SteadyFrictionLaw([0.0], 0.22, 0.2, (1e-3, 1.0))
     mu = law.mu0 - float(c_of_v(np.array(speed_mps))) * np.log(law.v_star_mps / speed_mps)
     lead = steady_lead(scenario, mu, u, force_model="dipole")
     t = np.arange(round(duration_s / FRAME_S)) * FRAME_S
-    epm = np.column_stack([-0.05 + speed_mps * t * u[0], speed_mps * t * u[1]])
+    rng = np.random.default_rng(seed)
+    noise = rng.normal(0, noise_m, (len(t), 2))
     capture = t - latency_frames * FRAME_S
+    epm = np.column_stack([-0.05 + speed_mps * t * u[0], speed_mps * t * u[1]])
     capsule_at_capture = (
         np.column_stack([-0.05 + speed_mps * capture * u[0], speed_mps * capture * u[1]]) - lead
     )
-    rng = np.random.default_rng(seed)
-    meas = capsule_at_capture + rng.normal(0, noise_m, capsule_at_capture.shape)
+    if feedback_gain_per_s:
+        preset, step = epm.copy(), np.diff(epm, axis=0)
+        for k in range(len(t) - 1):
+            measured = epm[max(k - latency_frames, 0)] - lead + noise[k]
+            epm[k + 1] = epm[k] + step[k] + feedback_gain_per_s * (preset[k] - lead - measured) * FRAME_S
+        capsule_at_capture = np.column_stack([np.interp(capture, t, epm[:, k]) for k in range(2)]) - lead
+    meas = capsule_at_capture + noise
     dropped = rng.random(len(t)) < drop_probability
     if long_gap is not None:
         dropped[long_gap[0] : long_gap[1]] = True
@@ -408,6 +422,111 @@ def test_steady_lead_balances_the_forces(scenario, table, kind):
         prev = lead[0]
 
 
+# --- fit quality -------------------------------------------------------------------------------
+
+#: A fit the data cannot support: constant c = 0.03, 60 samples with 20 mN of traction noise
+#: (per-sample c noise ~0.01, a third of c), degree 4.
+NOISY = {"coefficients": [0.03], "n": 60, "traction_noise_n": 0.02, "seed": 3}
+
+
+def test_correlation_time_of_white_and_ar1_noise():
+    rng = np.random.default_rng(0)
+    assert correlation_time(rng.normal(size=20000)) == pytest.approx(1.0, abs=0.1)
+    phi, e = 0.8, rng.normal(size=20000)
+    ar = np.zeros_like(e)
+    for k in range(1, len(e)):
+        ar[k] = phi * ar[k - 1] + e[k]
+    assert correlation_time(ar) == pytest.approx((1 + phi) / (1 - phi), rel=0.15)  # 9 samples
+
+
+def test_a_precise_fit_is_not_flagged(scenario, constants):
+    result = learn_friction(
+        synthetic_samples(TRUE_C, constants, 2000, traction_noise_n=0.001, seed=9), scenario
+    )
+    q = result.quality
+    assert not q.weak and q.reasons == [] and result.warnings == []
+    assert q.rel_half_width_max < 0.05 and q.shape_p_value < 1e-6
+    assert q.n_eff == pytest.approx(2000, rel=0.1)  # independent samples: tau ~ 1
+
+
+def test_noise_that_swamps_c_is_flagged_as_imprecise_and_unresolved(scenario, constants):
+    samples = synthetic_samples(NOISY["coefficients"], constants, NOISY["n"],
+                                traction_noise_n=NOISY["traction_noise_n"], seed=NOISY["seed"])  # fmt: skip
+    q = learn_friction(samples, scenario, degree=4).quality
+    assert q.weak and q.rel_half_width_max > MAX_REL_HALF_WIDTH
+    imprecise = next(r for r in q.reasons if r.startswith("imprecise: "))
+    assert "(95 %)" in imprecise and "independent" in imprecise
+    shape = next(r for r in q.reasons if r.startswith("shape not resolved: "))
+    assert "F-test against a constant c" in shape and "--degree 0" in shape
+    assert q.shape_p_value > 0.05 and q.swing > 0.2 * q.constant_c
+    # What the data do support: the constant c, within its stated uncertainty of the truth.
+    assert abs(q.constant_c - 0.03) < q.constant_c_half_width
+
+
+def test_an_exact_fit_through_too_few_samples_is_flagged(scenario, constants):
+    """Two samples fix a line exactly (SSE 0) but say nothing about its precision."""
+    q = learn_friction(
+        synthetic_samples(TRUE_C, constants, 2, traction_noise_n=0.003), scenario, degree=1
+    ).quality
+    assert q.weak and q.rel_half_width_max == np.inf and q.to_dict()["rel_half_width_max"] is None
+    assert any("too few to fix 2 coefficient(s) and the noise" in r for r in q.reasons)
+
+
+def test_repeated_samples_do_not_look_more_precise(scenario, constants):
+    """Each sample repeated 10 times (as a filter spreads one measurement over its window) counts once."""
+    samples = synthetic_samples(TRUE_C, constants, 300, traction_noise_n=0.003, seed=2)
+    names = ("speed_mps", "accel_mps2", "traction_n", "normal_n")
+    repeated = FrictionSamples(*(np.repeat(getattr(samples, n), 10) for n in names))
+    once = learn_friction(samples, scenario).quality
+    tenfold = learn_friction(repeated, scenario).quality
+    assert tenfold.tau_samples == pytest.approx(10, rel=0.1)
+    assert tenfold.n_eff == pytest.approx(once.n_eff, rel=0.1)
+    assert tenfold.rel_half_width_max == pytest.approx(once.rel_half_width_max, rel=0.1)
+
+
+def test_operating_speed_outside_the_fitted_range_is_flagged(scenario, constants):
+    samples = synthetic_samples(TRUE_C, constants, 2000, (0.03, 0.04), traction_noise_n=0.001, seed=1)
+    q = learn_friction(samples, scenario, degree=1).quality
+    assert q.weak and q.operating_speed_mps == scenario.path.speed_mps == 0.02
+    assert any(r.startswith("speed range: the operating speed 20.0 mm/s") for r in q.reasons)
+
+
+# --- is a log an open-loop demonstration? -------------------------------------------------------
+
+
+def test_open_loop_log_passes_and_a_feedback_log_is_flagged(tmp_path, scenario):
+    opened = check_open_loop(
+        read_run_log(synthetic_log(tmp_path / "o.csv", scenario, 0.02, drop_probability=0.05))
+    )
+    assert not opened.closed_loop and opened.p_value > FEEDBACK_P_VALUE
+    assert opened.controller is None and opened.reason == ""
+    closed_log = synthetic_log(
+        tmp_path / "c.csv", scenario, 0.02, drop_probability=0.05, feedback_gain_per_s=1.0
+    )
+    closed = check_open_loop(read_run_log(closed_log))
+    assert closed.closed_loop and closed.p_value < 1e-10
+    assert "velocity changes follow the camera's noise" in closed.reason
+
+
+def test_run_json_naming_a_feedback_controller_flags_the_log(tmp_path, scenario):
+    log = synthetic_log(tmp_path / "log.csv", scenario, 0.02)
+    (tmp_path / "run.json").write_text(json.dumps({"controller": "mpc", "seed": 0}))
+    check = check_open_loop(read_run_log(log))
+    assert check.closed_loop and check.controller == "mpc"
+    assert check.reason == "run.json names the feedback controller 'mpc'"
+    for controller in ("follow", "paper_0.8v", "plan"):
+        (tmp_path / "run.json").write_text(json.dumps({"controller": controller}))
+        assert not check_open_loop(read_run_log(log)).closed_loop
+
+
+def test_a_log_without_camera_columns_is_checked_by_its_metadata_only(tmp_path, scenario):
+    header, rows = _log_rows(200)
+    header = [*header[:4], "capsule_x_m", "capsule_y_m"]
+    log = read_run_log(_write_csv(tmp_path / "log.csv", header, rows), truth=True)
+    check = check_open_loop(log)
+    assert not check.closed_loop and check.q_statistic is None and "content test did not run" in check.reason
+
+
 # --- CLI and figures ---------------------------------------------------------------------------
 
 
@@ -420,14 +539,14 @@ def test_cli_learns_from_samples(tmp_path, capsys, scenario, constants):
     assert code == 0
     text = capsys.readouterr().out
     assert "learned c(v) from 2000 samples" in text and "(Huber)" in text
+    assert "fit quality: OK" in text and "WARNING" not in text
+    assert "# WARNING" not in out.read_text()
     model = LearnedFrictionModel.model_validate(yaml.safe_load(out.read_text()))
     assert model.robust and model.n_samples == 2000
     assert (tmp_path / "fig" / "friction_c_fit.png").stat().st_size > 10_000
 
 
 def test_cli_learns_from_logs_as_json(tmp_path, capsys, scenario, synthetic_logs):
-    import json
-
     folder = synthetic_logs[0].parent
     out = tmp_path / "m.yaml"
     code = main(["learn-friction", "--log", str(folder), "--out", str(out), "--degree", "2", "--json",
@@ -437,6 +556,52 @@ def test_cli_learns_from_logs_as_json(tmp_path, capsys, scenario, synthetic_logs
     assert info["force_model"] == "dipole" and info["degree"] == 2
     assert info["c_at_mps"]  # c at five speeds across the validity range
     assert len(read_samples_csv(tmp_path / "s.csv")) > 1000
+    assert [c["closed_loop"] for c in info["open_loop"]] == [False] * len(synthetic_logs)
+    assert info["quality"]["weak"] is False and info["warnings"] == []
+
+
+def test_cli_flags_a_weak_fit_in_text_json_and_the_model_file(tmp_path, capsys, scenario, constants):
+    samples = synthetic_samples(NOISY["coefficients"], constants, NOISY["n"],
+                                traction_noise_n=NOISY["traction_noise_n"], seed=NOISY["seed"])  # fmt: skip
+    write_samples_csv(samples, tmp_path / "s.csv")
+    out = tmp_path / "m.yaml"
+    assert main(["learn-friction", "--samples", str(tmp_path / "s.csv"), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "R^2" in text and "explains" in text and "independent" in text  # what R^2 means here
+    assert "WARNING: weak fit: imprecise: c = " in text
+    assert "WARNING: weak fit: shape not resolved: " in text and "fit quality: OK" not in text
+    assert "# WARNING: weak fit: imprecise" in out.read_text()
+    assert main(["learn-friction", "--samples", str(tmp_path / "s.csv"), "--out", str(out), "--json"]) == 0
+    captured = capsys.readouterr()
+    info = json.loads(captured.out)
+    assert info["quality"]["weak"] is True and len(info["quality"]["reasons"]) == 2
+    assert info["quality"]["criteria"]["max_rel_half_width"] == MAX_REL_HALF_WIDTH
+    assert info["warnings"][0].startswith("weak fit: imprecise: ")
+    assert "capsule-mpc learn-friction: warning: weak fit: imprecise" in captured.err
+
+
+def test_cli_warns_when_a_log_is_not_an_open_loop_demonstration(tmp_path, capsys, scenario):
+    log = synthetic_log(tmp_path / "closed.csv", scenario, 0.02, feedback_gain_per_s=1.0)
+    out = tmp_path / "m.yaml"
+    args = [
+        "learn-friction",
+        "--log",
+        str(log),
+        "--out",
+        str(out),
+        "--degree",
+        "0",
+        "--force-model",
+        "dipole",
+    ]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert f"WARNING: {log}: not an open-loop demonstration: the EPM's velocity changes follow" in text
+    assert "capsule-mpc demonstrate" in text
+    assert f"# WARNING: {log}: not an open-loop demonstration" in out.read_text()
+    assert main([*args, "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["open_loop"][0]["closed_loop"] is True and info["open_loop"][0]["p_value"] < 1e-10
 
 
 def test_cli_bad_input_exits_2_with_message(tmp_path, capsys):

@@ -11,6 +11,7 @@ from capsule_mpc.cli import main
 from capsule_mpc.learning import (
     LearningDataError,
     LogOptions,
+    check_open_loop,
     learn_from_logs,
     measured_steady_lead,
     plant_mu,
@@ -20,6 +21,8 @@ from capsule_mpc.learning import (
 )
 from capsule_mpc.learning.demonstrations import demo_path, run_demonstrations
 from capsule_mpc.magnetics import capsule_force_function
+from capsule_mpc.paths import ReferencePath
+from capsule_mpc.sim import simulate, write_run
 
 SPEEDS = (0.01, 0.02, 0.03)
 
@@ -85,6 +88,18 @@ def test_held_out_speed_steady_lead_is_predicted(scenario, demos):
     assert np.linalg.norm(ideal - measured.lead_m) < 1e-4
 
 
+def test_demonstrations_pass_the_open_loop_check_and_an_mpc_run_does_not(scenario, demos, tmp_path):
+    _, runs = demos
+    for run in runs:
+        check = check_open_loop(read_run_log(run.log_path))
+        assert check.controller == "follow" and not check.closed_loop, check
+    straight = ReferencePath(np.array([[-0.03, 0.0], [0.03, 0.0]]), False, 0.02)
+    write_run(simulate(scenario, "mpc", straight, 1), tmp_path)
+    (tmp_path / "run.json").unlink()  # the log's content alone must tell
+    check = check_open_loop(read_run_log(tmp_path / "log.csv"))
+    assert check.closed_loop and check.p_value < 1e-6 and check.controller is None
+
+
 def test_measured_steady_lead_needs_truth(demos):
     _, runs = demos
     with pytest.raises(LearningDataError, match="truth=True"):
@@ -102,6 +117,7 @@ def test_demonstrate_cli(tmp_path, capsys, table):
 
 def test_demonstrate_cli_rejects_bad_speeds(tmp_path, capsys):
     assert main(["demonstrate", "--speeds", "0.5", "--out", str(tmp_path)]) == 2
-    assert "speeds_mps: each must be in (0, 0.08]" in capsys.readouterr().out
+    assert "speeds_mps: each must be in (0, 0.08]" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
     with pytest.raises(SystemExit):
         main(["demonstrate", "--speeds", "-1", "--out", str(tmp_path)])

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from ..config import load_config
 from ..learning.demonstrations import DEMO_PATHS, run_demonstrations
+from .learn import output_problem
 
 __all__ = ["register", "run"]
 
@@ -61,16 +64,28 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the demonstrations; exit status 1 if a run decoupled or dropped the capsule."""
+    """Run the demonstrations; exit status 1 if a run decoupled or dropped the capsule, 2 on bad input.
+
+    Each run folder is complete or absent (its files are written atomically); a write error
+    stops the command with exit 2, leaving the runs finished before it.
+    """
     start = time.perf_counter()
     scenario = load_config(args.config)
+    problem = output_problem("--out", Path(args.out), folder=True)
+    if problem:
+        print(f"capsule-mpc demonstrate: {problem}", file=sys.stderr)
+        return 2
     try:
         runs = run_demonstrations(
             scenario, args.speeds, args.out, repeats=args.repeats, seed=args.seed,
             path_kinds=args.paths, use_cache=not args.no_cache, progress=True,
         )  # fmt: skip
     except ValueError as exc:
-        print(f"capsule-mpc demonstrate: {exc}")
+        print(f"capsule-mpc demonstrate: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"capsule-mpc demonstrate: cannot write {exc.filename or args.out}: {exc.strerror or exc}",
+              file=sys.stderr)  # fmt: skip
         return 2
     frames = sum(r.n_frames for r in runs)
     failed = [r for r in runs if r.status in ("decoupled", "dropped")]

@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import os
 import sys
 import time
+from contextlib import ExitStack
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..config import load_config
 from ..learning import (
     MIN_LOG_RATIO,
@@ -20,12 +25,12 @@ from ..learning import (
     LogOptions,
     learn_from_logs,
     learn_from_samples_csv,
-    write_model,
     write_samples_csv,
 )
+from ..learning.core import model_yaml
 from ..learning.fit import MAX_DEGREE
 
-__all__ = ["register", "run", "summary"]
+__all__ = ["output_problem", "register", "run", "summary"]
 
 #: Notes printed in the text summary (all of them are in the --json output).
 _MAX_NOTES = 4
@@ -103,7 +108,7 @@ def register(sub: Any) -> None:
 
 
 def summary(result: LearningResult, wall_s: float) -> dict[str, Any]:
-    """A JSON-able summary of a fit."""
+    """A JSON-able summary of a fit, with its quality verdict and the open-loop checks of its logs."""
     fit = result.fit
     return {
         "coefficients": [float(c) for c in fit.coefficients],
@@ -118,15 +123,139 @@ def summary(result: LearningResult, wall_s: float) -> dict[str, Any]:
         "robust": fit.robust,
         "force_model": result.model.force_model,
         "c_at_mps": {f"{v:.4g}": float(fit(v)) for v in np.linspace(*fit.validity_mps, 5)},
+        "quality": result.quality.to_dict(),
+        "open_loop": [check.to_dict() for check in result.loop_checks],
+        "warnings": result.warnings,
         "notes": result.samples.notes,
         "timings_s": {**result.timings_s, "total": wall_s},
     }
 
 
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its closest ancestor that exists."""
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def output_problem(option: str, path: Path, folder: bool) -> str | None:
+    """Why ``path`` cannot be written as a file (or created as a folder), or None (a message naming it)."""
+    if folder and path.exists() and not path.is_dir():
+        return f"{option} {path}: is a file; give a folder for the figures"
+    if not folder and path.is_dir():
+        return f"{option} {path}: is a folder; give the file to write, e.g. {path / 'learned_friction.yaml'}"
+    base = _nearest_existing(path if folder else path.parent)
+    if not base.is_dir():
+        return f"{option} {path}: cannot be created: {base} is a file, not a folder"
+    if not os.access(base, os.W_OK | os.X_OK):
+        return f"{option} {path}: folder {base} is not writable"
+    return None
+
+
+def _outputs(args: argparse.Namespace) -> list[tuple[str, Path, bool]]:
+    """(option, path, is-folder) of every output the command will write."""
+    out = [("--out", Path(args.out), False)]
+    if args.samples_out:
+        out.append(("--samples-out", Path(args.samples_out), False))
+    if args.figures:
+        out.append(("--figures", Path(args.figures), True))
+    return out
+
+
+def _check_outputs(args: argparse.Namespace) -> str | None:
+    """The first problem with the output paths (before any work), or None."""
+    if args.samples_out and args.samples:
+        return "--samples-out: only with --log (it writes the samples extracted from the run logs)"
+    outputs = _outputs(args)
+    files = [p.resolve() for _, p, folder in outputs if not folder]
+    if len(set(files)) < len(files):
+        return f"--out and --samples-out: the same file {files[0]}; give two files"
+    for option, path, folder in outputs:
+        problem = output_problem(option, path, folder)
+        if problem:
+            return problem
+    return None
+
+
+def _overwrites_input(args: argparse.Namespace, sources: list[str]) -> str | None:
+    """A message if an output file is one of the input files, else None."""
+    inputs = {Path(s).resolve() for s in sources}
+    for option, path, folder in _outputs(args):
+        if not folder and path.resolve() in inputs:
+            return f"{option} {path}: is an input file; refusing to overwrite it"
+    return None
+
+
+def _missing_folders(paths: list[Path]) -> list[Path]:
+    """Folders that writing ``paths`` would create, deepest first."""
+    missing: set[Path] = set()
+    for path in paths:
+        folder = path.resolve()
+        while not folder.exists():
+            missing.add(folder)
+            folder = folder.parent
+    return sorted(missing, key=lambda p: len(p.parts), reverse=True)
+
+
+def _write_outputs(args: argparse.Namespace, result: LearningResult) -> list[str]:
+    """Write the model, samples and figures together: all of them or none (atomic renames at the end)."""
+    from ..learning.plots import save_figures
+
+    figures: list[Path] = []
+    with ExitStack() as stack:
+        if args.samples_out:
+            write_samples_csv(result.samples, stack.enter_context(atomic_path(args.samples_out)))
+        if args.figures:
+            figures = save_figures(result, args.figures, stack=stack)
+        stack.enter_context(atomic_path(args.out)).write_text(model_yaml(result.model, result.warnings))
+    return [str(p) for p in figures]
+
+
+def _print_text(result: LearningResult, info: dict[str, Any]) -> None:
+    fit = result.fit
+    path = info["model"]
+    print(f"learned c(v) from {len(result.samples)} samples -> {fit.n_samples} used; written to {path}")
+    excluded = {k: v for k, v in (result.model.excluded or {}).items() if v}
+    print(f"  excluded: {excluded if excluded else 'none'}")
+    notes = result.samples.notes
+    for note in notes[:_MAX_NOTES]:
+        print(f"  note: {note}")
+    if len(notes) > _MAX_NOTES:
+        print(f"  ... {len(notes) - _MAX_NOTES} more note(s) (--json lists them all)")
+    coefs = ", ".join(f"p{i + 1} = {c:.4g}" for i, c in enumerate(fit.coefficients))
+    print(f"  c(v) = poly degree {fit.degree}{' (Huber)' if fit.robust else ''}: {coefs}")
+    lo, hi = fit.validity_mps
+    r2 = "n/a" if fit.r2 is None else f"{fit.r2:.4f}"
+    print(f"  valid for {lo:.4g} <= v <= {hi:.4g} m/s; SSE {fit.sse:.5g}, R^2 {r2}, RMSE {fit.rmse:.4g}")
+    print("  c at " + ", ".join(f"{k} m/s: {v:.4f}" for k, v in info["c_at_mps"].items()))
+    quality = result.quality
+    print(f"  {quality.explained}")
+    if not quality.weak:
+        print(
+            f"  fit quality: OK (c(v) within +-{quality.rel_half_width_max:.0%} at 95 % over the range"
+            + ("" if quality.shape_p_value is None else f"; speed dependence p = {quality.shape_p_value:.2g}")
+            + ")"
+        )
+    for warning in result.warnings:
+        print(f"  WARNING: {warning}")
+    for fig in info["figures"]:
+        print(f"  figure: {fig}")
+    print(f"  time: fit {result.timings_s['fit']:.3f} s, total {info['timings_s']['total']:.2f} s")
+
+
 def run(args: argparse.Namespace) -> int:
-    """Fit and write the model; exit status 2 on unusable input."""
+    """Fit and write the model; exit status 2 on unusable input or an output that cannot be written.
+
+    Nothing is written unless every output can be: the model, ``--samples-out`` and the figures
+    are staged to temporary files and renamed into place together. A weak fit or a closed-loop
+    log is written (exit 0) with its warnings in the output, the JSON and the model file's header.
+    """
     start = time.perf_counter()
     scenario = load_config(args.config)
+    problem = _check_outputs(args)
+    if problem:
+        print(f"capsule-mpc learn-friction: {problem}", file=sys.stderr)
+        return 2
     fit_kw = {
         "degree": args.degree,
         "robust": args.robust,
@@ -147,39 +276,31 @@ def run(args: argparse.Namespace) -> int:
                 steady_tolerance=None if args.keep_transients else args.steady_tol,
             )
             result = learn_from_logs(args.log, scenario, options, **fit_kw)
-            if args.samples_out:
-                write_samples_csv(result.samples, args.samples_out)
     except (LearningDataError, ValueError) as exc:
         print(f"capsule-mpc learn-friction: {exc}", file=sys.stderr)
         return 2
-    path = write_model(result.model, args.out)
-    figures = []
-    if args.figures:
-        from ..learning.plots import save_figures
-
-        figures = [str(p) for p in save_figures(result, args.figures)]
+    problem = _overwrites_input(args, result.samples.sources)
+    if problem:
+        print(f"capsule-mpc learn-friction: {problem}", file=sys.stderr)
+        return 2
+    created = _missing_folders([p for _, p, _ in _outputs(args)])
+    try:
+        figures = _write_outputs(args, result)
+    except OSError as exc:
+        for folder in created:
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        where = exc.filename or args.out
+        print(f"capsule-mpc learn-friction: cannot write {where}: {exc.strerror or exc}; nothing written",
+              file=sys.stderr)  # fmt: skip
+        return 2
     info = summary(result, time.perf_counter() - start)
-    info["model"] = str(path)
+    info["model"] = str(args.out)
     info["figures"] = figures
     if args.json:
         print(json.dumps(info, indent=2))
+        for warning in result.warnings:
+            print(f"capsule-mpc learn-friction: warning: {warning}", file=sys.stderr)
         return 0
-    fit = result.fit
-    print(f"learned c(v) from {len(result.samples)} samples -> {fit.n_samples} used; written to {path}")
-    excluded = {k: v for k, v in (result.model.excluded or {}).items() if v}
-    print(f"  excluded: {excluded if excluded else 'none'}")
-    notes = result.samples.notes
-    for note in notes[:_MAX_NOTES]:
-        print(f"  note: {note}")
-    if len(notes) > _MAX_NOTES:
-        print(f"  ... {len(notes) - _MAX_NOTES} more note(s) (--json lists them all)")
-    coefs = ", ".join(f"p{i + 1} = {c:.4g}" for i, c in enumerate(fit.coefficients))
-    print(f"  c(v) = poly degree {fit.degree}{' (Huber)' if fit.robust else ''}: {coefs}")
-    lo, hi = fit.validity_mps
-    r2 = "n/a" if fit.r2 is None else f"{fit.r2:.4f}"
-    print(f"  valid for {lo:.4g} <= v <= {hi:.4g} m/s; SSE {fit.sse:.5g}, R^2 {r2}, RMSE {fit.rmse:.4g}")
-    print("  c at " + ", ".join(f"{k} m/s: {v:.4f}" for k, v in info["c_at_mps"].items()))
-    for fig in figures:
-        print(f"  figure: {fig}")
-    print(f"  time: fit {result.timings_s['fit']:.3f} s, total {info['timings_s']['total']:.2f} s")
+    _print_text(result, info)
     return 0

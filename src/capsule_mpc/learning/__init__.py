@@ -5,12 +5,21 @@ c(v) -> a :class:`~capsule_mpc.config.LearnedFrictionModel` YAML that a scenario
 loads as ``friction.learned``.
 
 Main entry points: :func:`learn_from_logs`, :func:`learn_from_samples_csv`,
-:func:`learn_friction`, :func:`write_model`, :func:`steady_lead`. Demonstrations in the
+:func:`learn_friction`, :func:`write_model`, :func:`steady_lead`. Every fit carries a
+verdict (:class:`FitQuality`: weak or not, and why) and, from logs, a check that each log
+is an open-loop demonstration (:class:`LoopCheck`). Demonstrations in the
 simulator are in :mod:`capsule_mpc.learning.demonstrations` (not imported here: the fit
 itself does not depend on the simulator).
 """
 
-from .core import LearningResult, learn_friction, learn_from_logs, learn_from_samples_csv, write_model
+from .core import (
+    LearningResult,
+    learn_friction,
+    learn_from_logs,
+    learn_from_samples_csv,
+    model_yaml,
+    write_model,
+)
 from .data import (
     EXCLUSION_REASONS,
     MIN_LOG_RATIO,
@@ -26,8 +35,18 @@ from .data import (
 )
 from .fit import PolynomialFit, fit_c_polynomial, synthetic_samples
 from .heldout import SteadyLead, measured_steady_lead, predicted_steady_lead
-from .logs import LogOptions, RunLog, find_run_logs, log_samples, read_run_log, samples_from_logs
+from .logs import (
+    LogOptions,
+    RunLog,
+    find_run_logs,
+    log_samples,
+    read_run_log,
+    samples_from_logs,
+    samples_from_run_logs,
+)
+from .openloop import LoopCheck, check_open_loop
 from .predict import law_mu, plant_mu, steady_lead
+from .quality import FitQuality, assess_fit
 
 __all__ = [
     "EXCLUSION_REASONS",
@@ -35,14 +54,18 @@ __all__ = [
     "SAMPLE_COLUMNS",
     "SPEED_FLOOR_MPS",
     "CSamples",
+    "FitQuality",
     "FrictionConstants",
     "FrictionSamples",
     "LearningDataError",
     "LearningResult",
     "LogOptions",
+    "LoopCheck",
     "PolynomialFit",
     "RunLog",
     "SteadyLead",
+    "assess_fit",
+    "check_open_loop",
     "find_run_logs",
     "fit_c_polynomial",
     "law_mu",
@@ -51,12 +74,14 @@ __all__ = [
     "learn_from_samples_csv",
     "log_samples",
     "measured_steady_lead",
+    "model_yaml",
     "per_sample_c",
     "plant_mu",
     "predicted_steady_lead",
     "read_run_log",
     "read_samples_csv",
     "samples_from_logs",
+    "samples_from_run_logs",
     "steady_lead",
     "synthetic_samples",
     "write_model",

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
 import yaml
 
+from ..atomic import write_text_atomic
 from ..config import LearnedFrictionModel, Scenario
 from .data import (
     MIN_LOG_RATIO,
@@ -22,15 +23,21 @@ from .data import (
     read_samples_csv,
 )
 from .fit import PolynomialFit, fit_c_polynomial
-from .logs import LogOptions, samples_from_logs
+from .logs import LogOptions, find_run_logs, read_run_log, samples_from_run_logs
+from .openloop import LoopCheck, check_open_loop
+from .quality import FitQuality, assess_fit
 
 __all__ = [
     "LearningResult",
     "learn_friction",
     "learn_from_logs",
     "learn_from_samples_csv",
+    "model_yaml",
     "write_model",
 ]
+
+#: Source files named in an error message before "and N more".
+_MAX_SOURCES_NAMED = 3
 
 
 @dataclass(frozen=True)
@@ -49,8 +56,12 @@ class LearningResult:
         What is written to the model YAML and loaded by a config.
     constants : FrictionConstants
         m, mu0, v*, f_s used.
+    quality : FitQuality
+        Whether the fit is weak, and why (precision, shape, speed range).
+    loop_checks : tuple of LoopCheck
+        Per run log: whether it is an open-loop demonstration (empty for samples).
     timings_s : dict of str to float
-        Wall time of each stage, s (``samples``, ``c``, ``fit``).
+        Wall time of each stage, s (``samples``, ``loop_check``, ``c``, ``fit``, ``quality``).
     """
 
     samples: FrictionSamples
@@ -58,7 +69,23 @@ class LearningResult:
     fit: PolynomialFit
     model: LearnedFrictionModel
     constants: FrictionConstants
+    quality: FitQuality
+    loop_checks: tuple[LoopCheck, ...] = ()
     timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def warnings(self) -> list[str]:
+        """Everything that makes the model doubtful, one sentence each (empty: nothing found)."""
+        out = [f"weak fit: {reason}" for reason in self.quality.reasons]
+        for check in self.loop_checks:
+            if check.closed_loop:
+                out.append(
+                    f"{check.path}: not an open-loop demonstration: {check.reason}. In closed loop the EPM "
+                    "reacts to the measured capsule, so the lead (hence F) is correlated with the camera "
+                    "noise and the speeds stay near what the controller holds: c(v) from it is biased. "
+                    "Learn from open-loop runs (capsule-mpc demonstrate)"
+                )
+        return out
 
 
 def learn_friction(
@@ -107,10 +134,16 @@ def learn_friction(
         fit = fit_c_polynomial(cs.speed_mps, cs.c, degree=degree, robust=robust)
     except ValueError as exc:
         counts = ", ".join(f"{k} {v}" for k, v in cs.excluded.items() if v) or "none"
+        origin = ", ".join(samples.sources[:_MAX_SOURCES_NAMED]) or "the samples"
+        if len(samples.sources) > _MAX_SOURCES_NAMED:
+            origin += f" and {len(samples.sources) - _MAX_SOURCES_NAMED} more"
         raise LearningDataError(
-            f"cannot fit c(v): {exc}; {len(cs.c)} usable of {len(samples)} samples (excluded: {counts})"
+            f"{origin}: cannot fit c(v): {exc}; {len(cs.c)} usable of {len(samples)} samples "
+            f"(excluded: {counts})"
         ) from None
     t2 = time.perf_counter()
+    quality = assess_fit(fit, cs.speed_mps, cs.c, scenario.path.speed_mps)
+    t3 = time.perf_counter()
     model = LearnedFrictionModel(
         coefficients=[float(p) for p in fit.coefficients],
         validity_mps=fit.validity_mps,
@@ -128,7 +161,15 @@ def learn_friction(
         excluded={**samples.dropped, **cs.excluded},
         sources=list(samples.sources),
     )
-    return LearningResult(samples, cs, fit, model, constants, {"c": t1 - t0, "fit": t2 - t1})
+    return LearningResult(
+        samples,
+        cs,
+        fit,
+        model,
+        constants,
+        quality,
+        timings_s={"c": t1 - t0, "fit": t2 - t1, "quality": t3 - t2},
+    )
 
 
 def learn_from_samples_csv(path: str | Path, scenario: Scenario, **kwargs: object) -> LearningResult:
@@ -150,23 +191,43 @@ def learn_from_logs(
     log_options: LogOptions | None = None,
     **kwargs: object,
 ) -> LearningResult:
-    """Extract samples from run logs (:func:`samples_from_logs`) and fit them.
+    """Extract samples from run logs (:func:`~capsule_mpc.learning.logs.samples_from_logs`), fit them.
 
     Keyword arguments go to :func:`learn_friction`; the force model is taken from
-    ``log_options`` (default ``scenario.force_model``).
+    ``log_options`` (default ``scenario.force_model``). Each log is checked for closed-loop
+    control (:func:`~capsule_mpc.learning.openloop.check_open_loop`); the result's
+    ``loop_checks`` and ``warnings`` report it.
     """
     log_options = log_options or LogOptions()
     t0 = time.perf_counter()
-    samples = samples_from_logs(paths, scenario, log_options)
+    min_rows = log_options.polyorder + 3
+    logs = [read_run_log(p, truth=log_options.truth, min_rows=min_rows) for p in find_run_logs(paths)]
+    samples = samples_from_run_logs(logs, scenario, log_options)
     t1 = time.perf_counter()
+    checks = tuple(check_open_loop(log) for log in logs)
+    t2 = time.perf_counter()
     kind = log_options.force_model or scenario.force_model
     result = learn_friction(samples, scenario, force_model=kind, **kwargs)  # type: ignore[arg-type]
-    result.timings_s["samples"] = t1 - t0
+    result = replace(result, loop_checks=checks)
+    result.timings_s.update(samples=t1 - t0, loop_check=t2 - t1)
     return result
 
 
-def write_model(model: LearnedFrictionModel, path: str | Path) -> Path:
-    """Write a learned model as YAML that loads as ``friction.learned`` of a config.
+def model_yaml(model: LearnedFrictionModel, warnings: Sequence[str] = ()) -> str:
+    """The text of a model file: a comment header (with ``warnings``, if any) and the model as YAML."""
+    header = (
+        "# Learned steady-state friction mu(v) = mu0 - c(v) ln(v*/|v|), c a polynomial in v (m/s),\n"
+        "# coefficients highest power first (paper eq. 10, 12). Written by capsule-mpc learn-friction.\n"
+        "# Use it from a scenario with  friction: {learned: <this file>}\n"
+    )
+    for warning in warnings:
+        header += f"# WARNING: {' '.join(warning.split())}\n"
+    body = yaml.safe_dump(model.model_dump(mode="json", exclude_none=True), sort_keys=False)
+    return header + body
+
+
+def write_model(model: LearnedFrictionModel, path: str | Path, warnings: Sequence[str] = ()) -> Path:
+    """Write a learned model as YAML that loads as ``friction.learned`` of a config (atomically).
 
     Parameters
     ----------
@@ -174,19 +235,12 @@ def write_model(model: LearnedFrictionModel, path: str | Path) -> Path:
         The model.
     path : str or Path
         Output file (parent folders are created).
+    warnings : sequence of str
+        Written as comments at the top (e.g. ``LearningResult.warnings``).
 
     Returns
     -------
     Path
         The file written.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    header = (
-        "# Learned steady-state friction mu(v) = mu0 - c(v) ln(v*/|v|), c a polynomial in v (m/s),\n"
-        "# coefficients highest power first (paper eq. 10, 12). Written by capsule-mpc learn-friction.\n"
-        "# Use it from a scenario with  friction: {learned: <this file>}\n"
-    )
-    body = yaml.safe_dump(model.model_dump(mode="json", exclude_none=True), sort_keys=False)
-    path.write_text(header + body)
-    return path
+    return write_text_atomic(path, model_yaml(model, warnings))

@@ -36,6 +36,7 @@ __all__ = [
     "nan_rows_message",
     "per_sample_c",
     "read_columns",
+    "read_header",
     "read_samples_csv",
     "write_samples_csv",
 ]
@@ -262,14 +263,22 @@ def per_sample_c(
     return CSamples(speed[left], mu, c, left, excluded)
 
 
-def _read_header(path: Path) -> list[str]:
+def read_header(path: str | Path) -> list[str]:
+    """The stripped column names of a CSV's header line (a UTF-8 byte-order mark is ignored).
+
+    Raises
+    ------
+    LearningDataError
+        If the file cannot be read, is not text, or is empty.
+    """
+    path = Path(path)
     try:
-        with path.open(newline="") as fh:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             header = next(csv.reader(fh), None)
     except OSError as exc:
-        raise LearningDataError(f"{path}: cannot read: {exc}") from exc
+        raise LearningDataError(f"{path}: cannot read: {exc.strerror or exc}") from None
     except (UnicodeDecodeError, csv.Error) as exc:
-        raise LearningDataError(f"{path}: not a CSV text file: {exc}") from exc
+        raise LearningDataError(f"{path}: not a CSV text file (line 1: {exc})") from None
     if not header:
         raise LearningDataError(f"{path}: empty file (expected a CSV header line)")
     return [h.strip() for h in header]
@@ -300,7 +309,7 @@ def read_columns(
         If the file cannot be read, a required column is missing or a value is not a number.
     """
     path = Path(path)
-    header = _read_header(path)
+    header = read_header(path)
     missing = [c for c in required if c not in header]
     if missing:
         raise LearningDataError(
@@ -310,20 +319,26 @@ def read_columns(
     wanted = [c for c in (*required, *optional) if c in header]
     index = {c: header.index(c) for c in wanted}
     cols: dict[str, list[float]] = {c: [] for c in wanted}
-    with path.open(newline="") as fh:
-        reader = csv.reader(fh)
-        next(reader)
-        for line_no, row in enumerate(reader, start=2):
-            if not row:
-                continue
-            for c, i in index.items():
-                text = row[i].strip() if i < len(row) else ""
-                try:
-                    cols[c].append(float(text) if text else math.nan)
-                except ValueError:
-                    raise LearningDataError(
-                        f"{path}: line {line_no}, column {c}: not a number: {text!r}"
-                    ) from None
+    line_no = 1
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            next(reader)
+            for line_no, row in enumerate(reader, start=2):
+                if not row:
+                    continue
+                for c, i in index.items():
+                    text = row[i].strip() if i < len(row) else ""
+                    try:
+                        cols[c].append(float(text) if text else math.nan)
+                    except ValueError:
+                        raise LearningDataError(
+                            f"{path}: line {line_no}, column {c}: not a number: {text!r}"
+                        ) from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise LearningDataError(f"{path}: not a CSV text file (after line {line_no}: {exc})") from None
+    except OSError as exc:
+        raise LearningDataError(f"{path}: cannot read: {exc.strerror or exc}") from None
     return {c: np.asarray(v, dtype=float) for c, v in cols.items()}
 
 

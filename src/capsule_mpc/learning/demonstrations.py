@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
+from ..atomic import write_text_atomic
 from ..config import Scenario, dump_config
 from ..paths import ReferencePath, rectangle
 from ..sim import simulate, write_run
@@ -216,7 +217,7 @@ def run_demonstrations(
         "seed": seed,
         "runs": [asdict(r) for r in runs],
     }
-    (out / "demonstrations.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    write_text_atomic(out / "demonstrations.json", json.dumps(manifest, indent=2) + "\n")
     return runs
 
 
@@ -251,5 +252,5 @@ def _one_run(
         n_frames=len(result.log["t_s"]),
         wall_time_s=float(result.wall_time_s),
     )
-    (run_dir / _DEMO_FILE).write_text(json.dumps({"key": key, "run": asdict(run)}, indent=2) + "\n")
+    write_text_atomic(run_dir / _DEMO_FILE, json.dumps({"key": key, "run": asdict(run)}, indent=2) + "\n")
     return run

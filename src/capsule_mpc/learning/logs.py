@@ -40,7 +40,7 @@ from scipy.signal import savgol_filter
 from ..config import Scenario
 from ..dynamics import normal_force_expr
 from ..magnetics import capsule_force_function, force_map
-from .data import FrictionSamples, LearningDataError, nan_rows_message, read_columns
+from .data import FrictionSamples, LearningDataError, nan_rows_message, read_columns, read_header
 
 __all__ = [
     "CAMERA_COLUMNS",
@@ -53,6 +53,7 @@ __all__ = [
     "log_samples",
     "read_run_log",
     "samples_from_logs",
+    "samples_from_run_logs",
 ]
 
 #: Columns every run log must have.
@@ -142,6 +143,9 @@ class RunLog:
         Capture time of each camera frame, s (None: taken at ``t_s``).
     source : {'camera', 'truth'}
         Where the capsule position came from.
+    camera_m : numpy.ndarray (n, 2) or None
+        The camera's capsule x, y, m (NaN where dropped), if the log has them (``capsule_m``
+        itself when ``source`` is 'camera'); the open-loop check reads them.
     """
 
     path: Path
@@ -150,6 +154,7 @@ class RunLog:
     capsule_m: np.ndarray
     capture_t_s: np.ndarray | None
     source: Literal["camera", "truth"]
+    camera_m: np.ndarray | None = None
 
 
 def read_run_log(path: str | Path, truth: bool = False, min_rows: int = 5) -> RunLog:
@@ -172,7 +177,9 @@ def read_run_log(path: str | Path, truth: bool = False, min_rows: int = 5) -> Ru
     """
     path = Path(path)
     capsule_cols = TRUTH_COLUMNS if truth else CAMERA_COLUMNS
-    cols = read_columns(path, (*LOG_REQUIRED_COLUMNS, *capsule_cols), optional=(CAPTURE_COLUMN,))
+    cols = read_columns(
+        path, (*LOG_REQUIRED_COLUMNS, *capsule_cols), optional=(CAPTURE_COLUMN, *CAMERA_COLUMNS)
+    )
     n = len(cols["t_s"])
     if n < min_rows:
         raise LearningDataError(f"{path}: too few rows: {n} data row(s), need at least {min_rows}")
@@ -203,7 +210,11 @@ def read_run_log(path: str | Path, truth: bool = False, min_rows: int = 5) -> Ru
     if not truth and CAPTURE_COLUMN in cols:
         capture = cols[CAPTURE_COLUMN]
     epm = np.column_stack([cols["epm_x_m"], cols["epm_y_m"], cols["epm_z_m"]])
-    return RunLog(path, cols["t_s"], epm, capsule, capture, "truth" if truth else "camera")
+    camera = None
+    if all(c in cols for c in CAMERA_COLUMNS):
+        camera = capsule if not truth else np.column_stack([cols[c] for c in CAMERA_COLUMNS])
+    source: Literal["camera", "truth"] = "truth" if truth else "camera"
+    return RunLog(path, cols["t_s"], epm, capsule, capture, source, camera)
 
 
 def frame_period(t_s: np.ndarray) -> float:
@@ -232,7 +243,12 @@ def _capsule_times(log: RunLog) -> tuple[np.ndarray, float]:
     # A valid frame without a capture time is assumed to have the median latency.
     capture = np.where(np.isfinite(capture), capture, log.t_s[valid] - latency)
     if np.any(np.diff(capture) <= 0):
-        raise LearningDataError(f"{log.path}: meas_capture_t_s must be strictly increasing over valid frames")
+        k = int(np.flatnonzero(np.diff(capture) <= 0)[0])
+        line = int(np.flatnonzero(valid)[k + 1]) + 2
+        raise LearningDataError(
+            f"{log.path}: {CAPTURE_COLUMN} must be strictly increasing over the frames with a position; "
+            f"line {line} has {capture[k + 1]!r} after {capture[k]!r}"
+        )
     return capture, latency
 
 
@@ -397,30 +413,35 @@ def log_samples(
     )
 
 
+def _is_run_log(path: Path) -> bool:
+    """Whether a CSV's header has the required log columns and a capsule position (camera or truth)."""
+    header = read_header(path)
+    return all(c in header for c in LOG_REQUIRED_COLUMNS) and any(
+        all(c in header for c in cols) for cols in (CAMERA_COLUMNS, TRUTH_COLUMNS)
+    )
+
+
 def find_run_logs(paths: Iterable[str | Path]) -> list[Path]:
     """Expand files and folders into run-log CSV files.
 
     A folder contributes every ``*.csv`` below it (recursively) whose header has the
-    required log columns; files are taken as given.
+    required log columns and a capsule position (so a run folder's ``epm_trajectory.csv``
+    is skipped); files are taken as given.
 
     Raises
     ------
     LearningDataError
-        A path does not exist, or a folder holds no run log.
+        A path does not exist, a folder holds no run log, or a CSV in a folder is not text.
     """
     out: list[Path] = []
     for raw in paths:
         path = Path(raw)
         if path.is_dir():
-            found = []
-            for csv_path in sorted(path.rglob("*.csv")):
-                with csv_path.open() as fh:
-                    header = fh.readline().strip().split(",")
-                if all(c in header for c in LOG_REQUIRED_COLUMNS):
-                    found.append(csv_path)
+            found = [p for p in sorted(path.rglob("*.csv")) if _is_run_log(p)]
             if not found:
                 raise LearningDataError(
-                    f"{path}: folder holds no run log (CSV with {', '.join(LOG_REQUIRED_COLUMNS)})"
+                    f"{path}: folder holds no run log (CSV with {', '.join(LOG_REQUIRED_COLUMNS)} and "
+                    f"{', '.join(CAMERA_COLUMNS)} or {', '.join(TRUTH_COLUMNS)})"
                 )
             out.extend(found)
         elif path.exists():
@@ -438,9 +459,16 @@ def samples_from_logs(
     logs = find_run_logs(paths)
     if not logs:
         raise LearningDataError("no run log given")
+    runs = [read_run_log(path, truth=options.truth, min_rows=options.polyorder + 3) for path in logs]
+    return samples_from_run_logs(runs, scenario, options)
+
+
+def samples_from_run_logs(
+    logs: Sequence[RunLog], scenario: Scenario, options: LogOptions | None = None
+) -> FrictionSamples:
+    """The joined samples of logs already read (:func:`read_run_log`); the force model is built once."""
+    options = options or LogOptions()
+    if not logs:
+        raise LearningDataError("no run log given")
     force_fn = capsule_force_function(scenario, options.force_model or scenario.force_model)
-    parts = []
-    for path in logs:
-        log = read_run_log(path, truth=options.truth, min_rows=options.polyorder + 3)
-        parts.append(log_samples(log, scenario, options, force_fn))
-    return FrictionSamples.concatenate(parts)
+    return FrictionSamples.concatenate([log_samples(log, scenario, options, force_fn) for log in logs])

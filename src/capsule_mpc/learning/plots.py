@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..config import PAPER_C_COEFFICIENTS, PAPER_C_VALIDITY_MPS
 from .core import LearningResult
 
@@ -14,7 +16,7 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["plot_c_fit", "plot_residuals", "save_figures"]
+__all__ = ["figure_paths", "plot_c_fit", "plot_residuals", "save_figures"]
 
 #: Most sample points drawn in a scatter (a seeded random subset beyond that keeps files small).
 _MAX_POINTS = 20000
@@ -96,17 +98,33 @@ def plot_residuals(result: LearningResult, ax: Axes | None = None) -> Figure:
     return fig
 
 
-def save_figures(result: LearningResult, out_dir: str | Path, prefix: str = "friction") -> list[Path]:
-    """Write ``<prefix>_c_fit.png`` (Fig. 7b) and ``<prefix>_residuals.png`` (Fig. 7c); returns the paths."""
+#: The figures of a fit: file name part and the function drawing it.
+_FIGURES = (("c_fit", plot_c_fit), ("residuals", plot_residuals))
+
+
+def figure_paths(out_dir: str | Path, prefix: str = "friction") -> list[Path]:
+    """The files :func:`save_figures` writes: ``<prefix>_c_fit.png`` and ``<prefix>_residuals.png``."""
+    return [Path(out_dir) / f"{prefix}_{name}.png" for name, _ in _FIGURES]
+
+
+def save_figures(
+    result: LearningResult, out_dir: str | Path, prefix: str = "friction", stack: ExitStack | None = None
+) -> list[Path]:
+    """Write ``<prefix>_c_fit.png`` (Fig. 7b) and ``<prefix>_residuals.png`` (Fig. 7c); returns the paths.
+
+    Each file is written to a temporary name beside it and renamed into place
+    (:func:`~capsule_mpc.atomic.atomic_path`). With ``stack`` the renames wait until the caller
+    closes it, so several outputs appear together or not at all; without, they happen here.
+    """
     import matplotlib.pyplot as plt
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for name, make in (("c_fit", plot_c_fit), ("residuals", plot_residuals)):
-        fig = make(result)
-        path = out / f"{prefix}_{name}.png"
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        paths.append(path)
+    paths = figure_paths(out_dir, prefix)
+    with ExitStack() as own:
+        commit = own if stack is None else stack
+        for path, (_, make) in zip(paths, _FIGURES):
+            fig = make(result)
+            try:
+                fig.savefig(commit.enter_context(atomic_path(path)), dpi=120, format="png")
+            finally:
+                plt.close(fig)
     return paths
