@@ -114,6 +114,11 @@ def test_demo_demonstrates_learns_and_compares_with_a_cache(tmp_path, capsys, ta
     assert used["friction"]["learned"]["coefficients"] == model["coefficients"]  # inlined beside the run
     assert "| follow |" in first and "demo results" in first and str(out.resolve() / "compare") in first
     assert "(0 cached)" in first and "friction model: c(v) of degree 4" in first
+    # The fit's verdict (weak or not) is printed and kept in the model file, as learn-friction does.
+    printed = [ln.split("WARNING: ", 1)[1] for ln in first.splitlines() if "WARNING: " in ln]
+    header = [ln.split("WARNING: ", 1)[1] for ln in (out / "learned_friction.yaml").read_text().splitlines()
+              if ln.startswith("# WARNING: ")]  # fmt: skip
+    assert printed == header and printed  # two speeds only: the fit is flagged
 
     # Second run: demonstrations reused, no re-fit, the comparison runs again.
     stamp = (out / "learned_friction.yaml").stat().st_mtime_ns

@@ -175,7 +175,7 @@ def _learn(base: Scenario, logs: list[Path], out: Path, refit: bool) -> Path:
         return model_path
     t0 = time.perf_counter()
     result = learn_from_logs(logs, base, LogOptions(force_model=FORCE_MODEL))
-    write_model(result.model, model_path)
+    write_model(result.model, model_path, result.warnings)
     figures = save_figures(result, out / "learning")
     fit = result.fit
     lo, hi = fit.validity_mps
@@ -185,6 +185,8 @@ def _learn(base: Scenario, logs: list[Path], out: Path, refit: bool) -> Path:
         f"samples, valid {lo:.4g}-{hi:.4g} m/s, R^2 {r2}, in {time.perf_counter() - t0:.1f} s "
         f"-> {model_path} (figures: {', '.join(p.name for p in figures)} in {out / 'learning'})"
     )
+    for warning in result.warnings:
+        print(f"  WARNING: {warning}")
     return model_path
 
 
