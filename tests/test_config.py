@@ -5,11 +5,12 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 from capsule_mpc import ConfigError, dump_config, load_config
-from capsule_mpc.config import packaged_config_path
+from capsule_mpc.config import config_from_dict, packaged_config_path
 
 PAPER = yaml.safe_load(packaged_config_path("paper").read_text())
 
@@ -117,3 +118,88 @@ def test_learned_model_from_file_and_inline(tmp_path):
 def test_missing_file_is_a_config_error(tmp_path):
     with pytest.raises(ConfigError, match="cannot read config"):
         load_config(tmp_path / "nope.yaml")
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "message"),
+    [
+        ("capsule", "mass_kg", True, r"capsule\.mass_kg: must be a number .*got True"),
+        ("capsule", "mass_kg", "0.0209", r"capsule\.mass_kg: must be a number .*got '0\.0209'"),
+        ("plate", "size_m", [0.4, "0.3"], r"plate\.size_m\.1: must be a number"),
+        ("friction", "mu0", False, r"friction\.mu0: must be a number"),
+        ("mpc", "horizon", 20.0, r"mpc\.horizon: must be an integer .*got 20\.0"),
+        ("mpc", "horizon", True, r"mpc\.horizon: must be an integer .*got True"),
+        ("sim", "seed", "3", r"sim\.seed: must be an integer .*got '3'"),
+        ("mpc", "compile_c", "yes", r"mpc\.compile_c: must be true or false, got 'yes'"),
+        ("mpc", "height_control", 1, r"mpc\.height_control: must be true or false, got 1"),
+    ],
+)
+def test_numbers_and_flags_are_not_coerced(tmp_path, section, key, value, message):
+    data = yaml.safe_load(yaml.safe_dump(PAPER))
+    data.setdefault(section, {})[key] = value
+    with pytest.raises(ConfigError, match=message):
+        load_config(_write(tmp_path, data))
+
+
+def test_programmatic_numbers_still_validate():
+    data = yaml.safe_load(yaml.safe_dump(PAPER))
+    data["capsule"]["mass_kg"] = np.float32(0.02)
+    data["capsule"]["length_m"] = 1  # an int is a number
+    data["mpc"] = {"horizon": np.int64(15)}
+    s = config_from_dict(data)
+    assert s.capsule.mass_kg == pytest.approx(0.02) and s.capsule.length_m == 1.0
+    assert s.mpc.horizon == 15 and type(s.mpc.horizon) is int
+    with pytest.raises(ValueError, match="must be a number"):
+        s.capsule.mass_kg = True  # assignment is validated too
+
+
+def test_exponent_floats_are_numbers(tmp_path):
+    # YAML 1.1 (PyYAML) reads 1e-5 and -1.189e5 as strings; the number fields read them as numbers.
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        "base: paper\nfriction:\n  d_c_m: 2e-5\n"
+        "  paper_c:\n    coefficients: [-1.189e5, 3E2]\n    degree: 1\n"
+    )
+    s = load_config(path)
+    assert s.friction.d_c_m == 2e-5
+    assert s.friction.paper_c.coefficients == [-118900.0, 300.0]
+    path.write_text('base: paper\nfriction:\n  d_c_m: "2e-5"\n')  # quoted: still a string
+    with pytest.raises(ConfigError, match=r"friction\.d_c_m: must be a number"):
+        load_config(path)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("base: paper\ncapsule:\n  mass_kg: 0.02\n  mass_kg: 0.03\n",
+         "line 4: duplicate key 'mass_kg' (first given at line 3)"),
+        ("base: paper\nname: a\nplate: {}\nname: b\n",
+         "line 4: duplicate key 'name' (first given at line 2)"),
+        ("base: paper\nlimits: {speed_mps: 0.05, speed_mps: 0.06}\n",
+         "line 2: duplicate key 'speed_mps' (first given at line 2)"),
+    ],
+)  # fmt: skip
+def test_duplicate_keys_are_refused_with_their_line(tmp_path, text, message):
+    path = tmp_path / "dup.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    assert str(exc.value) == f"{path}: {message}"
+
+
+def test_merge_keys_may_be_overridden(tmp_path):
+    path = tmp_path / "merge.yaml"
+    path.write_text(
+        "base: paper\ncapsule:\n  <<: {mass_kg: 0.02, length_m: 0.036, diameter_m: 0.014}\n  mass_kg: 0.03\n"
+    )
+    assert load_config(path).capsule.mass_kg == 0.03
+
+
+def test_binary_and_bom_files(tmp_path):
+    binary = tmp_path / "scenario.yaml"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR")
+    with pytest.raises(ConfigError, match=r"scenario\.yaml: not a UTF-8 text file \(byte 0x89 at offset 0\)"):
+        load_config(binary)
+    bom = tmp_path / "bom.yaml"
+    bom.write_bytes(b"\xef\xbb\xbfbase: paper\nname: bom\n")
+    assert load_config(bom).name == "bom"
