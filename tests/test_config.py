@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +12,7 @@ import pytest
 import yaml
 
 from capsule_mpc import ConfigError, dump_config, load_config
+from capsule_mpc.cli.info import check_epm_height, scenario_figures
 from capsule_mpc.config import config_from_dict, packaged_config_path
 
 PAPER = yaml.safe_load(packaged_config_path("paper").read_text())
@@ -203,3 +206,72 @@ def test_binary_and_bom_files(tmp_path):
     bom = tmp_path / "bom.yaml"
     bom.write_bytes(b"\xef\xbb\xbfbase: paper\nname: bom\n")
     assert load_config(bom).name == "bom"
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"plate": {"epm_height_m": 0.3}}, r"plate\.epm_height_m: must be within the EPM workspace heights "
+         r"\[0\.085, 0\.105\] m \(limits\.workspace_min_m\[2\], limits\.workspace_max_m\[2\]"),
+        ({"plate": {"epm_height_m": 0.03}, "limits": {"workspace_min_m": [-0.18, -0.13, 0.0]}},
+         r"plate\.epm_height_m: must be >= 0\.035 m \(half the EPM height 0\.025 \+ plate\.thickness_m "
+         r"0\.003 \+ half the capsule diameter 0\.007"),
+        ({"force_map": {"height_offsets_m": [0.0, 0.01]}},
+         r"force_map\.height_offsets_m: must span the EPM's true height offsets \[-0\.001, 0\.001\] m"),
+        ({"force_map": {"height_offsets_m": [-0.002, 0.002]}, "plant": {"preset": "hard"}},
+         r"force_map\.height_offsets_m: must span the EPM's true height offsets \[-0\.003, 0\.003\] m"),
+        ({"force_map": {"height_offsets_m": [-0.002, 0.002]}, "plant": {"epm_height_offset_m": 0.004}},
+         r"\[0, 0\.004\] m"),
+    ],
+)  # fmt: skip
+def test_epm_height_within_what_the_models_cover(tmp_path, changes, message):
+    data = yaml.safe_load(yaml.safe_dump(PAPER))
+    for section, values in changes.items():
+        data.setdefault(section, {}).update(values)
+    with pytest.raises(ConfigError, match=message) as exc:
+        load_config(_write(tmp_path, data))
+    assert "got {" not in str(exc.value)  # a rule across fields names its fields, not the section's dict
+    data["force_map"] = {"height_offsets_m": [-0.005, 0.0, 0.005]}
+    data["plate"]["epm_height_m"] = 0.095
+    data["plant"] = {"preset": "ideal"}
+    data.pop("limits", None)
+    assert load_config(_write(tmp_path, data)).force_map.height_offsets_m == [-0.005, 0.0, 0.005]
+
+
+def test_check_epm_height_refuses_what_the_force_map_cannot_hold(scenario):
+    rest = check_epm_height(scenario)  # the paper rig: rest lead -17 mm (finite-magnet model)
+    assert rest == pytest.approx([-0.01696, 0.0], abs=2e-5)
+    high = scenario.model_copy(
+        update={
+            "plate": scenario.plate.model_copy(update={"epm_height_m": 0.3}),
+            "limits": scenario.limits.model_copy(update={"workspace_max_m": (0.18, 0.13, 0.35)}),
+        }
+    )
+    with pytest.raises(ConfigError) as exc:
+        check_epm_height(high)
+    assert str(exc.value) == (
+        "plate.epm_height_m: cannot be 0.3 m: the capsule's rest lead there is (-49.1, +0.0) mm "
+        "(finite-magnet model) and the controller may command leads up to limits.max_lead_m = 25 mm "
+        "from it, 74.1 mm from the EPM axis, beyond the force map's |lead| <= "
+        "force_map.lead_half_range_m = 45 mm; this rig allows heights in [0.035, 0.116] m"
+    )
+    wide = high.model_copy(
+        update={
+            "plate": high.plate.model_copy(update={"epm_height_m": 0.135}),
+            "force_map": high.force_map.model_copy(update={"lead_half_range_m": 0.1}),
+        }
+    )
+    with pytest.raises(ConfigError, match=r"does not hold the capsule .* heights in \[0\.035, 0\.129\d?\] m"):
+        check_epm_height(wide)
+
+
+def test_paper_yaml_comment_matches_info(scenario):
+    """The comment on plate.epm_height_m quotes what `capsule-mpc info` prints (issue 11, item 10)."""
+    text = packaged_config_path("paper").read_text()
+    quoted = re.search(r"F_N = ([\d.]+) m g directly under the\s+# EPM centre and ([\d.]+) m g at the", text)
+    assert quoted is not None
+    with warnings.catch_warnings():  # the friction law's range notes, which info prints as notes
+        warnings.simplefilter("ignore")
+        forces = scenario_figures(scenario)["forces"]
+    assert f"{forces['finite_lead_0mm']['normal_over_weight']:.2f}" == quoted.group(1)
+    assert f"{forces['finite_equilibrium']['normal_over_weight']:.2f}" == quoted.group(2)

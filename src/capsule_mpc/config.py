@@ -198,8 +198,18 @@ class PlateConfig(_Strict):
         gt=0,
         le=0.5,
         description=(
-            "Vertical distance between the EPM centre and the IPM centre, m, in (0, 0.5]. Not given "
-            "in the paper; the default is chosen so the normal force at zero lead is 2-4 x m g."
+            "Vertical distance between the EPM centre and the IPM centre, m, in (0, 0.5], and what "
+            "the models can do: >= half the EPM height + plate.thickness_m + half the capsule "
+            "diameter (0.035 m for the paper rig; closer, EPM, plate and capsule would overlap); "
+            "within the EPM workspace heights limits.workspace_min_m[2]..workspace_max_m[2] (the EPM "
+            "starts at this height and is never commanded outside its workspace); and, checked by "
+            "a few finite-magnet evaluations before a force map is computed (info, simulate, compare, "
+            "plan), the capsule's rest lead here plus limits.max_lead_m must lie inside "
+            "force_map.lead_half_range_m (every lead the controller may command is tabulated; the "
+            "rest lead grows with the height, 17 mm at 95 mm for the paper's array) and, below_plate, "
+            "the EPM must hold the capsule up. Paper rig with the default limits and map: 0.035 to "
+            "0.116 m (0.129 m is where it stops holding the capsule). Not given in the paper; 0.095 "
+            "gives F_N = 2.44 m g at zero lead and 3.49 m g at the rest lead."
         ),
     )
     size_m: tuple[Number, Number] = Field(
@@ -310,7 +320,11 @@ class ForceMapConfig(_Strict):
     height_offsets_m: list[Number] = Field(
         [-0.01, -0.005, 0.0, 0.005, 0.01],
         min_length=2,
-        description="Heights tabulated, as offsets from plate.epm_height_m, m (>= 2, increasing).",
+        description=(
+            "Heights tabulated, as offsets from plate.epm_height_m, m (>= 2, increasing); they must "
+            "span 0 and the plant's true EPM height offsets (plant.epm_height_offset_m, or its "
+            "preset's range: lab +-1 mm, hard +-3 mm), where the plant looks its forces up."
+        ),
     )
     meshing: Integer = Field(
         100, ge=10, le=5000, description="Cells of the IPM mesh for magpylib getFT, [10, 5000]."
@@ -1041,6 +1055,40 @@ class Scenario(_Strict):
                 f"arm_rate_hz: must be >= camera.rate_hz ({camera.rate_hz}), got {arm.arm_rate_hz}"
             )
         return arm
+
+    @model_validator(mode="after")
+    def _epm_height_possible(self) -> Scenario:
+        h = self.plate.epm_height_m
+        closest = self.epm.block_size_m[2] / 2 + self.plate.thickness_m + self.capsule.diameter_m / 2
+        if h < closest:
+            raise ValueError(
+                f"plate.epm_height_m: must be >= {closest:.4g} m (half the EPM height "
+                f"{self.epm.block_size_m[2] / 2:.4g} + plate.thickness_m {self.plate.thickness_m:.4g} + "
+                f"half the capsule diameter {self.capsule.diameter_m / 2:.4g}; closer, EPM, plate and "
+                f"capsule would overlap), got {h}"
+            )
+        z_lo, z_hi = self.limits.workspace_min_m[2], self.limits.workspace_max_m[2]
+        if not z_lo <= h <= z_hi:
+            raise ValueError(
+                f"plate.epm_height_m: must be within the EPM workspace heights [{z_lo}, {z_hi}] m "
+                f"(limits.workspace_min_m[2], limits.workspace_max_m[2]: the EPM starts at this height "
+                f"and is never commanded outside its workspace), got {h}"
+            )
+        offsets = self.force_map.height_offsets_m
+        drawn = self.plant.epm_height_offset_m
+        lo, hi = (
+            (drawn, drawn)
+            if drawn is not None
+            else PLANT_PRESET_RANGES[self.plant.preset].get("epm_height_offset_m", (0.0, 0.0))
+        )
+        if not (offsets[0] <= min(lo, 0.0) and max(hi, 0.0) <= offsets[-1]):
+            raise ValueError(
+                f"force_map.height_offsets_m: must span the EPM's true height offsets "
+                f"[{min(lo, 0.0):.4g}, {max(hi, 0.0):.4g}] m (0 and plant.epm_height_offset_m of the "
+                f"'{self.plant.preset}' plant: the plant looks its forces up in the map at the true "
+                f"EPM height), got {offsets}"
+            )
+        return self
 
     def controller_friction(self) -> LearnedFrictionModel:
         """The steady-state friction law the controller uses: ``friction.learned`` or the paper's."""

@@ -111,6 +111,8 @@ def prepare_run(
     (Scenario, ReferencePath, dict)
         The scenario actually used, its reference path and provenance for ``run.json``.
     """
+    from .info import check_epm_height
+
     base = load_config(config)
     path = path_from_scenario(base, waypoints=waypoints, speed=speed)
     scenario = base
@@ -124,6 +126,7 @@ def prepare_run(
             data["path"]["waypoints_file"] = str(Path(waypoints).resolve())
         scenario = config_from_dict(data)
         scenario.source_path = base.source_path
+    check_epm_height(scenario)  # before a force map is computed for a height the code cannot model
     force_map(scenario, progress=True)  # computed once and cached: show progress on a fresh machine
     meta = {
         "config": str(base.source_path) if base.source_path else None,
