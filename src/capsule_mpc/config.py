@@ -213,7 +213,11 @@ class PlateConfig(_Strict):
         ),
     )
     size_m: tuple[Number, Number] = Field(
-        ..., description="Plate size (x, y), m, each > 0; the plate is centred on the origin."
+        ...,
+        description=(
+            "Plate size (x, y), m, each > 0; the plate is centred on the origin and every point of "
+            "the path must lie on it."
+        ),
     )
     thickness_m: Number = _pos("Plate thickness, m, > 0 (informational; inside epm_height_m).")
     gravity_mps2: Number = _pos("Gravitational acceleration g, m/s^2, > 0.", 9.81)
@@ -349,7 +353,14 @@ class PathConfig(_Strict):
         "rectangle", description="rectangle, pipe (three bends, the paper's pipe) or a waypoint file."
     )
     speed_mps: Number = Field(
-        0.02, gt=0, le=0.1, description="Nominal speed v along the path, m/s, (0, 0.1]. Paper: 0.02."
+        0.02,
+        gt=0,
+        le=0.1,
+        description=(
+            "Nominal speed v along the path, m/s, (0, 0.1], and at most what the EPM can follow on the "
+            "path with speed to spare (capsule_mpc.paths.max_path_speed: 0.072 m/s on an axis-aligned "
+            "path with the default limits). Paper: 0.02."
+        ),
     )
     rectangle_size_m: tuple[Number, Number] = Field(
         (0.10, 0.06), description="Rectangle (x, y) size, m, each > 0. Default 100 x 60 mm."
