@@ -43,14 +43,34 @@ ARM_CONTROLLERS = ("mpc",)
 PREDICTION_FIGURE = "mpc_prediction.png"
 
 
+def _seed_argument(text: str) -> int:
+    """``--seed``: an integer >= 0 (a NumPy seed cannot be negative), else an argparse error (exit 2)."""
+    try:
+        seed = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {seed}")
+    return seed
+
+
 def add_run_arguments(p: argparse.ArgumentParser) -> None:
     """The options ``simulate`` and ``compare`` share."""
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
     p.add_argument("--out", required=True, help="output folder (created)")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default: sim.seed of the config)")
+    p.add_argument(
+        "--seed",
+        type=_seed_argument,
+        default=None,
+        help="random seed, an integer >= 0 (default: sim.seed of the config)",
+    )
     p.add_argument("--waypoints", default=None, help="CSV with header x_m,y_m replacing the config's path")
     p.add_argument(
-        "--speed", type=float, default=None, help="nominal path speed, m/s (overrides path.speed_mps)"
+        "--speed",
+        type=float,
+        default=None,
+        help="nominal path speed, m/s (overrides path.speed_mps); at most what the EPM can follow on the "
+        "path (0.072 m/s on the rectangle with the default limits)",
     )
     p.add_argument(
         "--plant",
