@@ -11,13 +11,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from capsule_mpc.atomic import write_text_atomic
 from capsule_mpc.cli.simulate import prepare_run
 from capsule_mpc.config import packaged_config_path
 from capsule_mpc.sim import CapsulePlant, SimpleArm, simulate
@@ -55,11 +58,40 @@ def profile_parts(scenario) -> dict[str, float]:
     return out
 
 
-def main() -> None:
+def _repeats(text: str) -> int:
+    """``--repeats``: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
+    return value
+
+
+def _output_problem(out: Path) -> str | None:
+    """Why the report cannot be written to ``out`` (checked before the runs), or None."""
+    if out.is_dir():
+        return f"{out} is a folder; give a file name, e.g. {out / 'sim_speed.json'}"
+    folder = next(p for p in out.parents if p.exists())  # ends at "." or "/", which exist
+    if not folder.is_dir():
+        return f"{folder} is not a folder"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"cannot write in {folder.resolve()}"
+    return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark and write the report; exit status 2 (and nothing written) for a bad ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--out", default="results/benchmarks/sim_speed.json")
-    args = parser.parse_args()
+    parser.add_argument("--repeats", type=_repeats, default=5, help="runs of the baseline, >= 1")
+    parser.add_argument("--out", default="results/benchmarks/sim_speed.json", help="JSON report file")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    problem = _output_problem(out)
+    if problem is not None:
+        print(f"sim_speed: --out: {problem}", file=sys.stderr)
+        return 2
     scenario, path, _ = prepare_run(packaged_config_path("rectangle"), None, None)
     factors, walls = [], []
     for seed in range(args.repeats):
@@ -80,12 +112,16 @@ def main() -> None:
         "python": platform.python_version(),
         "machine": platform.machine(),
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2) + "\n")
-    print(json.dumps(report, indent=2))
+    text = json.dumps(report, indent=2) + "\n"
+    print(text, end="")
+    try:
+        write_text_atomic(out, text)
+    except OSError as exc:
+        print(f"sim_speed: --out: cannot write {out}: {exc}", file=sys.stderr)
+        return 2
     print(f"wrote {out}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import math
+import re
+import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 from capsule_mpc import ConfigError, dump_config, load_config
-from capsule_mpc.config import packaged_config_path
+from capsule_mpc.cli.info import check_epm_height, scenario_figures
+from capsule_mpc.config import config_from_dict, packaged_config_path
 
 PAPER = yaml.safe_load(packaged_config_path("paper").read_text())
 
@@ -117,3 +121,157 @@ def test_learned_model_from_file_and_inline(tmp_path):
 def test_missing_file_is_a_config_error(tmp_path):
     with pytest.raises(ConfigError, match="cannot read config"):
         load_config(tmp_path / "nope.yaml")
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "message"),
+    [
+        ("capsule", "mass_kg", True, r"capsule\.mass_kg: must be a number .*got True"),
+        ("capsule", "mass_kg", "0.0209", r"capsule\.mass_kg: must be a number .*got '0\.0209'"),
+        ("plate", "size_m", [0.4, "0.3"], r"plate\.size_m\.1: must be a number"),
+        ("friction", "mu0", False, r"friction\.mu0: must be a number"),
+        ("mpc", "horizon", 20.0, r"mpc\.horizon: must be an integer .*got 20\.0"),
+        ("mpc", "horizon", True, r"mpc\.horizon: must be an integer .*got True"),
+        ("sim", "seed", "3", r"sim\.seed: must be an integer .*got '3'"),
+        ("mpc", "compile_c", "yes", r"mpc\.compile_c: must be true or false, got 'yes'"),
+        ("mpc", "height_control", 1, r"mpc\.height_control: must be true or false, got 1"),
+    ],
+)
+def test_numbers_and_flags_are_not_coerced(tmp_path, section, key, value, message):
+    data = yaml.safe_load(yaml.safe_dump(PAPER))
+    data.setdefault(section, {})[key] = value
+    with pytest.raises(ConfigError, match=message):
+        load_config(_write(tmp_path, data))
+
+
+def test_programmatic_numbers_still_validate():
+    data = yaml.safe_load(yaml.safe_dump(PAPER))
+    data["capsule"]["mass_kg"] = np.float32(0.02)
+    data["capsule"]["length_m"] = 1  # an int is a number
+    data["mpc"] = {"horizon": np.int64(15)}
+    s = config_from_dict(data)
+    assert s.capsule.mass_kg == pytest.approx(0.02) and s.capsule.length_m == 1.0
+    assert s.mpc.horizon == 15 and type(s.mpc.horizon) is int
+    with pytest.raises(ValueError, match="must be a number"):
+        s.capsule.mass_kg = True  # assignment is validated too
+
+
+def test_exponent_floats_are_numbers(tmp_path):
+    # YAML 1.1 (PyYAML) reads 1e-5 and -1.189e5 as strings; the number fields read them as numbers.
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        "base: paper\nfriction:\n  d_c_m: 2e-5\n"
+        "  paper_c:\n    coefficients: [-1.189e5, 3E2]\n    degree: 1\n"
+    )
+    s = load_config(path)
+    assert s.friction.d_c_m == 2e-5
+    assert s.friction.paper_c.coefficients == [-118900.0, 300.0]
+    path.write_text('base: paper\nfriction:\n  d_c_m: "2e-5"\n')  # quoted: still a string
+    with pytest.raises(ConfigError, match=r"friction\.d_c_m: must be a number"):
+        load_config(path)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("base: paper\ncapsule:\n  mass_kg: 0.02\n  mass_kg: 0.03\n",
+         "line 4: duplicate key 'mass_kg' (first given at line 3)"),
+        ("base: paper\nname: a\nplate: {}\nname: b\n",
+         "line 4: duplicate key 'name' (first given at line 2)"),
+        ("base: paper\nlimits: {speed_mps: 0.05, speed_mps: 0.06}\n",
+         "line 2: duplicate key 'speed_mps' (first given at line 2)"),
+    ],
+)  # fmt: skip
+def test_duplicate_keys_are_refused_with_their_line(tmp_path, text, message):
+    path = tmp_path / "dup.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    assert str(exc.value) == f"{path}: {message}"
+
+
+def test_merge_keys_may_be_overridden(tmp_path):
+    path = tmp_path / "merge.yaml"
+    path.write_text(
+        "base: paper\ncapsule:\n  <<: {mass_kg: 0.02, length_m: 0.036, diameter_m: 0.014}\n  mass_kg: 0.03\n"
+    )
+    assert load_config(path).capsule.mass_kg == 0.03
+
+
+def test_binary_and_bom_files(tmp_path):
+    binary = tmp_path / "scenario.yaml"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR")
+    with pytest.raises(ConfigError, match=r"scenario\.yaml: not a UTF-8 text file \(byte 0x89 at offset 0\)"):
+        load_config(binary)
+    bom = tmp_path / "bom.yaml"
+    bom.write_bytes(b"\xef\xbb\xbfbase: paper\nname: bom\n")
+    assert load_config(bom).name == "bom"
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"plate": {"epm_height_m": 0.3}}, r"plate\.epm_height_m: must be within the EPM workspace heights "
+         r"\[0\.085, 0\.105\] m \(limits\.workspace_min_m\[2\], limits\.workspace_max_m\[2\]"),
+        ({"plate": {"epm_height_m": 0.03}, "limits": {"workspace_min_m": [-0.18, -0.13, 0.0]}},
+         r"plate\.epm_height_m: must be >= 0\.035 m \(half the EPM height 0\.025 \+ plate\.thickness_m "
+         r"0\.003 \+ half the capsule diameter 0\.007"),
+        ({"force_map": {"height_offsets_m": [0.0, 0.01]}},
+         r"force_map\.height_offsets_m: must span the EPM's true height offsets \[-0\.001, 0\.001\] m"),
+        ({"force_map": {"height_offsets_m": [-0.002, 0.002]}, "plant": {"preset": "hard"}},
+         r"force_map\.height_offsets_m: must span the EPM's true height offsets \[-0\.003, 0\.003\] m"),
+        ({"force_map": {"height_offsets_m": [-0.002, 0.002]}, "plant": {"epm_height_offset_m": 0.004}},
+         r"\[0, 0\.004\] m"),
+    ],
+)  # fmt: skip
+def test_epm_height_within_what_the_models_cover(tmp_path, changes, message):
+    data = yaml.safe_load(yaml.safe_dump(PAPER))
+    for section, values in changes.items():
+        data.setdefault(section, {}).update(values)
+    with pytest.raises(ConfigError, match=message) as exc:
+        load_config(_write(tmp_path, data))
+    assert "got {" not in str(exc.value)  # a rule across fields names its fields, not the section's dict
+    data["force_map"] = {"height_offsets_m": [-0.005, 0.0, 0.005]}
+    data["plate"]["epm_height_m"] = 0.095
+    data["plant"] = {"preset": "ideal"}
+    data.pop("limits", None)
+    assert load_config(_write(tmp_path, data)).force_map.height_offsets_m == [-0.005, 0.0, 0.005]
+
+
+def test_check_epm_height_refuses_what_the_force_map_cannot_hold(scenario):
+    rest = check_epm_height(scenario)  # the paper rig: rest lead -17 mm (finite-magnet model)
+    assert rest == pytest.approx([-0.01696, 0.0], abs=2e-5)
+    high = scenario.model_copy(
+        update={
+            "plate": scenario.plate.model_copy(update={"epm_height_m": 0.3}),
+            "limits": scenario.limits.model_copy(update={"workspace_max_m": (0.18, 0.13, 0.35)}),
+        }
+    )
+    with pytest.raises(ConfigError) as exc:
+        check_epm_height(high)
+    assert str(exc.value) == (
+        "plate.epm_height_m: cannot be 0.3 m: the capsule's rest lead there is (-49.1, +0.0) mm "
+        "(finite-magnet model) and the controller may command leads up to limits.max_lead_m = 25 mm "
+        "from it, 74.1 mm from the EPM axis, beyond the force map's |lead| <= "
+        "force_map.lead_half_range_m = 45 mm; this rig allows heights in [0.035, 0.116] m"
+    )
+    wide = high.model_copy(
+        update={
+            "plate": high.plate.model_copy(update={"epm_height_m": 0.135}),
+            "force_map": high.force_map.model_copy(update={"lead_half_range_m": 0.1}),
+        }
+    )
+    with pytest.raises(ConfigError, match=r"does not hold the capsule .* heights in \[0\.035, 0\.129\d?\] m"):
+        check_epm_height(wide)
+
+
+def test_paper_yaml_comment_matches_info(scenario):
+    """The comment on plate.epm_height_m quotes what `capsule-mpc info` prints (issue 11, item 10)."""
+    text = packaged_config_path("paper").read_text()
+    quoted = re.search(r"F_N = ([\d.]+) m g directly under the\s+# EPM centre and ([\d.]+) m g at the", text)
+    assert quoted is not None
+    with warnings.catch_warnings():  # the friction law's range notes, which info prints as notes
+        warnings.simplefilter("ignore")
+        forces = scenario_figures(scenario)["forces"]
+    assert f"{forces['finite_lead_0mm']['normal_over_weight']:.2f}" == quoted.group(1)
+    assert f"{forces['finite_equilibrium']['normal_over_weight']:.2f}" == quoted.group(2)

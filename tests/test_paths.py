@@ -14,6 +14,7 @@ from capsule_mpc.config import config_from_dict
 from capsule_mpc.paths import (
     ReferencePath,
     from_waypoints_file,
+    max_path_speed,
     path_from_scenario,
     pipe,
     rectangle,
@@ -134,3 +135,72 @@ def test_scenario_workspace_is_plate_within_epm_reach(scenario):
     (x0, y0), (x1, y1) = scenario_workspace(scenario)
     assert (x0, x1) == (-0.18, 0.18)  # EPM reach is inside the 400 mm plate
     assert (y0, y1) == (-0.13, 0.13)
+
+
+def test_waypoint_header_with_a_byte_order_mark_is_read(tmp_path):
+    f = tmp_path / "bom.csv"
+    f.write_bytes(b"\xef\xbb\xbfx_m,y_m\r\n0,0\r\n0.05,0\r\n")  # Excel's "CSV UTF-8"
+    assert from_waypoints_file(f, 0.02, WORKSPACE).length_m == pytest.approx(0.05)
+
+
+def test_binary_waypoint_file_names_the_file(tmp_path):
+    f = tmp_path / "wp.png"
+    f.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00")
+    with pytest.raises(ConfigError, match=r"waypoints file .*wp\.png: not a UTF-8 text file \(byte 0x89"):
+        from_waypoints_file(f, 0.02, WORKSPACE)
+
+
+def _scenario_with(scenario, **sections):
+    data = scenario.model_dump(mode="json", exclude_none=True)
+    for name, values in sections.items():
+        data[name] = {**data[name], **values}
+    return config_from_dict(data)
+
+
+def test_rectangle_off_the_plate_names_the_corner(scenario):
+    small = _scenario_with(scenario, plate={"size_m": [0.09, 0.2]})
+    with pytest.raises(ConfigError) as exc:
+        path_from_scenario(small)
+    assert str(exc.value) == (
+        "path.rectangle_size_m / path.origin_m: rectangle corner 1 of 4 (-0.05, -0.03) m is outside "
+        "the plate (plate.size_m): x in [-0.045, 0.045], y in [-0.1, 0.1] m"
+    )
+    assert path_from_scenario(_scenario_with(scenario, plate={"size_m": [0.1, 0.06]})).closed  # on the edge
+
+
+def test_pipe_out_of_the_epm_reach_names_the_point(scenario):
+    shifted = _scenario_with(scenario, path={"kind": "pipe", "origin_m": [0.15, 0.0]})
+    message = (
+        r"path\.origin_m: pipe centreline point 20 of 29 \(0\.185, 0\.04\) m is outside the EPM "
+        r"workspace \(limits\.workspace_min_m, workspace_max_m\): x in \[-0\.18, 0\.18\]"
+    )
+    with pytest.raises(ConfigError, match=message):
+        path_from_scenario(shifted)
+
+
+def test_max_path_speed_leaves_headroom_to_catch_up(scenario):
+    rect = path_from_scenario(scenario)
+    # V = 0.08 m/s, a = 0.5 m/s^2, T = 20 frames at 30 Hz: u + u^2 / (2 a T) = V.
+    a_t = 0.5 * 20 / 30
+    expected = a_t * (math.sqrt(1 + 2 * 0.08 / a_t) - 1)
+    assert max_path_speed(scenario, rect) == pytest.approx(expected) == pytest.approx(0.07218, abs=1e-5)
+    u = max_path_speed(scenario, rect)
+    assert 0.08 - u == pytest.approx(u**2 / (2 * a_t))
+    diagonal = ReferencePath(np.array([[0.0, 0.0], [0.05, 0.05]]), False, 0.02)
+    assert max_path_speed(scenario, diagonal) == pytest.approx(expected * math.sqrt(2))
+    slow_arm = _scenario_with(scenario, arm={"max_velocity_mps": [0.04, 0.08, 0.08]})
+    assert max_path_speed(slow_arm, rect) < 0.04  # the tighter axis (x) sets it
+
+
+@pytest.mark.parametrize("speed", [0.073, 0.08, 0.09])
+def test_a_speed_the_epm_cannot_follow_is_refused(scenario, speed):
+    message = (
+        rf"^speed: must be in \(0, 0\.0721\] m/s on this path, got {speed}: the EPM moves at most "
+        r"0\.08 m/s and 0\.5 m/s\^2 per axis"
+    )
+    with pytest.raises(ConfigError, match=message):
+        path_from_scenario(scenario, speed=speed)
+    assert path_from_scenario(scenario, speed=0.072).speed_mps == 0.072
+    configured = _scenario_with(scenario, path={"speed_mps": speed})
+    with pytest.raises(ConfigError, match=r"^path\.speed_mps: must be in \(0, 0\.0721\]"):
+        path_from_scenario(configured)

@@ -6,22 +6,30 @@ each field's description. A scenario file may start from another one with
 and override any subset of fields; the merge is recursive over mappings.
 
 Errors name the field path and the allowed range, e.g.
-``capsule.mass_kg: must be > 0, got -0.02``.
+``capsule.mass_kg: must be > 0, got -0.02``. Values are not coerced: a number field takes a
+number (not ``true`` or ``"0.02"``), an integer field an integer, a flag ``true``/``false``; a
+repeated key is refused with its line; ``1e-5`` is a number (YAML 1.2), and a UTF-8 byte-order
+mark is allowed.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+import numbers
+import re
+from collections.abc import Hashable
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import (
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Field,
+    StrictBool,
     ValidationError,
     ValidationInfo,
     field_validator,
@@ -65,6 +73,26 @@ class ConfigError(ValueError):
     """A scenario file or value is invalid; the message names the field and the allowed range."""
 
 
+def _number(value: Any) -> Any:
+    """Let only numbers through to a float field (pydantic alone would read true as 1.0 and "1" as 1.0)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError("must be a number (true/false and quoted values are not numbers)")
+    return value
+
+
+def _integer(value: Any) -> Any:
+    """Let only integers through to an int field (not true/false, not 2.0 or "2")."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError("must be an integer (true/false, 2.0 and quoted values are not integers)")
+    return value
+
+
+#: A float field that takes a number only: an int is fine, a bool or a string is an error.
+Number = Annotated[float, BeforeValidator(_number)]
+#: An int field that takes an integer only: a bool, a float or a string is an error.
+Integer = Annotated[int, BeforeValidator(_integer)]
+
+
 class _Strict(BaseModel):
     """Base for every section: unknown keys are rejected, NaN/inf are rejected, assignment is validated."""
 
@@ -79,20 +107,20 @@ def _pos(description: str, default: Any = ..., **kw: Any) -> Any:
 class CapsuleConfig(_Strict):
     """The capsule body (paper Table 2)."""
 
-    mass_kg: float = _pos("Capsule mass m, kg, > 0. Paper: 20.9 g.")
-    length_m: float = _pos("Capsule length, m, > 0. Paper: 36 mm.")
-    diameter_m: float = _pos("Capsule diameter, m, > 0. Paper: 14 mm.")
+    mass_kg: Number = _pos("Capsule mass m, kg, > 0. Paper: 20.9 g.")
+    length_m: Number = _pos("Capsule length, m, > 0. Paper: 36 mm.")
+    diameter_m: Number = _pos("Capsule diameter, m, > 0. Paper: 14 mm.")
 
 
 class IPMConfig(_Strict):
     """Internal permanent magnet: an axially magnetised hollow cylinder along the capsule axis."""
 
-    outer_diameter_m: float = _pos("Outer diameter, m, > 0. Paper: 10 mm.")
-    inner_diameter_m: float = Field(
+    outer_diameter_m: Number = _pos("Outer diameter, m, > 0. Paper: 10 mm.")
+    inner_diameter_m: Number = Field(
         ..., ge=0, description="Inner (bore) diameter, m, >= 0 and < outer. Paper: 6 mm."
     )
-    length_m: float = _pos("Length along the capsule axis, m, > 0. Paper: 35 mm.")
-    remanence_t: float = _pos("Remanence B_r, T, > 0. Paper: N30, 1.26 T.")
+    length_m: Number = _pos("Length along the capsule axis, m, > 0. Paper: 35 mm.")
+    remanence_t: Number = _pos("Remanence B_r, T, > 0. Paper: N30, 1.26 T.")
     grade: str = Field("N30", description="Magnet grade (informational).")
 
     @model_validator(mode="after")
@@ -111,10 +139,10 @@ class EPMConfig(_Strict):
     The EPM frame has x along the array, z up; the array's centre is the EPM position.
     """
 
-    block_size_m: tuple[float, float, float] = Field(
+    block_size_m: tuple[Number, Number, Number] = Field(
         ..., description="One block's size (x, y, z), m, each > 0. Paper: 20 x 60 x 50 mm."
     )
-    magnetisation: list[tuple[float, float, float]] = Field(
+    magnetisation: list[tuple[Number, Number, Number]] = Field(
         ...,
         min_length=1,
         description=(
@@ -123,7 +151,7 @@ class EPMConfig(_Strict):
             "strong side facing the plate (-z)."
         ),
     )
-    remanence_t: float = _pos("Remanence B_r, T, > 0. Paper: N35, 1.26 T.")
+    remanence_t: Number = _pos("Remanence B_r, T, > 0. Paper: N35, 1.26 T.")
     grade: str = Field("N35", description="Magnet grade (informational).")
 
     @field_validator("block_size_m")
@@ -165,20 +193,34 @@ class PlateConfig(_Strict):
             "the plate and the EPM below pulls it against it (F_N = m g + |F_z|)."
         ),
     )
-    epm_height_m: float = Field(
+    epm_height_m: Number = Field(
         ...,
         gt=0,
         le=0.5,
         description=(
-            "Vertical distance between the EPM centre and the IPM centre, m, in (0, 0.5]. Not given "
-            "in the paper; the default is chosen so the normal force at zero lead is 2-4 x m g."
+            "Vertical distance between the EPM centre and the IPM centre, m, in (0, 0.5], and what "
+            "the models can do: >= half the EPM height + plate.thickness_m + half the capsule "
+            "diameter (0.035 m for the paper rig; closer, EPM, plate and capsule would overlap); "
+            "within the EPM workspace heights limits.workspace_min_m[2]..workspace_max_m[2] (the EPM "
+            "starts at this height and is never commanded outside its workspace); and, checked by "
+            "a few finite-magnet evaluations before a force map is computed (info, simulate, compare, "
+            "plan), the capsule's rest lead here plus limits.max_lead_m must lie inside "
+            "force_map.lead_half_range_m (every lead the controller may command is tabulated; the "
+            "rest lead grows with the height, 17 mm at 95 mm for the paper's array) and, below_plate, "
+            "the EPM must hold the capsule up. Paper rig with the default limits and map: 0.035 to "
+            "0.116 m (0.129 m is where it stops holding the capsule). Not given in the paper; 0.095 "
+            "gives F_N = 2.44 m g at zero lead and 3.49 m g at the rest lead."
         ),
     )
-    size_m: tuple[float, float] = Field(
-        ..., description="Plate size (x, y), m, each > 0; the plate is centred on the origin."
+    size_m: tuple[Number, Number] = Field(
+        ...,
+        description=(
+            "Plate size (x, y), m, each > 0; the plate is centred on the origin and every point of "
+            "the path must lie on it."
+        ),
     )
-    thickness_m: float = _pos("Plate thickness, m, > 0 (informational; inside epm_height_m).")
-    gravity_mps2: float = _pos("Gravitational acceleration g, m/s^2, > 0.", 9.81)
+    thickness_m: Number = _pos("Plate thickness, m, > 0 (informational; inside epm_height_m).")
+    gravity_mps2: Number = _pos("Gravitational acceleration g, m/s^2, > 0.", 9.81)
 
     @field_validator("size_m")
     @classmethod
@@ -191,8 +233,8 @@ class PlateConfig(_Strict):
 class RateStateConfig(_Strict):
     """Dieterich-Ruina rate-and-state constants of the plant (paper eq. 5-6)."""
 
-    a: float = Field(..., ge=0, description="Direct-effect constant a, >= 0 (paper eq. 5).")
-    b: float = Field(..., ge=0, description="Evolution-effect constant b, >= 0 (paper eq. 5).")
+    a: Number = Field(..., ge=0, description="Direct-effect constant a, >= 0 (paper eq. 5).")
+    b: Number = Field(..., ge=0, description="Evolution-effect constant b, >= 0 (paper eq. 5).")
 
 
 class LearnedFrictionModel(_Strict):
@@ -201,26 +243,28 @@ class LearnedFrictionModel(_Strict):
     Written by ``capsule-mpc learn-friction``; loadable inline or from a file.
     """
 
-    coefficients: list[float] = Field(
+    coefficients: list[Number] = Field(
         ..., min_length=1, description="Polynomial c(v), highest power first (like p1..p5)."
     )
-    validity_mps: tuple[float, float] = Field(
+    validity_mps: tuple[Number, Number] = Field(
         ..., description="Speed range (min, max) the polynomial was fitted on, m/s, 0 < min < max."
     )
-    degree: int | None = Field(None, ge=0, description="Polynomial degree (len(coefficients)-1).")
-    mu0: float | None = Field(None, ge=0, description="mu0 used in the fit (informational).")
-    v_star_mps: float | None = Field(None, gt=0, description="v* used in the fit, m/s.")
-    tether_drag_n: float | None = Field(None, ge=0, description="f_s used in the fit, N.")
-    mass_kg: float | None = Field(None, gt=0, description="Capsule mass used in the fit, kg.")
-    n_samples: int | None = Field(None, ge=0, description="Number of samples fitted.")
-    sse: float | None = Field(None, ge=0, description="Sum of squared residuals of c.")
-    r2: float | None = Field(None, description="Coefficient of determination of the fit.")
-    rmse: float | None = Field(None, ge=0, description="Root-mean-square residual of c.")
+    degree: Integer | None = Field(None, ge=0, description="Polynomial degree (len(coefficients)-1).")
+    mu0: Number | None = Field(None, ge=0, description="mu0 used in the fit (informational).")
+    v_star_mps: Number | None = Field(None, gt=0, description="v* used in the fit, m/s.")
+    tether_drag_n: Number | None = Field(None, ge=0, description="f_s used in the fit, N.")
+    mass_kg: Number | None = Field(None, gt=0, description="Capsule mass used in the fit, kg.")
+    n_samples: Integer | None = Field(None, ge=0, description="Number of samples fitted.")
+    sse: Number | None = Field(None, ge=0, description="Sum of squared residuals of c.")
+    r2: Number | None = Field(None, description="Coefficient of determination of the fit.")
+    rmse: Number | None = Field(None, ge=0, description="Root-mean-square residual of c.")
     force_model: Literal["dipole", "lookup"] | None = Field(
         None, description="Force model that gave F and F_N in the fit (informational)."
     )
-    robust: bool | None = Field(None, description="Whether the fit used the Huber loss (informational).")
-    excluded: dict[str, int] | None = Field(
+    robust: StrictBool | None = Field(
+        None, description="Whether the fit used the Huber loss (informational)."
+    )
+    excluded: dict[str, Integer] | None = Field(
         None, description="Samples excluded from the fit, by reason (informational)."
     )
     sources: list[str] | None = Field(None, description="Files the samples came from (informational).")
@@ -240,12 +284,12 @@ class LearnedFrictionModel(_Strict):
 class FrictionConfig(_Strict):
     """Friction and tether drag (paper eq. 4-12, Table 1)."""
 
-    mu0: float = Field(..., ge=0, le=2, description="Sliding friction mu0, in [0, 2]. Paper: 0.22.")
-    tether_drag_n: float = Field(
+    mu0: Number = Field(..., ge=0, le=2, description="Sliding friction mu0, in [0, 2]. Paper: 0.22.")
+    tether_drag_n: Number = Field(
         ..., ge=0, description="Tether drag f_s, N, >= 0; opposes motion. Paper: 0.03 N."
     )
-    v_star_mps: float = _pos("Rate-and-state reference speed v*, m/s, > 0. Paper: 0.2 m/s.")
-    d_c_m: float = _pos("Critical slip length D_c, m, > 0. Paper: ~10 um.")
+    v_star_mps: Number = _pos("Rate-and-state reference speed v*, m/s, > 0. Paper: 0.2 m/s.")
+    d_c_m: Number = _pos("Critical slip length D_c, m, > 0. Paper: ~10 um.")
     rate_state: RateStateConfig = Field(
         ..., description="Dieterich-Ruina a, b of the plant (the paper's c ~ a - b)."
     )
@@ -262,7 +306,7 @@ class FrictionConfig(_Strict):
             "file) or an inline model; None uses paper_c."
         ),
     )
-    smoothing_eps_mps: float = Field(
+    smoothing_eps_mps: Number = Field(
         1e-3,
         gt=0,
         le=0.01,
@@ -273,16 +317,20 @@ class FrictionConfig(_Strict):
 class ForceMapConfig(_Strict):
     """Tabulated finite-magnet force over the EPM-IPM lead and height (cached on disk)."""
 
-    lead_half_range_m: float = Field(
+    lead_half_range_m: Number = Field(
         0.045, gt=0, le=0.2, description="The map covers |lead_x|, |lead_y| <= this, m, (0, 0.2]."
     )
-    lead_step_m: float = Field(0.003, gt=0, le=0.02, description="Grid step in lead, m, (0, 0.02].")
-    height_offsets_m: list[float] = Field(
+    lead_step_m: Number = Field(0.003, gt=0, le=0.02, description="Grid step in lead, m, (0, 0.02].")
+    height_offsets_m: list[Number] = Field(
         [-0.01, -0.005, 0.0, 0.005, 0.01],
         min_length=2,
-        description="Heights tabulated, as offsets from plate.epm_height_m, m (>= 2, increasing).",
+        description=(
+            "Heights tabulated, as offsets from plate.epm_height_m, m (>= 2, increasing); they must "
+            "span 0 and the plant's true EPM height offsets (plant.epm_height_offset_m, or its "
+            "preset's range: lab +-1 mm, hard +-3 mm), where the plant looks its forces up."
+        ),
     )
-    meshing: int = Field(
+    meshing: Integer = Field(
         100, ge=10, le=5000, description="Cells of the IPM mesh for magpylib getFT, [10, 5000]."
     )
     cache_dir: Path | None = Field(
@@ -304,13 +352,20 @@ class PathConfig(_Strict):
     kind: Literal["rectangle", "pipe", "waypoints"] = Field(
         "rectangle", description="rectangle, pipe (three bends, the paper's pipe) or a waypoint file."
     )
-    speed_mps: float = Field(
-        0.02, gt=0, le=0.1, description="Nominal speed v along the path, m/s, (0, 0.1]. Paper: 0.02."
+    speed_mps: Number = Field(
+        0.02,
+        gt=0,
+        le=0.1,
+        description=(
+            "Nominal speed v along the path, m/s, (0, 0.1], and at most what the EPM can follow on the "
+            "path with speed to spare (capsule_mpc.paths.max_path_speed: 0.072 m/s on an axis-aligned "
+            "path with the default limits). Paper: 0.02."
+        ),
     )
-    rectangle_size_m: tuple[float, float] = Field(
+    rectangle_size_m: tuple[Number, Number] = Field(
         (0.10, 0.06), description="Rectangle (x, y) size, m, each > 0. Default 100 x 60 mm."
     )
-    origin_m: tuple[float, float] = Field(
+    origin_m: tuple[Number, Number] = Field(
         (0.0, 0.0), description="Plate point the path is centred on (x, y), m."
     )
     waypoints_file: Path | None = Field(
@@ -328,16 +383,16 @@ class PathConfig(_Strict):
 class LimitsConfig(_Strict):
     """What the EPM may do: every command honours these (DESIGN.md §3)."""
 
-    speed_mps: float = Field(0.08, gt=0, le=1.0, description="Max EPM speed per axis, m/s, (0, 1].")
-    accel_mps2: float = Field(0.5, gt=0, le=10.0, description="Max EPM acceleration per axis, m/s^2.")
-    jerk_mps3: float = Field(5.0, gt=0, le=1000.0, description="Max EPM jerk per axis, m/s^3.")
-    workspace_min_m: tuple[float, float, float] = Field(
+    speed_mps: Number = Field(0.08, gt=0, le=1.0, description="Max EPM speed per axis, m/s, (0, 1].")
+    accel_mps2: Number = Field(0.5, gt=0, le=10.0, description="Max EPM acceleration per axis, m/s^2.")
+    jerk_mps3: Number = Field(5.0, gt=0, le=1000.0, description="Max EPM jerk per axis, m/s^3.")
+    workspace_min_m: tuple[Number, Number, Number] = Field(
         (-0.18, -0.13, 0.085), description="EPM workspace lower corner (x, y, height), m."
     )
-    workspace_max_m: tuple[float, float, float] = Field(
+    workspace_max_m: tuple[Number, Number, Number] = Field(
         (0.18, 0.13, 0.105), description="EPM workspace upper corner (x, y, height), m."
     )
-    max_lead_m: float = Field(
+    max_lead_m: Number = Field(
         0.025,
         gt=0,
         le=0.045,
@@ -346,10 +401,10 @@ class LimitsConfig(_Strict):
             "risks losing the magnet."
         ),
     )
-    normal_force_min_n: float = Field(
+    normal_force_min_n: Number = Field(
         0.1, ge=0, description="Min normal force F_N, N, >= 0 (capsule stays on the plate)."
     )
-    normal_force_max_n: float = Field(1.5, gt=0, description="Max normal force F_N, N, > 0 (tissue-safe).")
+    normal_force_max_n: Number = Field(1.5, gt=0, description="Max normal force F_N, N, > 0 (tissue-safe).")
 
     @model_validator(mode="after")
     def _ordered(self) -> LimitsConfig:
@@ -367,25 +422,27 @@ class LimitsConfig(_Strict):
 class CameraConfig(_Strict):
     """The camera that measures the capsule position."""
 
-    rate_hz: float = Field(30.0, gt=0, le=1000, description="Frame rate, Hz, (0, 1000]. Paper: ~30 Hz.")
-    noise_std_m: float = Field(3e-4, ge=0, le=0.01, description="Gaussian noise per axis, m, [0, 0.01].")
-    latency_frames: int = Field(1, ge=0, le=10, description="Delay of each measurement in frames, [0, 10].")
-    drop_probability: float = Field(0.0, ge=0, lt=1, description="Probability a frame is lost, [0, 1).")
+    rate_hz: Number = Field(30.0, gt=0, le=1000, description="Frame rate, Hz, (0, 1000]. Paper: ~30 Hz.")
+    noise_std_m: Number = Field(3e-4, ge=0, le=0.01, description="Gaussian noise per axis, m, [0, 0.01].")
+    latency_frames: Integer = Field(
+        1, ge=0, le=10, description="Delay of each measurement in frames, [0, 10]."
+    )
+    drop_probability: Number = Field(0.0, ge=0, lt=1, description="Probability a frame is lost, [0, 1).")
 
 
 class SimConfig(_Strict):
     """The simulated rig (plant integration and run length)."""
 
-    plant_rate_hz: float = Field(1000.0, ge=1000, le=100000, description="Plant step rate, Hz, >= 1000.")
-    seed: int = Field(
+    plant_rate_hz: Number = Field(1000.0, ge=1000, le=100000, description="Plant step rate, Hz, >= 1000.")
+    seed: Integer = Field(
         0,
         ge=0,
         description="Seed of every random draw (plant truth, start offset, camera noise, drops), >= 0.",
     )
-    settle_s: float = Field(
+    settle_s: Number = Field(
         1.0, ge=0, le=30, description="Time the capsule settles under the resting EPM before motion, s."
     )
-    tail_s: float = Field(
+    tail_s: Number = Field(
         15.0,
         ge=0,
         le=300,
@@ -402,7 +459,7 @@ class SimConfig(_Strict):
             "'robot' (Ruckig + Pinocchio arm, when available)."
         ),
     )
-    decouple_lead_m: float = Field(
+    decouple_lead_m: Number = Field(
         0.035,
         gt=0,
         le=0.1,
@@ -411,7 +468,7 @@ class SimConfig(_Strict):
             "(or when the lead leaves the force map)."
         ),
     )
-    completion_tol_m: float = Field(
+    completion_tol_m: Number = Field(
         0.002,
         gt=0,
         le=0.05,
@@ -421,7 +478,7 @@ class SimConfig(_Strict):
             "The run goes on until the capsule is at rest (sim.rest_hold_s)."
         ),
     )
-    rest_hold_s: float = Field(
+    rest_hold_s: Number = Field(
         1.0,
         gt=0,
         le=60,
@@ -430,7 +487,7 @@ class SimConfig(_Strict):
             "long after the path's nominal end, s, (0, 60]; never while it moves."
         ),
     )
-    rest_speed_mps: float = Field(
+    rest_speed_mps: Number = Field(
         1e-4,
         gt=0,
         le=0.01,
@@ -444,8 +501,8 @@ class SimConfig(_Strict):
 class MPCConfig(_Strict):
     """The receding-horizon controller (see ``capsule_mpc.mpc``)."""
 
-    horizon: int = Field(20, ge=2, le=200, description="Prediction horizon N, steps, [2, 200].")
-    dt_s: float | None = Field(
+    horizon: Integer = Field(20, ge=2, le=200, description="Prediction horizon N, steps, [2, 200].")
+    dt_s: Number | None = Field(
         None, gt=0, le=0.5, description="Step of the prediction, s; None = one camera frame."
     )
     scheme: Literal["rti", "sqp", "ipopt"] = Field(
@@ -462,9 +519,9 @@ class MPCConfig(_Strict):
             "(CasADi's active set; same median, slower after large changes)."
         ),
     )
-    max_sqp_iter: int = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
-    max_ipopt_iter: int = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
-    position_tol_m: float = Field(
+    max_sqp_iter: Integer = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
+    max_ipopt_iter: Integer = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
+    position_tol_m: Number = Field(
         1e-3,
         gt=0,
         description=(
@@ -472,7 +529,7 @@ class MPCConfig(_Strict):
             "where the reference stands still) divided by this is one cost unit."
         ),
     )
-    lateral_tol_m: float = Field(
+    lateral_tol_m: Number = Field(
         2e-4,
         gt=0,
         description=(
@@ -480,22 +537,22 @@ class MPCConfig(_Strict):
             "so the capsule rather lags than cuts a corner."
         ),
     )
-    velocity_tol_mps: float = Field(
+    velocity_tol_mps: Number = Field(
         0.01, gt=0, description="Capsule velocity tracking tolerance, m/s (weight 1/tol^2)."
     )
-    input_tol_mps: float = Field(
+    input_tol_mps: Number = Field(
         0.05, gt=0, description="EPM velocity deviation from the path feed-forward tolerance, m/s."
     )
-    input_rate_tol_mps: float = Field(
+    input_rate_tol_mps: Number = Field(
         0.004, gt=0, description="EPM velocity change per step tolerance, m/s (smoothness)."
     )
-    terminal_factor: float = Field(
+    terminal_factor: Number = Field(
         3.0, ge=1, le=100, description="Terminal tracking weight factor, [1, 100]."
     )
-    slack_weight: float = Field(
+    slack_weight: Number = Field(
         1e4, gt=0, description="Weight of constraint slacks (coupling, normal force), per unit slack."
     )
-    height_control: bool = Field(
+    height_control: StrictBool = Field(
         False, description="Let the MPC move the EPM height (else the height command is 0)."
     )
     feedforward: Literal["path", "plan"] = Field(
@@ -505,8 +562,8 @@ class MPCConfig(_Strict):
             "plan's EPM velocity (`capsule_mpc.planner`, solved once at reset and cached)."
         ),
     )
-    deadline_ms: float | None = Field(None, gt=0, description="Solve deadline, ms; None = one frame period.")
-    enforce_deadline: bool = Field(
+    deadline_ms: Number | None = Field(None, gt=0, description="Solve deadline, ms; None = one frame period.")
+    enforce_deadline: StrictBool = Field(
         False,
         description=(
             "Treat a late solve as failed (use the shifted plan). On for wall-clock-paced runs "
@@ -514,19 +571,19 @@ class MPCConfig(_Strict):
             "(late solves are still counted)."
         ),
     )
-    disturbance_gain: float = Field(
+    disturbance_gain: Number = Field(
         0.15,
         ge=0,
         le=1,
         description=("Gain of the force-disturbance estimator (offset-free MPC), [0, 1]; 0 disables it."),
     )
-    disturbance_max_n: float = Field(
+    disturbance_max_n: Number = Field(
         0.15, ge=0, description="Bound on each estimated disturbance force component, N."
     )
-    estimator_accel_std_mps2: float = Field(
+    estimator_accel_std_mps2: Number = Field(
         0.3, gt=0, description="Kalman filter process noise: capsule acceleration std, m/s^2."
     )
-    compile_c: bool = Field(
+    compile_c: StrictBool = Field(
         True,
         description=(
             "Compile the SQP's NLP functions to C (gcc) once, cached on disk by a hash of the "
@@ -535,7 +592,7 @@ class MPCConfig(_Strict):
     )
 
 
-_Vec3 = tuple[float, float, float]
+_Vec3 = tuple[Number, Number, Number]
 
 
 def _rpy_matrix(rpy: _Vec3) -> list[list[float]]:
@@ -564,10 +621,10 @@ class ArmConfig(_Strict):
             "returns the UR5 model)."
         ),
     )
-    arm_rate_hz: float = Field(
+    arm_rate_hz: Number = Field(
         500.0, ge=10, le=10000, description="Rate of the arm's setpoints, Hz, [10, 10000]. UR: 500 Hz."
     )
-    plan_lookahead_s: float = Field(
+    plan_lookahead_s: Number = Field(
         0.2,
         ge=0,
         le=2.0,
@@ -577,7 +634,7 @@ class ArmConfig(_Strict):
             "gave the smallest deviation from the rectangle and circle test plans."
         ),
     )
-    plan_waypoint_rate_hz: float | None = Field(
+    plan_waypoint_rate_hz: Number | None = Field(
         None,
         gt=0,
         le=1000,
@@ -630,35 +687,35 @@ class ArmConfig(_Strict):
             "the magnetic models assume yaw 0 (array along world x)."
         ),
     )
-    q_seed_rad: tuple[float, float, float, float, float, float] = Field(
+    q_seed_rad: tuple[Number, Number, Number, Number, Number, Number] = Field(
         (-0.25, -1.43, 2.2, -2.34, -1.571, -0.25),
         description=(
             "Joint configuration the first IK solve starts from (selects the elbow-up, wrist-down "
             "branch), rad, 6 values."
         ),
     )
-    ik_position_tolerance_m: float = Field(
+    ik_position_tolerance_m: Number = Field(
         1e-9, gt=0, le=1e-4, description="IK convergence: EPM centre position error, m, (0, 1e-4]."
     )
-    ik_orientation_tolerance_rad: float = Field(
+    ik_orientation_tolerance_rad: Number = Field(
         1e-8, gt=0, le=1e-2, description="IK convergence: EPM orientation error, rad, (0, 0.01]."
     )
-    ik_damping: float = Field(
+    ik_damping: Number = Field(
         1e-8,
         ge=0,
         le=1.0,
         description="Damped least squares: lambda in dq = J^T (J J^T + lambda I)^-1 e, [0, 1].",
     )
-    ik_max_iterations: int = Field(
+    ik_max_iterations: Integer = Field(
         20, ge=1, le=1000, description="IK iterations per warm-started point along a trajectory."
     )
-    ik_max_iterations_cold: int = Field(
+    ik_max_iterations_cold: Integer = Field(
         300, ge=1, le=10000, description="IK iterations of the first (cold-started) solve."
     )
-    joint_position_margin_rad: float = Field(
+    joint_position_margin_rad: Number = Field(
         0.05, ge=0, le=0.5, description="Keep every joint this far inside its position limits, rad."
     )
-    joint_velocity_fraction: float = Field(
+    joint_velocity_fraction: Number = Field(
         0.8, gt=0, le=1, description="Allowed fraction of each joint's rated velocity, (0, 1]."
     )
 
@@ -769,10 +826,10 @@ PLANT_FIXED: dict[str, float | None] = {
 class FrictionPatchConfig(_Strict):
     """A rectangle of the plate whose friction is scaled (a wet or dry patch), on top of the field."""
 
-    x_range_m: tuple[float, float] = Field(..., description="Patch extent in x (min, max), m, min < max.")
-    y_range_m: tuple[float, float] = Field(..., description="Patch extent in y (min, max), m, min < max.")
-    scale: float = Field(..., gt=0, le=10, description="Friction multiplier inside the patch, (0, 10].")
-    edge_m: float = Field(
+    x_range_m: tuple[Number, Number] = Field(..., description="Patch extent in x (min, max), m, min < max.")
+    y_range_m: tuple[Number, Number] = Field(..., description="Patch extent in y (min, max), m, min < max.")
+    scale: Number = Field(..., gt=0, le=10, description="Friction multiplier inside the patch, (0, 10].")
+    edge_m: Number = Field(
         0.0, ge=0, le=0.05, description="Width of the smooth transition at the patch edge, m, [0, 0.05]."
     )
 
@@ -808,85 +865,85 @@ class PlantConfig(_Strict):
             "each perturbation drawn from the tolerances of a lab rig. hard: wider tolerances."
         ),
     )
-    epm_remanence_scale: float | None = _drawn(
+    epm_remanence_scale: Number | None = _drawn(
         "True EPM remanence / nominal, (0, 2]. lab U(0.95, 1.01): N35 grade B_r 1.17-1.22 T "
         "(MMPA 0100-00; supplier datasheets) against the nominal 1.26 T, plus Halbach assembly "
         "losses; hard U(0.88, 1.0).",
         gt=0,
         le=2,
     )
-    ipm_remanence_scale: float | None = _drawn(
+    ipm_remanence_scale: Number | None = _drawn(
         "True IPM remanence / nominal, (0, 2]. lab U(0.95, 1.01) (grade tolerance, as the EPM); "
         "hard U(0.85, 1.0) (a small magnet ground to shape loses more).",
         gt=0,
         le=2,
     )
-    epm_height_offset_m: float | None = _drawn(
+    epm_height_offset_m: Number | None = _drawn(
         "True EPM height minus plate.epm_height_m, m, [-0.005, 0.005]. lab U(-1, 1) mm (arm "
         "calibration and plate flatness); hard U(-3, 3) mm.",
         ge=-0.005,
         le=0.005,
     )
-    epm_tilt_rad: float | None = _drawn(
+    epm_tilt_rad: Number | None = _drawn(
         "Mounting tilt of the EPM (rotation about a horizontal axis), rad, [0, 0.1]. lab U(0, 1 deg) "
         "(machined adapter and flange tolerance); hard U(0, 3 deg).",
         ge=0,
         le=0.1,
     )
-    epm_tilt_azimuth_rad: float | None = _drawn(
+    epm_tilt_azimuth_rad: Number | None = _drawn(
         "Direction of the tilt axis in the plate plane, rad, [-pi, pi]; lab and hard U(-pi, pi).",
         ge=-math.pi,
         le=math.pi,
     )
-    epm_yaw_rad: float | None = _drawn(
+    epm_yaw_rad: Number | None = _drawn(
         "Mounting yaw error of the EPM about the vertical, rad, [-0.1, 0.1]. lab U(-1, 1) deg; "
         "hard U(-3, 3) deg.",
         ge=-0.1,
         le=0.1,
     )
-    mass_scale: float | None = _drawn(
+    mass_scale: Number | None = _drawn(
         "True capsule mass / capsule.mass_kg, [0.5, 2]. lab U(0.97, 1.03) (tether weight carried, "
         "scale resolution); hard U(0.9, 1.1).",
         ge=0.5,
         le=2,
     )
-    mu0_scale: float | None = _drawn(
+    mu0_scale: Number | None = _drawn(
         "True mu0 / friction.mu0, [0.3, 3]. lab U(0.85, 1.15): the paper's pull test spans "
         "0.042-0.048 N (+-7 %) on one sample, and sliding friction on tissue phantoms varies by "
         "10-30 % between preparations; hard U(0.7, 1.3).",
         ge=0.3,
         le=3,
     )
-    a_scale: float | None = _drawn(
+    a_scale: Number | None = _drawn(
         "True rate-and-state a / friction.rate_state.a, [0.2, 5]. lab U(0.8, 1.2); hard U(0.6, 1.4) "
         "(a and b are not measured on this rig; the paper only fits their difference).",
         ge=0.2,
         le=5,
     )
-    b_scale: float | None = _drawn(
+    b_scale: Number | None = _drawn(
         "True rate-and-state b / friction.rate_state.b, [0.2, 5]. lab U(0.8, 1.2); hard U(0.6, 1.4).",
         ge=0.2,
         le=5,
     )
-    tether_drag_n: float | None = _drawn(
+    tether_drag_n: Number | None = _drawn(
         "True tether drag at the start of the path, N, [0, 0.5]. lab U(0.02, 0.04) around the paper's "
         "0.03 N; hard U(0.015, 0.06); ideal friction.tether_drag_n.",
         ge=0,
         le=0.5,
     )
-    tether_drag_growth_n_per_m: float | None = _drawn(
+    tether_drag_growth_n_per_m: Number | None = _drawn(
         "Growth of the tether drag with the tether paid out (the capsule's travelled distance), N/m, "
         "[0, 2]. lab U(0, 0.05); hard U(0, 0.15).",
         ge=0,
         le=2,
     )
-    friction_field_amplitude: float | None = _drawn(
+    friction_field_amplitude: Number | None = _drawn(
         "Standard deviation of the friction multiplier over the plate (a smooth random field), "
         "[0, 0.9]. lab U(0.05, 0.15); hard U(0.15, 0.3).",
         ge=0,
         le=0.9,
     )
-    friction_field_correlation_m: float = Field(
+    friction_field_correlation_m: Number = Field(
         0.03,
         gt=0,
         le=1,
@@ -895,14 +952,14 @@ class PlantConfig(_Strict):
     friction_patches: list[FrictionPatchConfig] = Field(
         default_factory=list, description="Patches whose friction is scaled, on top of the field."
     )
-    servo_bandwidth_hz: float | None = _drawn(
+    servo_bandwidth_hz: Number | None = _drawn(
         "Bandwidth of the arm's velocity servo (first-order lag of the EPM behind its command), Hz, "
         "(0, 1000]. lab U(5, 10) Hz (Cartesian velocity control of a UR-class arm); hard U(2, 5) Hz; "
         "ideal no lag.",
         gt=0,
         le=1000,
     )
-    compute_delay_s: float | None = _drawn(
+    compute_delay_s: Number | None = _drawn(
         "Time from a camera frame to its command reaching the arm (image processing, solve, "
         "transport), s, [0, one camera period). lab U(2, 8) ms; hard U(5, 20) ms; ideal 0. With "
         "compute_delay_mode 'solve_time' it is the part of the delay outside the controller.",
@@ -918,33 +975,33 @@ class PlantConfig(_Strict):
             "whose loop waits for the solve. Commands are applied in frame order."
         ),
     )
-    camera_bias_x_m: float | None = _drawn(
+    camera_bias_x_m: Number | None = _drawn(
         "Constant error of the camera-to-plate registration in x, m, [-0.005, 0.005]. lab U(-0.3, 0.3) "
         "mm; hard U(-1, 1) mm.",
         ge=-0.005,
         le=0.005,
     )
-    camera_bias_y_m: float | None = _drawn("As camera_bias_x_m, in y.", ge=-0.005, le=0.005)
-    camera_noise_std_m: float | None = _drawn(
+    camera_bias_y_m: Number | None = _drawn("As camera_bias_x_m, in y.", ge=-0.005, le=0.005)
+    camera_noise_std_m: Number | None = _drawn(
         "True camera noise per axis, m, [0, 0.01] (the estimator keeps camera.noise_std_m). lab "
         "U(0.3, 0.5) mm; hard U(0.4, 0.8) mm; ideal camera.noise_std_m.",
         ge=0,
         le=0.01,
     )
-    rest_before_start_s: float | None = _drawn(
+    rest_before_start_s: Number | None = _drawn(
         "How long the capsule has rested before the run (heals the friction state theta), s, "
         "[0, 3600]. lab U(2, 30) s; hard U(2, 120) s; ideal 1 s.",
         ge=0,
         le=3600,
     )
-    start_dead_zone_fraction: float | None = _drawn(
+    start_dead_zone_fraction: Number | None = _drawn(
         "Where the capsule rests at the start: a lead drawn uniformly inside this fraction of the "
         "static-friction dead zone around the true equilibrium, [0, 0.95] (0: at the equilibrium). "
         "lab U(0, 0.8); hard U(0, 0.95); ideal 0.",
         ge=0,
         le=0.95,
     )
-    breakaway_speed_mps: float = Field(
+    breakaway_speed_mps: Number = Field(
         0.02,
         gt=0,
         le=1,
@@ -1010,6 +1067,40 @@ class Scenario(_Strict):
             )
         return arm
 
+    @model_validator(mode="after")
+    def _epm_height_possible(self) -> Scenario:
+        h = self.plate.epm_height_m
+        closest = self.epm.block_size_m[2] / 2 + self.plate.thickness_m + self.capsule.diameter_m / 2
+        if h < closest:
+            raise ValueError(
+                f"plate.epm_height_m: must be >= {closest:.4g} m (half the EPM height "
+                f"{self.epm.block_size_m[2] / 2:.4g} + plate.thickness_m {self.plate.thickness_m:.4g} + "
+                f"half the capsule diameter {self.capsule.diameter_m / 2:.4g}; closer, EPM, plate and "
+                f"capsule would overlap), got {h}"
+            )
+        z_lo, z_hi = self.limits.workspace_min_m[2], self.limits.workspace_max_m[2]
+        if not z_lo <= h <= z_hi:
+            raise ValueError(
+                f"plate.epm_height_m: must be within the EPM workspace heights [{z_lo}, {z_hi}] m "
+                f"(limits.workspace_min_m[2], limits.workspace_max_m[2]: the EPM starts at this height "
+                f"and is never commanded outside its workspace), got {h}"
+            )
+        offsets = self.force_map.height_offsets_m
+        drawn = self.plant.epm_height_offset_m
+        lo, hi = (
+            (drawn, drawn)
+            if drawn is not None
+            else PLANT_PRESET_RANGES[self.plant.preset].get("epm_height_offset_m", (0.0, 0.0))
+        )
+        if not (offsets[0] <= min(lo, 0.0) and max(hi, 0.0) <= offsets[-1]):
+            raise ValueError(
+                f"force_map.height_offsets_m: must span the EPM's true height offsets "
+                f"[{min(lo, 0.0):.4g}, {max(hi, 0.0):.4g}] m (0 and plant.epm_height_offset_m of the "
+                f"'{self.plant.preset}' plant: the plant looks its forces up in the map at the true "
+                f"EPM height), got {offsets}"
+            )
+        return self
+
     def controller_friction(self) -> LearnedFrictionModel:
         """The steady-state friction law the controller uses: ``friction.learned`` or the paper's."""
         learned = self.friction.learned
@@ -1030,13 +1121,59 @@ def packaged_config_path(name: str = "paper") -> Path:
     return Path(str(ref))
 
 
+class _DuplicateKeyError(yaml.YAMLError):
+    """A mapping repeats a key (PyYAML would silently keep the last value)."""
+
+    def __init__(self, key: Any, first_line: int, line: int) -> None:
+        super().__init__(f"line {line}: duplicate key {key!r} (first given at line {first_line})")
+
+
+class _ScenarioLoader(yaml.SafeLoader):
+    """SafeLoader that refuses duplicate keys and reads YAML 1.2 floats such as ``1e-5``.
+
+    PyYAML follows YAML 1.1, where ``1e-5`` and ``-1.189e5`` (no dot, or no exponent sign) are
+    strings; the number fields take no strings, so they are read as numbers here, as YAML 1.2
+    (and every other YAML library) does.
+    """
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Hashable, Any]:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # '<<' merges may be overridden
+                continue
+            key = self.construct_object(key_node, deep=True)
+            try:
+                first = seen.get(key)
+            except TypeError:  # an unhashable key: SafeLoader reports it
+                continue
+            line = key_node.start_mark.line + 1
+            if first is not None:
+                raise _DuplicateKeyError(key, first, line)
+            seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+_ScenarioLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
 def _read_yaml(path: Path) -> dict[str, Any]:
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{path}: not a UTF-8 text file (byte 0x{exc.object[exc.start]:02x} at offset {exc.start}); "
+            "a scenario is a YAML text file"
+        ) from None
     except OSError as exc:
         raise ConfigError(f"cannot read config {path}: {exc}") from exc
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_ScenarioLoader)  # a SafeLoader subclass: no arbitrary objects
+    except _DuplicateKeyError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
     if data is None:
@@ -1089,9 +1226,14 @@ def _format_errors(exc: ValidationError, where: str) -> str:
             msg = "required field is missing"
         elif err["type"] == "finite_number":
             msg = "must be a finite number"
+        elif err["type"] == "bool_type":
+            msg = "must be true or false"
         else:
             msg = err["msg"].removeprefix("Value error, ")
-        lines.append(f"{loc}: {msg}, got {err.get('input')!r}")
+        if isinstance(err.get("input"), dict):  # a rule across fields: the message names them
+            lines.append(msg if loc == "<top>" else f"{loc}: {msg}")
+        else:
+            lines.append(f"{loc}: {msg}, got {err.get('input')!r}")
     return f"invalid {where}:\n  " + "\n  ".join(lines)
 
 

@@ -25,6 +25,7 @@ __all__ = [
     "PIPE_CORNERS_M",
     "ReferencePath",
     "from_waypoints_file",
+    "max_path_speed",
     "path_from_scenario",
     "pipe",
     "rectangle",
@@ -45,6 +46,8 @@ PIPE_CORNERS_M: tuple[tuple[float, float], ...] = (
 PIPE_BEND_RADIUS_M = 0.015
 #: Straight segments approximating each pipe bend (arc polyline).
 _BEND_SEGMENTS = 8
+#: Rounding allowance when checking generated path points against the plate and the workspace, m.
+_EDGE_TOL_M = 1e-12
 
 
 def _as_points(points: Any, name: str) -> np.ndarray:
@@ -260,7 +263,12 @@ def from_waypoints_file(
     """
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (Excel's "CSV UTF-8") is read
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"waypoints file {path}: not a UTF-8 text file (byte 0x{exc.object[exc.start]:02x} at offset "
+            f"{exc.start}); expected a CSV with the header x_m,y_m"
+        ) from None
     except OSError as exc:
         raise ConfigError(f"waypoints file {path}: cannot read: {exc}") from exc
     rows = list(csv.reader(text.splitlines()))
@@ -314,26 +322,99 @@ def path_from_scenario(
     waypoints : str or Path, optional
         A waypoint CSV that replaces the configured path.
     speed : float, optional
-        Nominal speed that replaces ``path.speed_mps``, m/s, in (0, 0.1].
+        Nominal speed that replaces ``path.speed_mps``, m/s, in (0, 0.1] and at most
+        :func:`max_path_speed` of the path.
 
     Raises
     ------
     ConfigError
-        Bad speed, missing waypoint file for ``kind: waypoints``, or an invalid waypoint file.
+        Bad speed (or one the EPM cannot follow on this path), missing waypoint file for
+        ``kind: waypoints``, an invalid waypoint file, or a path point off the plate or out of the
+        EPM's reach (naming the point).
     """
     cfg = scenario.path
     v = cfg.speed_mps if speed is None else float(speed)
     if not (math.isfinite(v) and 0 < v <= 0.1):
         raise ConfigError(f"speed: must be in (0, 0.1] m/s, got {speed}")
     if waypoints is not None:
-        return from_waypoints_file(waypoints, v, scenario_workspace(scenario))
-    if cfg.kind == "rectangle":
-        return rectangle(cfg.rectangle_size_m, cfg.origin_m, v)
-    if cfg.kind == "pipe":
-        return pipe(cfg.origin_m, v)
-    if cfg.waypoints_file is None:
+        path = from_waypoints_file(waypoints, v, scenario_workspace(scenario))
+    elif cfg.kind == "rectangle":
+        path = rectangle(cfg.rectangle_size_m, cfg.origin_m, v)
+        _check_inside(scenario, path, "path.rectangle_size_m / path.origin_m: rectangle corner")
+    elif cfg.kind == "pipe":
+        path = pipe(cfg.origin_m, v)
+        _check_inside(scenario, path, "path.origin_m: pipe centreline point")
+    elif cfg.waypoints_file is None:
         raise ConfigError("path.waypoints_file: required when path.kind is 'waypoints'")
-    file = cfg.waypoints_file
-    if not file.is_absolute() and scenario.source_path is not None:
-        file = scenario.source_path.parent / file
-    return from_waypoints_file(file, v, scenario_workspace(scenario))
+    else:
+        file = cfg.waypoints_file
+        if not file.is_absolute() and scenario.source_path is not None:
+            file = scenario.source_path.parent / file
+        path = from_waypoints_file(file, v, scenario_workspace(scenario))
+    _check_speed(scenario, path, "speed" if speed is not None else "path.speed_mps")
+    return path
+
+
+def _check_inside(scenario: Scenario, path: ReferencePath, what: str) -> None:
+    """Refuse a generated path with a point off the plate or out of the EPM's reach, naming the point."""
+    half = np.asarray(scenario.plate.size_m) / 2
+    boxes = (
+        ("the plate (plate.size_m)", -half, half),
+        (
+            "the EPM workspace (limits.workspace_min_m, workspace_max_m)",
+            np.asarray(scenario.limits.workspace_min_m[:2]),
+            np.asarray(scenario.limits.workspace_max_m[:2]),
+        ),
+    )
+    for i, point in enumerate(path.waypoints_m, start=1):
+        for name, lo, hi in boxes:
+            if np.any(point < lo - _EDGE_TOL_M) or np.any(point > hi + _EDGE_TOL_M):
+                raise ConfigError(
+                    f"{what} {i} of {len(path.waypoints_m)} ({point[0]:.4g}, {point[1]:.4g}) m is outside "
+                    f"{name}: x in [{lo[0]:.4g}, {hi[0]:.4g}], y in [{lo[1]:.4g}, {hi[1]:.4g}] m"
+                )
+
+
+def max_path_speed(scenario: Scenario, path: ReferencePath) -> float:
+    """The highest nominal speed along ``path`` the EPM can follow with speed to spare, m/s.
+
+    The EPM's limits are per axis (``arm.cartesian_limits``: ``limits.speed_mps`` and
+    ``limits.accel_mps2``, or the arm's own if tighter). On a segment of direction ``d`` at the
+    path speed ``v`` the EPM must move at ``u = v |d_k|`` along axis ``k``; beyond its limit ``V``
+    the reference runs away along every segment. At ``u = V`` it still cannot make up any lag:
+    starting from rest, and on the new axis after every corner, an EPM limited to the acceleration
+    ``a`` falls ``u^2 / (2 a)`` behind a point moving at ``u``, and only speed to spare wins that
+    back. The controller plans over its horizon ``T`` (``mpc.horizon`` steps of ``mpc.dt_s`` or
+    one camera frame), so it needs ``V - u >= u^2 / (2 a T)`` to catch up within what it plans,
+    i.e. ``u <= a T (sqrt(1 + 2 V / (a T)) - 1)``: 0.072 m/s with the defaults (V = 0.08 m/s,
+    a = 0.5 m/s^2, T = 0.67 s) on an axis-aligned segment.
+
+    Measured on the rectangle (``simulate --controller mpc``, ideal and lab plants, seed 0), the
+    largest lag behind the reference in the middle of a side: <= 1.6 mm up to 0.06 m/s, 4-6 mm at
+    0.07 and 0.072 m/s; 7.5 mm at 0.075, 9-11 mm at 0.08 (the start-up lag is never made up) and
+    14-16 mm at 0.09 m/s. The lag grows smoothly with the speed: the rule puts the limit where the
+    start-up lag can no longer be made up within the horizon.
+    """
+    vel, acc, _ = scenario.arm.cartesian_limits(scenario.limits)
+    step_s = scenario.mpc.dt_s if scenario.mpc.dt_s is not None else 1.0 / scenario.camera.rate_hz
+    horizon_s = scenario.mpc.horizon * step_s
+    seg = np.diff(path.vertices_m, axis=0)
+    share = np.max(np.abs(seg) / np.hypot(seg[:, 0], seg[:, 1])[:, None], axis=0)  # max |d_k| per axis
+    a_t = np.asarray(acc[:2]) * horizon_s
+    axis_speed = a_t * (np.sqrt(1.0 + 2.0 * np.asarray(vel[:2]) / a_t) - 1.0)
+    with np.errstate(divide="ignore"):  # an axis the path never moves along sets no limit
+        return float(np.min(axis_speed / share))
+
+
+def _check_speed(scenario: Scenario, path: ReferencePath, name: str) -> None:
+    """Refuse a nominal speed the EPM cannot follow with headroom (:func:`max_path_speed`)."""
+    allowed = max_path_speed(scenario, path)
+    if path.speed_mps > allowed:
+        vel, acc, _ = scenario.arm.cartesian_limits(scenario.limits)
+        raise ConfigError(
+            f"{name}: must be in (0, {math.floor(allowed * 1e4) / 1e4:g}] m/s on this path, got "
+            f"{path.speed_mps:g}: the EPM moves at most {min(vel[:2]):g} m/s and {min(acc[:2]):g} m/s^2 "
+            "per axis (limits.speed_mps, limits.accel_mps2, or the arm's if tighter) and needs speed to "
+            "spare to make up the lag after the start and each corner within the MPC horizon "
+            "(capsule_mpc.paths.max_path_speed)"
+        )

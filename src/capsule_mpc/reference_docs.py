@@ -7,7 +7,10 @@ checks the committed files are current, so a field or option cannot go undocumen
 from __future__ import annotations
 
 import argparse
+import functools
 import io
+import operator
+import types
 import typing
 from contextlib import redirect_stdout
 from pathlib import Path
@@ -20,7 +23,21 @@ from .config import Scenario
 __all__ = ["cli_reference", "config_reference", "iter_config_fields", "write_reference_docs"]
 
 
+def _plain(annotation: Any) -> Any:
+    """The annotation without ``Annotated`` metadata (the config's strict ``Number`` is a ``float``)."""
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin is typing.Annotated:
+        return _plain(args[0])
+    if not args or origin is typing.Literal:
+        return annotation
+    plain = tuple(_plain(a) for a in args)
+    if origin in (typing.Union, types.UnionType):
+        return functools.reduce(operator.or_, plain)
+    return origin[plain]
+
+
 def _type_name(annotation: Any) -> str:
+    annotation = _plain(annotation)
     text = (
         str(annotation) if typing.get_origin(annotation) else getattr(annotation, "__name__", str(annotation))
     )

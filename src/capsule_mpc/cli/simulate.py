@@ -64,14 +64,34 @@ _EXIT_HELP = (
 )
 
 
+def _seed_argument(text: str) -> int:
+    """``--seed``: an integer >= 0 (a NumPy seed cannot be negative), else an argparse error (exit 2)."""
+    try:
+        seed = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {seed}")
+    return seed
+
+
 def add_run_arguments(p: argparse.ArgumentParser) -> None:
     """The options ``simulate`` and ``compare`` share."""
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
     p.add_argument("--out", required=True, help="output folder (created)")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default: sim.seed of the config)")
+    p.add_argument(
+        "--seed",
+        type=_seed_argument,
+        default=None,
+        help="random seed, an integer >= 0 (default: sim.seed of the config)",
+    )
     p.add_argument("--waypoints", default=None, help="CSV with header x_m,y_m replacing the config's path")
     p.add_argument(
-        "--speed", type=float, default=None, help="nominal path speed, m/s (overrides path.speed_mps)"
+        "--speed",
+        type=float,
+        default=None,
+        help="nominal path speed, m/s (overrides path.speed_mps); at most what the EPM can follow on the "
+        "path (0.072 m/s on the rectangle with the default limits)",
     )
     p.add_argument(
         "--plant",
@@ -143,6 +163,8 @@ def prepare_run(
         A bad config, override or waypoint file, or a path the EPM cannot follow inside its
         workspace (naming the waypoint).
     """
+    from .info import check_epm_height
+
     base = load_config(config)
     path = path_from_scenario(base, waypoints=waypoints, speed=speed)
     scenario = base
@@ -156,6 +178,7 @@ def prepare_run(
             data["path"]["waypoints_file"] = str(Path(waypoints).resolve())
         scenario = config_from_dict(data)
         scenario.source_path = base.source_path
+    check_epm_height(scenario)  # before a force map is computed for a height the code cannot model
     force_map(scenario, progress=True)  # computed once and cached: show progress on a fresh machine
     check_epm_workspace(scenario, path, source=waypoints)  # the EPM leads the capsule: room for it?
     meta = {

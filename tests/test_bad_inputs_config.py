@@ -1,0 +1,262 @@
+"""Bad-input catalogue, configs, waypoints and run arguments: each refused with exit code 2, a
+message naming the field, line or file, and no output (issue 11, items 5 and 7).
+
+Every case goes through ``capsule_mpc.cli.main`` as a user would; argparse errors exit through
+``SystemExit(2)``, the others return 2. Each is refused before any simulation or force-map work.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+from pathlib import Path
+
+import pytest
+
+from capsule_mpc.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00"
+#: A waypoint file that stays well inside the paper plate and the EPM workspace.
+SHORT_PATH = "x_m,y_m\n0,0\n0.03,0\n"
+
+
+def _simulate(*extra: str) -> list[str]:
+    return ["simulate", "--controller", "follow", "--no-progress", "--no-arm", "--out", "{out}", *extra]
+
+
+def _compare(*extra: str) -> list[str]:
+    return ["compare", "--controllers", "follow", "--no-progress", "--out", "{out}", *extra]
+
+
+CFG = ("--config", "{tmp}/c.yaml")
+WIDE_WORKSPACE = "limits:\n  workspace_max_m: [0.18, 0.13, 0.35]\n"
+#: Test-folder file of each ``_case`` keyword: the scenario (after ``base: paper``), a waypoint
+#: CSV and a learned friction model.
+FILES = {"config": "c.yaml", "waypoints": "wp.csv", "model": "model.yaml"}
+
+
+def _case(case_id: str, command: list[str], message: str, **files: str | bytes) -> object:
+    """One bad input: the command ({tmp}, {out} filled in), the regex its message must match, files."""
+    return pytest.param({FILES[k]: v for k, v in files.items()}, command, message, id=case_id)
+
+
+CASES = [
+    _case(
+        "bool-as-number",
+        _simulate(*CFG),
+        r"c\.yaml:\n  capsule\.mass_kg: must be a number .*got True",
+        config="capsule:\n  mass_kg: true\n",
+    ),
+    _case(
+        "quoted-number",
+        _simulate(*CFG),
+        r"capsule\.mass_kg: must be a number .*got '0\.0209'",
+        config='capsule:\n  mass_kg: "0.0209"\n',
+    ),
+    _case(
+        "quoted-number-in-list",
+        _simulate(*CFG),
+        r"limits\.workspace_min_m\.1: must be a number",
+        config="limits:\n  workspace_min_m: [-0.18, '-0.13', 0.085]\n",
+    ),
+    _case(
+        "quoted-integer",
+        _simulate(*CFG),
+        r"sim\.seed: must be an integer .*got '3'",
+        config="sim:\n  seed: '3'\n",
+    ),
+    _case(
+        "bool-as-integer",
+        _simulate(*CFG),
+        r"camera\.latency_frames: must be an integer .*got True",
+        config="camera:\n  latency_frames: true\n",
+    ),
+    _case(
+        "quoted-flag",
+        _simulate(*CFG),
+        r"mpc\.compile_c: must be true or false, got 'no'",
+        config="mpc:\n  compile_c: 'no'\n",
+    ),
+    _case(
+        "duplicate-key",
+        _simulate(*CFG),
+        r"c\.yaml: line 5: duplicate key 'mass_kg' \(first given at line 3\)",
+        config="capsule:\n  mass_kg: 0.0209\n  length_m: 0.036\n  mass_kg: 1.0\n",
+    ),
+    _case(
+        "duplicate-top-level-key",
+        _compare(*CFG),
+        r"c\.yaml: line 5: duplicate key 'name' \(first given at line 2\)",
+        config="name: a\nplate:\n  setup: on_plate\nname: b\n",
+    ),
+    _case(
+        "duplicate-key-in-learned-model",
+        ["info", *CFG],
+        r"model\.yaml: line 3: duplicate key 'coefficients' \(first given at line 1\)",
+        config="friction:\n  learned: model.yaml\n",
+        model="coefficients: [0.5, 0.03]\nvalidity_mps: [0.005, 0.04]\ncoefficients: [1.0]\n",
+    ),
+    _case(
+        "binary-config",
+        _simulate(*CFG),
+        r"c\.yaml: not a UTF-8 text file \(byte 0x89 at offset 0\)",
+        config=PNG,
+    ),
+    _case(
+        "epm-height-outside-workspace",
+        ["info", *CFG],
+        r"plate\.epm_height_m: must be within the EPM workspace heights \[0\.085, 0\.105\] m",
+        config="plate:\n  epm_height_m: 0.3\n",
+    ),
+    _case(
+        "epm-height-overlapping-magnets",
+        _simulate(*CFG),
+        r"plate\.epm_height_m: must be >= 0\.035 m \(half the EPM height",
+        config="plate:\n  epm_height_m: 0.03\nlimits:\n  workspace_min_m: [-0.18, -0.13, 0.0]\n",
+    ),
+    _case(
+        "epm-height-beyond-force-map",
+        _simulate(*CFG),
+        r"plate\.epm_height_m: cannot be 0\.3 m: the capsule's rest lead .* beyond the force map's "
+        r"\|lead\| <= force_map\.lead_half_range_m = 45 mm; this rig allows heights in \[0\.035, 0\.116\] m",
+        config="plate:\n  epm_height_m: 0.3\n" + WIDE_WORKSPACE,
+    ),
+    _case(
+        "info-epm-height-beyond-force-map",
+        ["info", *CFG],
+        r"plate\.epm_height_m: cannot be 0\.3 m: .*heights in \[0\.035, 0\.116\] m",
+        config="plate:\n  epm_height_m: 0.3\n" + WIDE_WORKSPACE,
+    ),
+    _case(
+        "force-map-misses-the-height",
+        _simulate(*CFG),
+        r"force_map\.height_offsets_m: must span the EPM's true height offsets \[-0\.001, 0\.001\] m",
+        config="force_map:\n  height_offsets_m: [0.0, 0.01]\n",
+    ),
+    _case(
+        "plate-smaller-than-path",
+        _simulate(*CFG),
+        r"path\.rectangle_size_m / path\.origin_m: rectangle corner 1 of 4 \(-0\.05, -0\.03\) m is "
+        r"outside the plate \(plate\.size_m\): x in \[-0\.04, 0\.04\]",
+        config="plate:\n  size_m: [0.08, 0.3]\npath:\n  kind: rectangle\n",
+    ),
+    _case(
+        "pipe-out-of-epm-reach",
+        _compare(*CFG),
+        r"path\.origin_m: pipe centreline point 20 of 29 \(0\.185, 0\.04\) m is outside the EPM workspace",
+        config="path:\n  kind: pipe\n  origin_m: [0.15, 0.0]\n",
+    ),
+    _case(
+        "waypoint-off-the-plate",
+        _simulate(*CFG, "--waypoints", "{tmp}/wp.csv"),
+        r"waypoints file .*wp\.csv: line 3: point \(0\.05, 0\.0\) m is outside the workspace "
+        r"x in \[-0\.04, 0\.04\]",
+        config="plate:\n  size_m: [0.08, 0.3]\n",
+        waypoints="x_m,y_m\n0,0\n0.05,0\n",
+    ),
+    _case(
+        "binary-waypoints",
+        _simulate("--waypoints", "{tmp}/wp.csv"),
+        r"waypoints file .*wp\.csv: not a UTF-8 text file \(byte 0x89 at offset 0\)",
+        waypoints=PNG,
+    ),
+    _case(
+        "binary-config-waypoints",
+        _compare(*CFG),
+        r"waypoints file .*wp\.csv: not a UTF-8 text file",
+        config="path:\n  kind: waypoints\n  waypoints_file: wp.csv\n",
+        waypoints=PNG,
+    ),
+    _case(
+        "speed-over-epm-limit",
+        _simulate("--speed", "0.09"),
+        r"speed: must be in \(0, 0\.0721\] m/s on this path, got 0\.09: the EPM moves at most 0\.08 m/s",
+    ),
+    _case(
+        "speed-at-epm-limit-compare",
+        _compare("--speed", "0.08"),
+        r"speed: must be in \(0, 0\.0721\] m/s on this path, got 0\.08",
+    ),
+    _case(
+        "config-speed",
+        _simulate(*CFG),
+        r"path\.speed_mps: must be in \(0, 0\.0721\] m/s on this path, got 0\.09",
+        config="path:\n  speed_mps: 0.09\n",
+    ),
+    _case(
+        "speed-on-waypoints",
+        _simulate("--waypoints", "{tmp}/wp.csv", "--speed", "0.1"),
+        r"speed: must be in \(0, 0\.0721\] m/s on this path, got 0\.1",
+        waypoints=SHORT_PATH,
+    ),
+    _case(
+        "negative-seed-simulate",
+        _simulate("--seed", "-1"),
+        r"argument --seed: must be an integer >= 0, got -1",
+    ),
+    _case(
+        "negative-seed-compare",
+        _compare("--seed", "-1"),
+        r"argument --seed: must be an integer >= 0, got -1",
+    ),
+    _case(
+        "fractional-seed-compare",
+        _compare("--seed", "1.5"),
+        r"argument --seed: must be an integer >= 0, got '1\.5'",
+    ),
+]
+
+
+def _exit_code_and_message(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse refuses an argument this way
+        code = exc.code if isinstance(exc.code, int) else 1
+    captured = capsys.readouterr()
+    return code, captured.err + captured.out
+
+
+@pytest.mark.parametrize(("files", "command", "message"), CASES)
+def test_bad_input_exits_2_naming_it_and_writes_nothing(tmp_path, capsys, files, command, message):
+    for name, content in files.items():
+        if isinstance(content, bytes):
+            (tmp_path / name).write_bytes(content)
+        else:
+            (tmp_path / name).write_text(("base: paper\n" if name == FILES["config"] else "") + content)
+    out = tmp_path / "out"
+    argv = [a.format(tmp=tmp_path, out=out) for a in command]
+    code, text = _exit_code_and_message(argv, capsys)
+    assert code == 2, text
+    assert re.search(message, text), text
+    assert "Traceback" not in text
+    assert not out.exists() or not any(out.iterdir())
+
+
+def _sim_speed_main():
+    spec = importlib.util.spec_from_file_location("sim_speed", REPO / "benchmarks" / "sim_speed.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.main
+
+
+@pytest.mark.parametrize(
+    ("out_kind", "message"),
+    [
+        (
+            "folder",
+            r"sim_speed: --out: .*given is a folder; give a file name, e\.g\. .*given/sim_speed\.json",
+        ),
+        ("under-a-file", r"sim_speed: --out: .*a_file\.txt is not a folder"),
+    ],
+)
+def test_sim_speed_benchmark_refuses_a_bad_out_before_running(tmp_path, capsys, out_kind, message):
+    folder = tmp_path / "given"
+    folder.mkdir()
+    (tmp_path / "a_file.txt").write_text("not a folder\n")
+    out = folder if out_kind == "folder" else tmp_path / "a_file.txt" / "report.json"
+    assert _sim_speed_main()(["--out", str(out)]) == 2
+    assert re.search(message, capsys.readouterr().err)
+    assert not any(folder.iterdir())
+    assert (tmp_path / "a_file.txt").read_text() == "not a folder\n"
