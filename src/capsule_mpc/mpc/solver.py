@@ -9,7 +9,11 @@
 * ``ipopt`` -- interior point, primal-dual warm start.
 
 Every solve returns a :class:`SolveResult` with status, iterations and wall
-time; failures are values, never exceptions.
+time; failures are values, never exceptions. The exception is Ctrl-C, which
+CasADi would turn into a failure status: every call runs in
+:func:`capsule_mpc.interrupt.solver_call`, so inside
+:func:`capsule_mpc.interrupt.interruptible` (every ``capsule-mpc`` command) it
+ends in ``KeyboardInterrupt`` when the solve returns.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from ..interrupt import raise_if_interrupted, solver_call
 from .problem import OCP
 
 __all__ = ["QP_SOLVERS", "MPCSolver", "SolveResult", "compiled_sqp"]
@@ -239,9 +244,11 @@ class MPCSolver:
             args |= {"lam_x0": lam_x0, "lam_g0": lam_g0}
         t0 = time.perf_counter()
         try:
-            sol = fn(**args)
-            stats = fn.stats()
+            with solver_call():  # Ctrl-C: KeyboardInterrupt after the call, never a failed solve
+                sol = fn(**args)
+                stats = fn.stats()
         except RuntimeError as exc:  # a solver plugin that raises despite error_on_fail=False
+            raise_if_interrupted()
             ms = 1e3 * (time.perf_counter() - t0)
             nan = np.full(ocp.n_w, np.nan)
             return SolveResult(
