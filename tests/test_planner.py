@@ -354,3 +354,24 @@ def test_cli_shows_ipopt_progress_on_stderr_unless_no_progress(tmp_path, capsys)
         main(["plan", "--waypoints", str(wp), "--out", str(tmp_path / "b"), "--no-arm", "--no-progress"]) == 0
     )
     assert capsys.readouterr().err == ""
+
+
+def test_a_plan_at_the_friction_laws_lowest_speed_converges(scenario):
+    """Issue 11, item 3: the pipe at 5 mm/s, the lower end of c(v)'s range, failed to converge.
+
+    A hard clamp of the speed into the range put a kink in mu(v) at 5 mm/s; the capsule slows
+    below it in a bend, and IPOPT cycled there (the pipe's first bend alone: 500 iterations,
+    Maximum_Iterations_Exceeded; 56 with the smooth clamp).
+    """
+    from pathlib import Path
+
+    from capsule_mpc.config import load_config
+    from capsule_mpc.paths import path_from_scenario
+
+    pipe = path_from_scenario(load_config(Path(__file__).resolve().parents[1] / "configs" / "pipe.yaml"))
+    bend = pipe.vertices_m[1:10]  # the first 90 degree bend, 15 mm radius
+    points = np.vstack([bend[0] - [0.02, 0.0], bend, bend[-1] + [0.0, 0.015]])
+    plan = plan_path(scenario, ReferencePath(points, False, 0.005), "fixed")
+    assert plan.success, plan.failure
+    assert plan.iterations < 200
+    _assert_within_limits(scenario, plan, ReferencePath(points, False, 0.005))
