@@ -18,7 +18,13 @@ import pytest
 
 import capsule_mpc
 from capsule_mpc.cli import main
-from capsule_mpc.interrupt import interrupted, interruptible, raise_if_interrupted, solver_call
+from capsule_mpc.interrupt import (
+    interrupted,
+    interruptible,
+    raise_if_interrupted,
+    run_interruptibly,
+    solver_call,
+)
 from capsule_mpc.mpc.solver import MPCSolver
 
 REPO = Path(__file__).resolve().parents[1]
@@ -132,6 +138,19 @@ def test_blocks_nest_and_a_callers_handler_is_left_alone():
     raise_if_interrupted()  # nothing pending outside a block
 
 
+def test_a_long_call_in_a_worker_thread_yields_to_ctrl_c():
+    assert run_interruptibly(sum, [1, 2, 3]) == 6  # outside a block: a plain call
+    with interruptible():
+        assert run_interruptibly(sum, [1, 2], start=4) == 7
+        with pytest.raises(ValueError, match="worker"):
+            run_interruptibly(int, "worker")
+    threading.Timer(0.2, _sigint_self).start()
+    start = time.monotonic()
+    with pytest.raises(KeyboardInterrupt), interruptible():
+        run_interruptibly(time.sleep, 5.0)  # stands for a C++ build that never returns to Python
+    assert time.monotonic() - start < 1.0
+
+
 def test_mpc_solver_never_records_an_interrupted_solve_as_a_failure():
     """MPCSolver._call on a solve during which Ctrl-C arrived (as CasADi returns it: a failure)."""
     solver = MPCSolver.__new__(MPCSolver)  # only _call's bookkeeping is exercised
@@ -159,8 +178,11 @@ def test_mpc_solver_never_records_an_interrupted_solve_as_a_failure():
 IPOPT_RUNNING = re.compile(rb"plan \(fixed\): [1-9][0-9]* iterations")
 
 
-def _run_and_interrupt(args: list[str], marker: re.Pattern[bytes], cwd: Path) -> tuple[int, str, str, float]:
-    """Start ``capsule-mpc ARGS``, send SIGINT once ``marker`` is on stderr; (status, out, err, s to exit)."""
+def _run_and_interrupt(
+    args: list[str], marker: re.Pattern[bytes], cwd: Path, delay_s: float = 0.0
+) -> tuple[int, str, str, float]:
+    """Start ``capsule-mpc ARGS``, send SIGINT ``delay_s`` after ``marker`` is on stderr; (status,
+    stdout, stderr, seconds from SIGINT to exit)."""
     env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))
     code = "import sys; from capsule_mpc.cli import main; sys.exit(main())"
     proc = subprocess.Popen(
@@ -183,6 +205,7 @@ def _run_and_interrupt(args: list[str], marker: re.Pattern[bytes], cwd: Path) ->
             assert proc.poll() is None, f"exited before {marker.pattern!r}: {chunks['err'].decode()[-2000:]}"
             assert time.monotonic() < deadline, f"no {marker.pattern!r} within {START_TIMEOUT_S} s"
             time.sleep(0.02)
+        time.sleep(delay_s)
         sent = time.monotonic()
         proc.send_signal(signal.SIGINT)
         status = proc.wait(timeout=EXIT_TIMEOUT_S)
@@ -211,6 +234,18 @@ def test_plan_interrupted_during_ipopt_exits_130_and_writes_nothing(tmp_path):
     assert stdout == ""  # no plan summary: nothing was solved
     assert took < EXIT_TIMEOUT_S
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_plan_interrupted_while_its_nlp_is_built_exits_at_once(tmp_path):
+    """The rectangle's NLP takes seconds to build (one C++ call: 5.6 s measured, under load), which
+    held Ctrl-C until it ended (exit 5.4 s after SIGINT); now the build runs in a worker thread."""
+    out = tmp_path / "plan"
+    args = ["plan", "--config", str(RECTANGLE), "--out", str(out)]
+    status, _, err, took = _run_and_interrupt(args, re.compile(rb"building the NLP"), tmp_path, 0.5)
+    assert status == 130 and _last_lines(err)[-1] == "capsule-mpc: interrupted"
+    assert "IPOPT on" not in err  # stopped in the build
+    assert took < 2.0
+    assert not out.exists()
 
 
 def test_compare_interrupted_in_the_planner_stage_records_nothing(tmp_path):

@@ -16,6 +16,10 @@ So inside :func:`interruptible` SIGINT is handled by this module:
   second Ctrl-C raises at once, whatever CasADi then makes of it: the call still ends in
   ``KeyboardInterrupt``.
 
+A long CasADi call that never returns to Python (building an expanded ``nlpsol``: 30-100 s for the
+pipe's plan at 5 mm/s on this machine) would hold Ctrl-C until it ends: :func:`run_interruptibly`
+runs it in a worker thread while the main thread waits, ready for the signal.
+
 Leaving an :func:`interruptible` block after SIGINT always raises ``KeyboardInterrupt``, chained
 to any exception the interrupt caused inside it. Blocks nest; only the outermost one installs
 and restores the handler: ``capsule-mpc``'s ``main`` wraps a whole command. Outside any block
@@ -26,11 +30,16 @@ from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from types import FrameType
+from typing import Any, TypeVar
 
-__all__ = ["interrupted", "interruptible", "raise_if_interrupted", "solver_call"]
+__all__ = ["interrupted", "interruptible", "raise_if_interrupted", "run_interruptibly", "solver_call"]
+
+T = TypeVar("T")
+#: How often the main thread wakes while :func:`run_interruptibly` waits, s (the reaction time to Ctrl-C).
+_WAIT_S = 0.05
 
 #: Whether a SIGINT arrived inside the outermost :func:`interruptible` block.
 _pending = False
@@ -64,6 +73,44 @@ def raise_if_interrupted() -> None:
     """
     if _pending:
         raise KeyboardInterrupt
+
+
+def run_interruptibly(fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+    """``fn(*args, **kwargs)``, in a worker thread when Ctrl-C could otherwise not stop it.
+
+    Inside :func:`interruptible` (in the main thread, outside :func:`solver_call`) the call runs
+    in a daemon thread and the main thread waits for it, waking every :data:`_WAIT_S` so that
+    SIGINT raises ``KeyboardInterrupt`` at once; the worker is then abandoned (a C++ call cannot
+    be cancelled; the ``capsule-mpc`` process exits without waiting for it). Elsewhere ``fn`` is
+    simply called. For long calls that release the GIL, such as building a CasADi solver; not
+    for calls whose result other threads use meanwhile.
+
+    Returns
+    -------
+    The result of ``fn``; its exception is raised here, and ``KeyboardInterrupt`` if Ctrl-C was
+    pressed meanwhile (also when CasADi caught it in a Python callback that ``fn`` called).
+    """
+    if not _installed or _deferred or threading.current_thread() is not threading.main_thread():
+        value = fn(*args, **kwargs)
+        raise_if_interrupted()  # a KeyboardInterrupt that C++ caught in a Python callback of fn
+        return value
+    result: list[T] = []
+    error: list[BaseException] = []
+
+    def work() -> None:
+        try:
+            result.append(fn(*args, **kwargs))
+        except BaseException as exc:  # handed to the waiting thread
+            error.append(exc)
+
+    worker = threading.Thread(target=work, name="capsule-mpc interruptible call", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(_WAIT_S)
+    if error:
+        raise error[0]
+    raise_if_interrupted()
+    return result[0]
 
 
 @contextmanager

@@ -3,8 +3,9 @@
 Exit status of every command: 0 on success, 1 when the work failed (the command says what), 2 on
 bad input (a config, file or option; the message names it), 130 on Ctrl-C
 (``capsule-mpc: interrupted`` on stderr). An interrupted command stops at once, even inside a
-CasADi solve (:mod:`capsule_mpc.interrupt`); the files it had written stay complete (every writer
-replaces its file atomically) and the files still to come are not written.
+CasADi solve (:mod:`capsule_mpc.interrupt`), and records nothing for the work in progress (an
+interrupted solve is never reported as a failed one); the files it had written are complete
+(``plan``, ``simulate``'s run files, ``compare`` and the arm export replace each file atomically).
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ from collections.abc import Sequence
 
 from ..config import ConfigError
 from ..interrupt import interruptible
-from ..planner import PlanError
 
 __all__ = ["main"]
 
@@ -65,24 +65,32 @@ def _exit_now(status: int) -> None:
     os._exit(status)
 
 
+def _run(argv: Sequence[str] | None) -> int:
+    """Parse ``argv`` and run its command; a plan the command needed but could not solve exits 1."""
+    from ..planner import PlanError  # here, not at the top: ``import capsule_mpc.cli`` stays light
+
+    args = build_parser().parse_args(argv)
+    try:
+        status: int = args.func(args)
+    except PlanError as exc:  # e.g. ``simulate --controller plan`` when the planner fails
+        print(f"capsule-mpc: {exc}", file=sys.stderr)
+        return 1
+    return status
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``capsule-mpc`` console script; returns the exit status (module docstring)."""
     try:
         with interruptible():
-            args = build_parser().parse_args(argv)
-            status: int = args.func(args)
+            return _run(argv)
     except ConfigError as exc:
         print(f"capsule-mpc: {exc}", file=sys.stderr)
         return 2
-    except PlanError as exc:  # e.g. ``simulate --controller plan`` when the planner fails
-        print(f"capsule-mpc: {exc}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print("capsule-mpc: interrupted", file=sys.stderr)
         if argv is None:  # the console script: the process is ours, end it now
             _exit_now(EXIT_INTERRUPTED)
         return EXIT_INTERRUPTED
-    return status
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -29,7 +29,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..interrupt import raise_if_interrupted, solver_call
+from ..interrupt import raise_if_interrupted, run_interruptibly, solver_call
 from .problem import OCP
 
 __all__ = ["QP_SOLVERS", "MPCSolver", "SolveResult", "compiled_sqp"]
@@ -159,13 +159,13 @@ def compiled_sqp(
     cached = lib.exists()
     if not cached:
         cache_dir.mkdir(parents=True, exist_ok=True)
-        solver = ca.nlpsol(name, "sqpmethod", ocp.nlp, _sqp_options(ocp, max_iter, True))
+        solver = run_interruptibly(ca.nlpsol, name, "sqpmethod", ocp.nlp, _sqp_options(ocp, max_iter, True))
         with tempfile.TemporaryDirectory(dir=cache_dir) as tmp:
             gen = ca.CodeGenerator(f"{name}.c")
             for dep in solver.get_function():
                 gen.add(solver.get_function(dep))
             gen.add(nlp_fn)
-            gen.generate(tmp + os.sep)
+            run_interruptibly(gen.generate, tmp + os.sep)
             out = Path(tmp) / lib.name
             subprocess.run(["gcc", *_CFLAGS, str(Path(tmp) / f"{name}.c"), "-o", str(out)], check=True)
             out.replace(lib)
@@ -175,11 +175,16 @@ def compiled_sqp(
 
 
 def _nlpsol(name: str, plugin: str, nlp: dict, make_opts) -> ca.Function:
-    """Build with SX expansion when the model allows it (faster), else as MX."""
+    """Build with SX expansion when the model allows it (faster), else as MX.
+
+    The build runs through :func:`~capsule_mpc.interrupt.run_interruptibly`: seconds of C++
+    that would otherwise hold Ctrl-C.
+    """
     try:
-        return ca.nlpsol(name, plugin, nlp, make_opts(True))
+        return run_interruptibly(ca.nlpsol, name, plugin, nlp, make_opts(True))
     except RuntimeError:  # e.g. a B-spline lookup cannot be expanded to SX
-        return ca.nlpsol(name, plugin, nlp, make_opts(False))
+        raise_if_interrupted()
+        return run_interruptibly(ca.nlpsol, name, plugin, nlp, make_opts(False))
 
 
 class MPCSolver:

@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from ..config import Scenario
 from ..dynamics import capsule_model, discrete_step
-from ..interrupt import interrupted, interruptible, raise_if_interrupted, solver_call
+from ..interrupt import interrupted, interruptible, raise_if_interrupted, run_interruptibly, solver_call
 from ..magnetics import model_equilibrium_lead
 from ..paths import ReferencePath
 from .problem import PlannerOptions, PlanNLP, build_fixed_nlp, build_min_time_nlp
@@ -275,11 +275,13 @@ def _ipopt_solver(pnlp: PlanNLP, options: PlannerOptions, callback: ca.Callback 
     if callback is not None:
         opts["iteration_callback"] = callback
         opts["iteration_callback_ignore_errors"] = False
+    # Built in a worker thread: expanding a long path's NLP takes tens of seconds in C++, which
+    # would hold Ctrl-C until it ends.
     try:  # SX expansion: ~3x faster evaluations; a model that cannot be expanded stays MX
-        return ca.nlpsol("plan", "ipopt", pnlp.nlp, opts | {"expand": True})
+        return run_interruptibly(ca.nlpsol, "plan", "ipopt", pnlp.nlp, opts | {"expand": True})
     except RuntimeError:
         raise_if_interrupted()
-        return ca.nlpsol("plan", "ipopt", pnlp.nlp, opts)
+        return run_interruptibly(ca.nlpsol, "plan", "ipopt", pnlp.nlp, opts)
 
 
 def plan_path(
@@ -340,6 +342,7 @@ def plan_path(
         else:
             pnlp = build_min_time_nlp(model, path, lead_eq, options)
         monitor = _IterationMonitor(pnlp, bar)
+        raise_if_interrupted()  # CasADi catches a KeyboardInterrupt raised in the callbacks of construct()
         solver = _ipopt_solver(pnlp, options, monitor)
         build_s = time.perf_counter() - t0
         bar.set_postfix_str(f"IPOPT on {pnlp.w0.size} variables, {pnlp.n_steps} steps", refresh=progress)
