@@ -13,6 +13,7 @@ from capsule_mpc.cli.compare import RUNS_FOLDER, aggregate_runs, compare_control
 from capsule_mpc.config import load_config
 from capsule_mpc.metrics import run_metrics
 from capsule_mpc.paths import ReferencePath
+from capsule_mpc.planner import PlannerOptions
 from capsule_mpc.sim import read_log
 
 #: Three seeds' runs of two controllers: "a" always finishes, "b" raises on the second seed.
@@ -99,8 +100,8 @@ def test_table_shows_mean_and_sd_for_several_runs():
     assert several.splitlines()[0].count("|") == several.splitlines()[2].count("|")  # columns line up
     one = summary_table(aggregate_runs(PER_SEED[:1]), runs=1)
     assert "±" not in one and "| a | 1.00 |" in one
-    failed = summary_table({"c": {"error": "boom"}})
-    assert "| c | error: boom |" in failed
+    failed = summary_table({"c": {"error": "boom |\nbang"}})
+    assert "| c | failed: boom \\| bang |" in failed  # one row: a "|" or newline in the reason is escaped
 
 
 @pytest.mark.parametrize("value", ["0", "-1", "two"])
@@ -190,3 +191,40 @@ def test_cli_runs_two_seeds(tmp_path, table, rectangle_config, capsys):
     assert (out / RUNS_FOLDER / "seed_12" / "follow" / "log.csv").exists()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["seed"] == 11 and summary["seeds"] == [11, 12]
+
+
+def test_a_failed_planner_is_a_failed_row_not_a_result(
+    tmp_path, table, rectangle_config, capsys, monkeypatch
+):
+    """Issue 11, item 3: the plan controller whose solve fails has no metrics, says why, exit 1."""
+    import capsule_mpc.planner.core as core
+
+    monkeypatch.setattr(core, "PlannerOptions", lambda: PlannerOptions(max_iter=2))
+    short = tmp_path / "short.csv"
+    short.write_text("x_m,y_m\n0.0,0.0\n0.02,0.0\n0.02,0.015\n")
+    out = tmp_path / "cmp"
+    args = ["compare", "--config", str(rectangle_config), "--out", str(out), "--waypoints", str(short)]
+    assert main([*args, "--controllers", "follow", "plan", "--no-progress"]) == 1
+    captured = capsys.readouterr()
+    why = "did not converge: IPOPT returned Maximum_Iterations_Exceeded after 2 iterations"
+    row = next(line for line in captured.out.splitlines() if line.startswith("| plan |"))
+    assert (
+        row.startswith("| plan | failed: PlanError: plan controller: no plan to replay: the fixed plan")
+        and why in row
+    )
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[0] == "plan" and why in cells[1] and cells[2:] == [""] * (len(cells) - 2)  # no numbers
+    assert "controller 'plan' failed (seed" in captured.err and why in captured.err
+    summary = json.loads((out / "summary.json").read_text())
+    plan, follow = summary["controllers"]["plan"], summary["controllers"]["follow"]
+    assert (
+        plan["status"] == "failed" and why in plan["error"] and (plan["n_runs"], plan["n_failed"]) == (0, 1)
+    )
+    assert not {"tracking_rms_mm", "final_error_mm", "solver_failures"} & set(plan)
+    assert set(summary["runs"][0]["controllers"]["plan"]) == {"error", "traceback"}
+    assert follow["status"] == "ok" and follow["tracking_rms_mm"] > 0
+    md_row = next(
+        line for line in (out / "summary.md").read_text().splitlines() if line.startswith("| plan |")
+    )
+    assert md_row == row
+    assert not (out / "plan").exists() and (out / "follow" / "log.csv").exists()

@@ -18,6 +18,7 @@ from capsule_mpc.magnetics import capsule_force_function, equilibrium_lead
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.planner import (
     PLAN_COLUMNS,
+    PlanError,
     PlannerOptions,
     PlanReplay,
     cached_plan,
@@ -232,12 +233,31 @@ def test_replay_follows_the_plan_and_holds_after_it(scenario, path, fixed):
     np.testing.assert_allclose(late.epm_velocity_mps, 0.0, atol=1e-12)
 
 
-def test_replay_of_a_failed_plan_holds_still(scenario, path):
+def test_replay_of_a_failed_plan_raises_instead_of_running(scenario, path):
+    """No plan, no run: holding the EPM still would be scored as the controller's result."""
     ctrl = PlanReplay(options=PlannerOptions(max_iter=2))
-    ctrl.reset(scenario, path, np.array([0.0, 0.0, 0.095]))
-    cmd = ctrl.step(1.0, Measurement(1.0, 1.0, np.zeros(2)), np.array([0.0, 0.0, 0.095]))
-    assert cmd.stats.failed and "no plan" in cmd.stats.status
-    assert np.all(cmd.epm_velocity_mps == 0)
+    with pytest.raises(
+        PlanError, match=r"did not converge: IPOPT returned Maximum_Iterations_Exceeded after 2 it"
+    ):
+        ctrl.reset(scenario, path, np.array([0.0, 0.0, 0.095]))
+    with pytest.raises(RuntimeError, match="reset"):
+        ctrl.step(1.0, Measurement(1.0, 1.0, np.zeros(2)), np.array([0.0, 0.0, 0.095]))
+
+
+def test_simulate_with_a_failed_plan_exits_1_naming_the_solve(tmp_path, monkeypatch, capsys):
+    import capsule_mpc.planner.replay as replay
+
+    monkeypatch.setattr(
+        replay, "cached_plan", lambda sc, p, v, o: cached_plan(sc, p, v, PlannerOptions(max_iter=2))
+    )
+    wp = _waypoints(tmp_path, "0.0,0.0\n0.03,0.0\n")
+    out = tmp_path / "sim"
+    args = ["simulate", "--controller", "plan", "--waypoints", str(wp), "--out", str(out), "--no-progress"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "plan controller: no plan to replay" in err and "Maximum_Iterations_Exceeded" in err
+    assert "Traceback" not in err
+    assert not out.exists()
 
 
 def _waypoints(tmp_path, rows: str):
@@ -295,11 +315,17 @@ def test_cli_failed_solve_exits_1(tmp_path, monkeypatch, capsys):
     import capsule_mpc.planner as planner
 
     real = planner.plan_path
-    monkeypatch.setattr(planner, "plan_path", lambda sc, p, v: real(sc, p, v, PlannerOptions(max_iter=2)))
+    monkeypatch.setattr(
+        planner, "plan_path", lambda sc, p, v, **kw: real(sc, p, v, PlannerOptions(max_iter=2), **kw)
+    )
     wp = _waypoints(tmp_path, "0.0,0.0\n0.03,0.0\n")
     out = tmp_path / "fail"
-    assert main(["plan", "--waypoints", str(wp), "--out", str(out), "--no-arm"]) == 1
-    assert "solve failed" in capsys.readouterr().err
+    assert main(["plan", "--waypoints", str(wp), "--out", str(out), "--no-arm", "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert (
+        "the fixed plan did not converge: IPOPT returned Maximum_Iterations_Exceeded after 2 iterations"
+        in err
+    )
     assert json.loads((out / "plan.json").read_text())["success"] is False
     assert not (out / "epm_plan.csv").exists()
 
@@ -313,3 +339,39 @@ def test_plan_uses_the_controllers_friction_law(scenario, path, fixed):
     lead_paper = constraint_report(scenario, fixed, path)["max_coupling_m"]
     lead_learned = constraint_report(learned, plan, path)["max_coupling_m"]
     assert lead_learned > 2 * lead_paper
+
+
+def test_cli_shows_ipopt_progress_on_stderr_unless_no_progress(tmp_path, capsys):
+    wp = _waypoints(tmp_path, "0.0,0.0\n0.03,0.0\n")
+    assert main(["plan", "--waypoints", str(wp), "--out", str(tmp_path / "a"), "--no-arm"]) == 0
+    captured = capsys.readouterr()
+    frames = [f.strip() for f in captured.err.replace("\r", "\n").splitlines() if f.strip()]
+    assert any(f.startswith("plan (fixed): 0 iterations") and "building the NLP" in f for f in frames)
+    counted = [f for f in frames if "objective" in f and "violation" in f]
+    assert counted and all(f.startswith("plan (fixed): ") for f in counted)
+    assert "Solve_Succeeded" in captured.out  # the summary stays on stdout
+    assert (
+        main(["plan", "--waypoints", str(wp), "--out", str(tmp_path / "b"), "--no-arm", "--no-progress"]) == 0
+    )
+    assert capsys.readouterr().err == ""
+
+
+def test_a_plan_at_the_friction_laws_lowest_speed_converges(scenario):
+    """Issue 11, item 3: the pipe at 5 mm/s, the lower end of c(v)'s range, failed to converge.
+
+    A hard clamp of the speed into the range put a kink in mu(v) at 5 mm/s; the capsule slows
+    below it in a bend, and IPOPT cycled there (the pipe's first bend alone: 500 iterations,
+    Maximum_Iterations_Exceeded; 56 with the smooth clamp).
+    """
+    from pathlib import Path
+
+    from capsule_mpc.config import load_config
+    from capsule_mpc.paths import path_from_scenario
+
+    pipe = path_from_scenario(load_config(Path(__file__).resolve().parents[1] / "configs" / "pipe.yaml"))
+    bend = pipe.vertices_m[1:10]  # the first 90 degree bend, 15 mm radius
+    points = np.vstack([bend[0] - [0.02, 0.0], bend, bend[-1] + [0.0, 0.015]])
+    plan = plan_path(scenario, ReferencePath(points, False, 0.005), "fixed")
+    assert plan.success, plan.failure
+    assert plan.iterations < 200
+    _assert_within_limits(scenario, plan, ReferencePath(points, False, 0.005))

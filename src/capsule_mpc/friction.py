@@ -22,6 +22,7 @@ import numpy as np
 from .config import PAPER_C_COEFFICIENTS, LearnedFrictionModel, Scenario
 
 __all__ = [
+    "C_RANGE_SMOOTHING_MPS",
     "MU_SMOOTHING",
     "FrictionRangeWarning",
     "NegativeFrictionWarning",
@@ -32,6 +33,12 @@ __all__ = [
 
 #: Width of the smooth max(mu, 0) in the CasADi law (dimensionless; 1 % of mu0).
 MU_SMOOTHING = 2e-3
+#: Width of the smooth clamp of the speed into c(v)'s validity range in the CasADi law, m/s
+#: (2 % of the paper's 5 mm/s lower end; the clamped speed is at most half of it off the hard
+#: clamp). A hard clamp puts a kink in mu(v) at the range's ends: a plan at the paper's 5 mm/s
+#: sits on it wherever the capsule slows in a bend, and IPOPT cycled there for 500 iterations
+#: (pipe at 5 mm/s; one bend of it: Maximum_Iterations_Exceeded, 56 iterations when smooth).
+C_RANGE_SMOOTHING_MPS = 1e-4
 
 
 class FrictionRangeWarning(UserWarning):
@@ -151,11 +158,14 @@ class SteadyFrictionLaw:
 
         The speed is smoothed as sqrt(|v|^2 + eps^2) so the logarithm and every
         derivative are finite at rest, c(v) is held constant outside the validity
-        range, and mu >= 0 by a smooth max of width :data:`MU_SMOOTHING`.
+        range (by a smooth clamp of width :data:`C_RANGE_SMOOTHING_MPS`: no kink at its
+        ends), and mu >= 0 by a smooth max of width :data:`MU_SMOOTHING`.
         """
         smooth = ca.sqrt(ca.sumsqr(velocity) + self.smoothing_eps_mps**2)
         lo, hi = self.validity_mps
-        v_c = ca.fmin(ca.fmax(smooth, lo), hi)
+        d2 = C_RANGE_SMOOTHING_MPS**2
+        above_lo = 0.5 * (smooth + lo + ca.sqrt((smooth - lo) ** 2 + d2))
+        v_c = 0.5 * (above_lo + hi - ca.sqrt((above_lo - hi) ** 2 + d2))
         c = 0
         for coef in self.coefficients:  # Horner's scheme, highest power first
             c = c * v_c + float(coef)

@@ -24,6 +24,15 @@ runs of every numeric metric (NaN values left out), true/false flags (``decouple
 runs that finished and those whose controller raised (:func:`aggregate_runs`). ``runs``
 lists every seed's runs as the runner reported them, re-scored.
 
+A controller fails on a seed when it raises instead of running: e.g. the ``plan`` controller
+when the planner's solve does not converge (:class:`capsule_mpc.planner.PlanError`). Such a run
+has no metrics (``runs[k].controllers.NAME`` is ``{"error", "traceback"}``), its controller's
+``status`` says ``failed``, and a controller that failed on every seed reads ``failed: <why>`` in
+the table instead of numbers. Exit status: 0 when every controller ran on every seed, 1 when
+any failed (each failure is also printed on stderr), 2 on bad input, 130 on Ctrl-C (the runs in
+progress are dropped: nothing is recorded for them, and summary.json / summary.md are written
+only by a finished comparison).
+
 Solver figures per controller (from the run log; NaN / ``n/a`` for controllers that
 report no solve): ``solve_ms_median``, ``solve_ms_p99``, ``solve_ms_max``,
 ``solver_failures`` (steps the controller reported as failed), ``deadline_misses``
@@ -39,7 +48,7 @@ import json
 import math
 import sys
 import traceback
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -47,7 +56,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..control import available_controllers
-from ..metrics import run_metrics
+from ..metrics import run_metrics, stack_predictions
 from ..paths import ReferencePath
 from .simulate import PREDICTION_FIGURE, add_run_arguments, prepare_run, write_prediction_figure
 
@@ -56,6 +65,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CONTROLLER_ORDER",
+    "PLANNING_CONTROLLER",
     "PREDICTING_CONTROLLER",
     "RUNS_FOLDER",
     "SUMMARY_COLUMNS",
@@ -86,6 +96,9 @@ SUMMARY_COLUMNS: tuple[tuple[str, str, str], ...] = (
 )
 #: The controller whose predictions are drawn in ``mpc_prediction.png``.
 PREDICTING_CONTROLLER = "mpc"
+#: The controller that needs the offline plan: it is solved once, with a progress bar, before its
+#: first run (the runs take it from :func:`capsule_mpc.planner.cached_plan`).
+PLANNING_CONTROLLER = "plan"
 #: Order of the runs and of the table rows (the issue's order); other registered controllers follow.
 CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
 #: Sub-folder of ``--out`` holding the run folders when there are several runs per controller.
@@ -113,7 +126,9 @@ def register(sub: Any) -> None:
             "own plant and start offset. The runs of one seed are scored on a common window (t = 0 to the "
             "latest end of a run). Writes one run folder per controller and seed, summary.json (means, "
             "spreads and every run), summary.md (mean ± sd for N > 1), trajectories.png, errors.png, "
-            "metrics.png (distributions for N > 1) and, with mpc, mpc_prediction.png."
+            "metrics.png (distributions for N > 1) and, with mpc, mpc_prediction.png. A controller that "
+            "fails (e.g. the planner's solve does not converge) gets no metrics: its row reads 'failed: "
+            "<why>' and the exit status is 1. Ctrl-C stops at once with status 130 and records nothing."
         ),
     )
     add_run_arguments(p)
@@ -157,6 +172,12 @@ def _spread(values: list[float]) -> dict[str, float | int]:
     return {"sd": sd, "min": float(min(values)), "max": float(max(values)), "n": len(values)}
 
 
+def _status(n_ok: int, n_failed: int) -> str:
+    if not n_failed:
+        return "ok"
+    return "failed" if not n_ok else f"failed on {n_failed} of {n_ok + n_failed} runs"
+
+
 def _aggregate_controller(entries: list[Mapping[str, Any]]) -> dict[str, Any]:
     ok = [e for e in entries if "error" not in e]
     failed = [e for e in entries if "error" in e]
@@ -171,7 +192,7 @@ def _aggregate_controller(entries: list[Mapping[str, Any]]) -> dict[str, Any]:
             finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
             out[key] = float(np.mean(finite)) if finite else math.nan
             spread[key] = _spread(finite)
-    out.update(n_runs=len(ok), n_failed=len(failed), spread=spread)
+    out.update(n_runs=len(ok), n_failed=len(failed), spread=spread, status=_status(len(ok), len(failed)))
     if failed:
         out["errors"] = [str(e["error"]) for e in failed]
     if not ok:
@@ -196,7 +217,8 @@ def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str,
         the successful runs (NaN values left out; NaN if none is left), every true/false
         entry as the number of runs where it was true, ``spread`` ``{key: {"sd" (ddof 1, 0
         for one value), "min", "max", "n" (finite values)}}`` for the numeric entries,
-        ``n_runs`` (successful runs), ``n_failed`` (runs whose controller raised),
+        ``n_runs`` (successful runs), ``n_failed`` (runs whose controller raised), ``status``
+        (``"ok"``; ``"failed"`` when no run finished; else ``"failed on k of N runs"``),
         ``errors`` (their messages, when any) and ``error`` (the first message) when no run
         succeeded. Text entries (``failure``, ``run_dir``, ...) are left out.
     """
@@ -253,8 +275,9 @@ def summary_table(controllers: Mapping[str, Mapping[str, Any]], runs: int = 1) -
     lines = [head, rule]
     for name, entry in controllers.items():
         done = f"{entry.get('n_runs', 0)}/{runs} | " if several else ""
-        if "error" in entry:
-            lines.append(f"| {name} | {done}error: {entry['error']} |" + " |" * (len(SUMMARY_COLUMNS) - 1))
+        if "error" in entry:  # no run finished: no numbers, the reason instead
+            reason = " ".join(str(entry["error"]).split()).replace("|", "\\|")
+            lines.append(f"| {name} | {done}failed: {reason} |" + " |" * (len(SUMMARY_COLUMNS) - 1))
             continue
         cells = " | ".join(_cell(entry, k, f, runs) for k, _, f in SUMMARY_COLUMNS)
         lines.append(f"| {name} | {done}{cells} |")
@@ -344,7 +367,9 @@ def compare_controllers(
     """
     from tqdm import tqdm
 
-    from ..atomic import write_text_atomic
+    from ..atomic import atomic_path, write_text_atomic
+    from ..interrupt import raise_if_interrupted
+    from ..planner import cached_plan
     from ..sim import simulate, write_run
 
     if runs < 1:
@@ -357,37 +382,41 @@ def compare_controllers(
     per_seed: list[dict[str, Any]] = []
     first: dict[str, RunResult] = {}
     prediction_figure = None
-    bar = tqdm(total=runs * len(names), desc="compare", unit="run", disable=not progress)
-    for k, s in enumerate(seeds):
-        results: dict[str, RunResult] = {}
-        entries: dict[str, dict[str, Any]] = {}
-        for name in names:
-            bar.set_postfix_str(f"seed {s}, {name}")
-            try:
-                results[name] = simulate(scenario, name, path, s, progress=False, meta=meta)
-            except Exception as exc:  # one broken controller must not hide the others' results
-                entries[name] = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
-            bar.update(1)
-        window_end = rescore_on_common_window(results, path, scenario)
-        base = out if runs == 1 else out / RUNS_FOLDER / f"seed_{s}"
-        for name, result in results.items():
-            run_dir = write_run(result, base / name.replace("/", "_"))
-            entries[name] = {
-                **result.metrics,
-                "failure": result.flags.failure,
-                "run_dir": str(run_dir),
-                "realtime_factor": result.realtime_factor,
-            }
-        per_seed.append(
-            {"seed": s, "window_end_s": window_end, "controllers": {n: entries[n] for n in names}}
-        )
-        if k == 0:
-            first = results
-            if PREDICTING_CONTROLLER in results:
-                prediction_figure = write_prediction_figure(
-                    results[PREDICTING_CONTROLLER], out / PREDICTION_FIGURE
-                )
-    bar.close()
+    with tqdm(total=runs * len(names), desc="compare", unit="run", disable=not progress) as bar:
+        for k, s in enumerate(seeds):
+            results: dict[str, RunResult] = {}
+            entries: dict[str, dict[str, Any]] = {}
+            for name in names:
+                bar.set_postfix_str(f"seed {s}, {name}")
+                try:
+                    if name == PLANNING_CONTROLLER:  # the planner stage, with its own progress bar
+                        cached_plan(scenario, path, progress=progress)
+                    results[name] = simulate(scenario, name, path, s, progress=False, meta=meta)
+                except Exception as exc:  # one broken controller must not hide the others' results
+                    raise_if_interrupted()  # ... but Ctrl-C (which CasADi may turn into any error) stops all
+                    error = f"{type(exc).__name__}: {exc}"
+                    entries[name] = {"error": error, "traceback": traceback.format_exc()}
+                bar.update(1)
+            window_end = rescore_on_common_window(results, path, scenario)
+            base = out if runs == 1 else out / RUNS_FOLDER / f"seed_{s}"
+            for name, result in results.items():
+                run_dir = write_run(result, base / name.replace("/", "_"))
+                entries[name] = {
+                    **result.metrics,
+                    "failure": result.flags.failure,
+                    "run_dir": str(run_dir),
+                    "realtime_factor": result.realtime_factor,
+                }
+            per_seed.append(
+                {"seed": s, "window_end_s": window_end, "controllers": {n: entries[n] for n in names}}
+            )
+            if k == 0:
+                first = results
+                predicting = results.get(PREDICTING_CONTROLLER)
+                if predicting is not None and stack_predictions(predicting.predictions) is not None:
+                    with atomic_path(out / PREDICTION_FIGURE) as tmp:
+                        write_prediction_figure(predicting, tmp)
+                    prediction_figure = out / PREDICTION_FIGURE
     aggregated = aggregate_runs(per_seed)
     if runs == 1:  # as before: the run's text entries (run_dir, failure, traceback) beside its metrics
         for name, entry in aggregated.items():
@@ -441,27 +470,32 @@ def _write_figures(
     runs: int,
 ) -> list[str]:
     """trajectories.png and errors.png of the first seed, metrics.png of every run; the file names."""
+    from ..atomic import atomic_path
     from ..plots import plot_errors, plot_metrics, plot_trajectories
 
     if not first:  # no controller ran on the first seed
         return []
-    figures: list[str] = []
     logs = {n: r.log for n, r in first.items()}
-    plot_trajectories(logs, path, out / "trajectories.png")
-    plot_errors(logs, path, out / "errors.png", {n: r.metrics["motion_end_s"] for n, r in first.items()})
-    figures += ["trajectories.png", "errors.png"]
+    ends = {n: r.metrics["motion_end_s"] for n, r in first.items()}
     done: dict[str, list[Mapping[str, Any]]] = {}
     for seed in per_seed:
         for name, entry in seed["controllers"].items():
             if "error" not in entry:
                 done.setdefault(name, []).append(entry)
-    plot_metrics({n: v[0] for n, v in done.items()} if runs == 1 else done, out / "metrics.png")
-    figures.append("metrics.png")
-    return figures
+    bars = {n: v[0] for n, v in done.items()} if runs == 1 else done
+    draw: dict[str, Callable[[Path], Any]] = {
+        "trajectories.png": lambda file: plot_trajectories(logs, path, file),
+        "errors.png": lambda file: plot_errors(logs, path, file, ends),
+        "metrics.png": lambda file: plot_metrics(bars, file),
+    }
+    for name, plot in draw.items():  # each figure complete or absent, never half written
+        with atomic_path(out / name) as tmp:
+            plot(tmp)
+    return list(draw)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Compare the controllers; exit status 1 if any controller raised, 2 for an unknown one."""
+    """Compare the controllers; exit status 1 if any controller failed on a seed, 2 for an unknown one."""
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
     seed = scenario.sim.seed if args.seed is None else args.seed
     known = available_controllers()
@@ -480,7 +514,10 @@ def run(args: argparse.Namespace) -> int:
             if "error" in entry:
                 failed = True
                 where = f"seed {seed_entry['seed']}"
-                print(f"capsule-mpc compare: controller {name!r} failed ({where}): {entry['error']}")
+                print(
+                    f"capsule-mpc compare: controller {name!r} failed ({where}): {entry['error']}",
+                    file=sys.stderr,
+                )
     folders = "one folder per controller" if args.runs == 1 else f"{RUNS_FOLDER}/seed_<S>/<controller>/"
     print(f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, {folders})")
     return 1 if failed else 0

@@ -6,8 +6,12 @@ constraint report, config path), ``config.yaml`` and ``plan.png``; unless ``--no
 arm outputs of :func:`capsule_mpc.arm.export_arm_trajectory` (``epm_trajectory.csv``,
 ``joint_trajectory.csv`` / ``.yaml``, ``joint_trajectory.png``, ``arm_summary.json``).
 
+A progress bar on stderr (unless ``--no-progress``) shows the NLP being built, then IPOPT's
+iterations with the elapsed time, the objective and the iterate's largest constraint violation.
+
 Exit status: 0 on success, 1 if the solve failed or the arm cannot follow the plan, 2 on a bad
-config, waypoint file or option.
+config, waypoint file or option, 130 on Ctrl-C (which IPOPT would otherwise report as a failed
+solve; the files written by then are complete, the others are not written).
 """
 
 from __future__ import annotations
@@ -43,6 +47,9 @@ def register(sub: Any) -> None:
         "--speed", type=float, default=None, help="nominal path speed, m/s (overrides path.speed_mps)"
     )
     p.add_argument("--no-arm", action="store_true", help="skip the arm export (Ruckig + IK)")
+    p.add_argument(
+        "--no-progress", action="store_true", help="no progress bar (IPOPT iterations and elapsed time)"
+    )
     p.set_defaults(func=run)
 
 
@@ -77,21 +84,17 @@ def _print_plan(summary: dict[str, Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     """Plan, write the files, export the arm trajectory; see the module docstring for the status."""
     from ..arm import ArmError, export_arm_trajectory
+    from ..atomic import write_text_atomic
     from ..planner import PLAN_JSON, plan_path, plan_summary, write_plan
     from .simulate import prepare_run
 
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
-    plan = plan_path(scenario, path, args.variant)
+    plan = plan_path(scenario, path, args.variant, progress=not args.no_progress)
     out = Path(args.out)
     if not plan.success:
-        out.mkdir(parents=True, exist_ok=True)
         summary = plan_summary(scenario, plan, path, meta)
-        (out / PLAN_JSON).write_text(json.dumps(summary, indent=2) + "\n")
-        print(
-            f"capsule-mpc plan: the {args.variant} solve failed ({plan.status} after {plan.iterations} "
-            f"iterations); diagnostics in {out / PLAN_JSON}",
-            file=sys.stderr,
-        )
+        write_text_atomic(out / PLAN_JSON, json.dumps(summary, indent=2) + "\n")
+        print(f"capsule-mpc plan: {plan.failure}; diagnostics in {out / PLAN_JSON}", file=sys.stderr)
         return 1
     paths = write_plan(scenario, plan, path, out, meta)
     _print_plan(json.loads(paths["json"].read_text()))

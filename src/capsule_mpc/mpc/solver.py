@@ -9,7 +9,11 @@
 * ``ipopt`` -- interior point, primal-dual warm start.
 
 Every solve returns a :class:`SolveResult` with status, iterations and wall
-time; failures are values, never exceptions.
+time; failures are values, never exceptions. The exception is Ctrl-C, which
+CasADi would turn into a failure status: every call runs in
+:func:`capsule_mpc.interrupt.solver_call`, so inside
+:func:`capsule_mpc.interrupt.interruptible` (every ``capsule-mpc`` command) it
+ends in ``KeyboardInterrupt`` when the solve returns.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from ..interrupt import raise_if_interrupted, run_interruptibly, solver_call
 from .problem import OCP
 
 __all__ = ["QP_SOLVERS", "MPCSolver", "SolveResult", "compiled_sqp"]
@@ -154,13 +159,13 @@ def compiled_sqp(
     cached = lib.exists()
     if not cached:
         cache_dir.mkdir(parents=True, exist_ok=True)
-        solver = ca.nlpsol(name, "sqpmethod", ocp.nlp, _sqp_options(ocp, max_iter, True))
+        solver = run_interruptibly(ca.nlpsol, name, "sqpmethod", ocp.nlp, _sqp_options(ocp, max_iter, True))
         with tempfile.TemporaryDirectory(dir=cache_dir) as tmp:
             gen = ca.CodeGenerator(f"{name}.c")
             for dep in solver.get_function():
                 gen.add(solver.get_function(dep))
             gen.add(nlp_fn)
-            gen.generate(tmp + os.sep)
+            run_interruptibly(gen.generate, tmp + os.sep)
             out = Path(tmp) / lib.name
             subprocess.run(["gcc", *_CFLAGS, str(Path(tmp) / f"{name}.c"), "-o", str(out)], check=True)
             out.replace(lib)
@@ -170,11 +175,16 @@ def compiled_sqp(
 
 
 def _nlpsol(name: str, plugin: str, nlp: dict, make_opts) -> ca.Function:
-    """Build with SX expansion when the model allows it (faster), else as MX."""
+    """Build with SX expansion when the model allows it (faster), else as MX.
+
+    The build runs through :func:`~capsule_mpc.interrupt.run_interruptibly`: seconds of C++
+    that would otherwise hold Ctrl-C.
+    """
     try:
-        return ca.nlpsol(name, plugin, nlp, make_opts(True))
+        return run_interruptibly(ca.nlpsol, name, plugin, nlp, make_opts(True))
     except RuntimeError:  # e.g. a B-spline lookup cannot be expanded to SX
-        return ca.nlpsol(name, plugin, nlp, make_opts(False))
+        raise_if_interrupted()
+        return run_interruptibly(ca.nlpsol, name, plugin, nlp, make_opts(False))
 
 
 class MPCSolver:
@@ -239,9 +249,11 @@ class MPCSolver:
             args |= {"lam_x0": lam_x0, "lam_g0": lam_g0}
         t0 = time.perf_counter()
         try:
-            sol = fn(**args)
-            stats = fn.stats()
+            with solver_call():  # Ctrl-C: KeyboardInterrupt after the call, never a failed solve
+                sol = fn(**args)
+                stats = fn.stats()
         except RuntimeError as exc:  # a solver plugin that raises despite error_on_fail=False
+            raise_if_interrupted()
             ms = 1e3 * (time.perf_counter() - t0)
             nan = np.full(ocp.n_w, np.nan)
             return SolveResult(

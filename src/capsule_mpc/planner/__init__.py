@@ -12,6 +12,7 @@ Importing this package registers the ``plan`` controller (open-loop replay).
 from .core import (
     VARIANTS,
     Plan,
+    PlanError,
     PlanResidual,
     cached_plan,
     constraint_report,
@@ -42,6 +43,7 @@ __all__ = [
     "PLAN_PNG",
     "VARIANTS",
     "Plan",
+    "PlanError",
     "PlanNLP",
     "PlanReplay",
     "PlanResidual",

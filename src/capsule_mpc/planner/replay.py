@@ -1,11 +1,12 @@
 """The ``plan`` controller: replays the fixed-time plan open loop.
 
 At ``reset`` the controller computes (or takes from the in-process cache) the
-fixed-time plan of the path on its own model. At every frame it commands the
-planned EPM motion over the coming frame, ``(E(t + dt) - E(t)) / dt`` with
-``E`` the planned EPM position (linear between knots), plus a proportional
-correction of the EPM's *own* position error toward ``E(t)`` -- the robot knows
-its pose. It never uses the capsule measurement: that is the point of an
+fixed-time plan of the path on its own model; if that solve fails, ``reset``
+raises :class:`~capsule_mpc.planner.core.PlanError` (there is no run to score).
+At every frame it commands the planned EPM motion over the coming frame,
+``(E(t + dt) - E(t)) / dt`` with ``E`` the planned EPM position (linear between
+knots), plus a proportional correction of the EPM's *own* position error toward
+``E(t)`` -- the robot knows its pose. It never uses the capsule measurement: that is the point of an
 open-loop replay, and what the comparison with the feedback controllers shows.
 
 The plan is anchored at the EPM's start pose: the planned positions are shifted
@@ -31,7 +32,7 @@ from ..config import Scenario
 from ..control import Command, Controller, Measurement, StepStats, register_controller
 from ..paths import ReferencePath
 from ..safety import safe_command
-from .core import Plan, cached_plan
+from .core import Plan, PlanError, cached_plan
 from .problem import PlannerOptions
 
 __all__ = ["PlanReplay"]
@@ -72,10 +73,21 @@ class PlanReplay(Controller):
         self.plan: Plan | None = None
 
     def reset(self, scenario: Scenario, path: ReferencePath, epm_position_m: np.ndarray) -> None:
-        """Plan the path (or reuse the cached plan) and anchor it at the EPM's start pose."""
+        """Plan the path (or reuse the cached plan) and anchor it at the EPM's start pose.
+
+        Raises
+        ------
+        PlanError
+            If the solve failed: there is nothing to replay, and holding the EPM still for the
+            whole run would be scored as if the controller had run.
+        """
         self.scenario = scenario
         self.frame_s = 1.0 / scenario.camera.rate_hz
-        self.plan = cached_plan(scenario, path, self.variant, self.options)
+        plan = cached_plan(scenario, path, self.variant, self.options)
+        if not plan.success:
+            self.plan = None
+            raise PlanError(f"plan controller: no plan to replay: {plan.failure}")
+        self.plan = plan
         epm0 = np.asarray(epm_position_m, dtype=float)
         self.offset_m = epm0 - self.plan.epm_position_m[0] if self.anchor_to_start else np.zeros(3)
         self.u_prev = np.zeros(3)
@@ -92,9 +104,7 @@ class PlanReplay(Controller):
         epm = np.asarray(epm_position_m, dtype=float)
         plan = self.plan
         if plan is None:
-            raise RuntimeError("PlanReplay.step: call reset() first")
-        if not plan.success:
-            return self._emit(np.zeros(3), epm, StepStats(status=f"no plan: {plan.status}", failed=True))
+            raise RuntimeError("PlanReplay.step: call reset() first (and it must not have raised)")
         if t_s < 0:
             return self._emit(np.zeros(3), epm, StepStats(status="settle"))
         now = plan.epm_position_at(t_s) + self.offset_m
