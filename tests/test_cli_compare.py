@@ -228,3 +228,23 @@ def test_a_failed_planner_is_a_failed_row_not_a_result(
     )
     assert md_row == row
     assert not (out / "plan").exists() and (out / "follow" / "log.csv").exists()
+
+
+def test_compare_into_a_folder_another_command_writes_is_refused(tmp_path, capsys):
+    import os
+    import socket
+
+    from capsule_mpc.outputs import LOCK_NAME
+
+    out = tmp_path / "busy"
+    out.mkdir()
+    (out / "summary.md").write_text("the other run's")
+    lock = {"pid": os.getpid(), "host": socket.gethostname(), "command": "compare"}
+    (out / LOCK_NAME).write_text(json.dumps(lock))  # held by a live process: this one
+    wp = tmp_path / "wp.csv"
+    wp.write_text("x_m,y_m\n0,0\n0.02,0\n")
+    assert main(["compare", "--waypoints", str(wp), "--controllers", "follow", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out: {out} is in use by process {os.getpid()}" in err and "(compare)" in err
+    assert sorted(p.name for p in out.iterdir()) == [LOCK_NAME, "summary.md"]
+    assert (out / "summary.md").read_text() == "the other run's"

@@ -126,3 +126,10 @@ def test_a_manifest_cannot_remove_files_outside_its_folder(tmp_path):
     with output_folder(out, "simulate"):
         pass
     assert victim.read_text() == "keep"
+
+
+def test_a_command_interrupted_before_writing_leaves_nothing(tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt), output_folder(out, "plan"):
+        raise KeyboardInterrupt
+    assert not out.exists()

@@ -9,7 +9,8 @@ A command that writes into ``--out`` enters :func:`output_folder`, which
 3. removes what the previous command there produced, as listed in its manifest, so a folder never
    mixes the outputs of two runs (files the user put there are never touched);
 4. on exit writes ``manifest.json``: the command, its arguments, the start and end times, how it
-   ended (``complete``, ``failed`` or ``interrupted``) and every file it wrote or replaced;
+   ended (``complete``, ``failed`` or ``interrupted``) and every file it wrote or replaced (a
+   command that failed or was interrupted before writing anything leaves no manifest);
 5. if the command refused its input (:class:`~capsule_mpc.config.ConfigError`, or the command's
    own refusals) after the folder was prepared, removes what it wrote and the folder too if it
    created it: bad input leaves no output.
@@ -200,14 +201,16 @@ def output_folder(
             status = None
             raise
         finally:
-            if status is not None:
+            written = _written_since(folder, before) if status is not None else []
+            # A command stopped before it wrote anything leaves nothing, not a manifest of nothing.
+            if status == "complete" or written:
                 manifest = {
                     "command": command,
                     "argv": list(sys.argv[1:] if argv is None else argv),
                     "started": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(started)),
                     "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                     "status": status,
-                    "files": _written_since(folder, before),
+                    "files": written,
                 }
                 write_text_atomic(folder / MANIFEST_NAME, json.dumps(manifest, indent=2) + "\n")
     finally:

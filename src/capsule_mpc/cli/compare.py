@@ -57,6 +57,7 @@ import numpy as np
 from ..config import Scenario
 from ..control import available_controllers
 from ..metrics import run_metrics, stack_predictions
+from ..outputs import output_folder
 from ..paths import ReferencePath
 from .simulate import PREDICTION_FIGURE, add_run_arguments, prepare_run, write_prediction_figure
 
@@ -503,10 +504,11 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         print(f"capsule-mpc compare: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
         return 2
-    summary = compare_controllers(
-        scenario, path, args.out, seed, controllers=args.controllers, meta=meta,
-        progress=not args.no_progress, runs=args.runs,
-    )  # fmt: skip
+    with output_folder(args.out, "compare") as out:
+        summary = compare_controllers(
+            scenario, path, out, seed, controllers=args.controllers, meta=meta,
+            progress=not args.no_progress, runs=args.runs,
+        )  # fmt: skip
     print(summary_table(summary["controllers"], args.runs), end="")
     failed = False
     for seed_entry in summary["runs"]:

@@ -33,6 +33,7 @@ from typing import Any, Final, Literal
 import yaml
 
 from ..config import Scenario, load_config, packaged_config_path
+from ..outputs import output_folder
 from .demonstrate import DEFAULT_SPEEDS_MPS
 
 __all__ = [
@@ -201,10 +202,6 @@ def run(args: argparse.Namespace) -> int:
     Exit status: 0; 1 if a controller raised or the fit failed; 2 for an unknown controller.
     """
     from ..control import available_controllers
-    from ..learning import LearningDataError
-    from ..magnetics import force_map
-    from ..paths import path_from_scenario
-    from .compare import compare_controllers, summary_table
 
     wall0 = time.perf_counter()
     known = available_controllers()
@@ -213,8 +210,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc demo: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
         return 2
     config = args.config if args.config is not None else str(packaged_config_path("rectangle"))
-    out = Path(args.out).resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    # The folder keeps its demonstrations and model as a cache: nothing earlier is removed.
+    with output_folder(Path(args.out).resolve(), "demo", replace_previous=False) as out:
+        return _demo(args, config, out, wall0)
+
+
+def _demo(args: argparse.Namespace, config: str, out: Path, wall0: float) -> int:
+    """The demo's four stages into the prepared folder ``out``; the exit status."""
+    from ..learning import LearningDataError
+    from ..magnetics import force_map
+    from ..paths import path_from_scenario
+    from .compare import compare_controllers, summary_table
+
     base = load_config(config)
     seed = base.sim.seed if args.seed is None else args.seed
     print(f"capsule-mpc demo: demonstrate -> learn -> compare on {config} (seed {seed}), into {out}")
@@ -235,10 +242,11 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"[4/4] compare: {', '.join(args.controllers) if args.controllers else 'every available controller'}"
     )
-    summary = compare_controllers(
-        scenario, path, compare_dir, seed, controllers=args.controllers,
-        meta={"config": str(scenario_path), "waypoints_file": None}, progress=not args.no_progress,
-    )  # fmt: skip
+    with output_folder(compare_dir, "compare"):  # a comparison replaces the previous one
+        summary = compare_controllers(
+            scenario, path, compare_dir, seed, controllers=args.controllers,
+            meta={"config": str(scenario_path), "waypoints_file": None}, progress=not args.no_progress,
+        )  # fmt: skip
     print(f"  compared in {time.perf_counter() - t0:.1f} s")
     print(summary_table(summary["controllers"]), end="")
     errors = [n for n, e in summary["controllers"].items() if "error" in e]

@@ -11,6 +11,7 @@ from typing import Any
 
 from ..config import load_config
 from ..learning.demonstrations import DEMO_PATHS, run_demonstrations
+from ..outputs import output_folder
 from .learn import output_problem
 
 __all__ = ["register", "run"]
@@ -76,10 +77,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc demonstrate: {problem}", file=sys.stderr)
         return 2
     try:
-        runs = run_demonstrations(
-            scenario, args.speeds, args.out, repeats=args.repeats, seed=args.seed,
-            path_kinds=args.paths, use_cache=not args.no_cache, progress=True,
-        )  # fmt: skip
+        # The folder is a cache of runs: earlier ones are kept (and reused when unchanged).
+        with output_folder(args.out, "demonstrate", replace_previous=False):
+            runs = run_demonstrations(
+                scenario, args.speeds, args.out, repeats=args.repeats, seed=args.seed,
+                path_kinds=args.paths, use_cache=not args.no_cache, progress=True,
+            )  # fmt: skip
     except ValueError as exc:
         print(f"capsule-mpc demonstrate: {exc}", file=sys.stderr)
         return 2

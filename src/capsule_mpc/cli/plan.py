@@ -20,7 +20,11 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ..config import Scenario
+    from ..paths import ReferencePath
 
 __all__ = ["register", "run"]
 
@@ -83,14 +87,23 @@ def _print_plan(summary: dict[str, Any]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Plan, write the files, export the arm trajectory; see the module docstring for the status."""
-    from ..arm import ArmError, export_arm_trajectory
-    from ..atomic import write_text_atomic
-    from ..planner import PLAN_JSON, plan_path, plan_summary, write_plan
+    from ..outputs import output_folder
     from .simulate import prepare_run
 
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
+    with output_folder(args.out, "plan") as out:
+        return _plan_into(args, scenario, path, meta, out)
+
+
+def _plan_into(
+    args: argparse.Namespace, scenario: Scenario, path: ReferencePath, meta: dict[str, Any], out: Path
+) -> int:
+    """Solve, write and export into the prepared folder ``out``; the exit status."""
+    from ..arm import ArmError, export_arm_trajectory
+    from ..atomic import write_text_atomic
+    from ..planner import PLAN_JSON, plan_path, plan_summary, write_plan
+
     plan = plan_path(scenario, path, args.variant, progress=not args.no_progress)
-    out = Path(args.out)
     if not plan.success:
         summary = plan_summary(scenario, plan, path, meta)
         write_text_atomic(out / PLAN_JSON, json.dumps(summary, indent=2) + "\n")
