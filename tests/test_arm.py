@@ -556,7 +556,10 @@ def test_the_result_is_verified_before_it_is_written(scenario, kin, short_export
     elif corrupt == "setpoint_speed":
         cart_vel[k, 1] = 0.2
     elif corrupt == "workspace":  # the floor raised 5 mm above the trajectory (z = 0.095 m)
-        tweaked = tweak(scenario, limits={"workspace_min_m": [-0.18, -0.13, 0.1]})
+        # A config cannot put the EPM's height outside its workspace (validated on load), so the
+        # raised floor is set on a copy without validation: only the output check is under test.
+        limits = scenario.limits.model_copy(update={"workspace_min_m": (-0.18, -0.13, 0.1)})
+        tweaked = scenario.model_copy(update={"limits": limits})
         with pytest.raises(ExportCheckError, match=message):
             verify_arm_trajectory(tweaked, kin, t_plan, p_plan, cart, joints, 0.005)
         return
