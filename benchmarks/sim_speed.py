@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from capsule_mpc.atomic import write_text_atomic
+from capsule_mpc.cli.arguments import int_at_least
 from capsule_mpc.cli.simulate import prepare_run
 from capsule_mpc.config import packaged_config_path
 from capsule_mpc.sim import CapsulePlant, SimpleArm, simulate
@@ -58,17 +59,6 @@ def profile_parts(scenario) -> dict[str, float]:
     return out
 
 
-def _repeats(text: str) -> int:
-    """``--repeats``: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
-    return value
-
-
 def _output_problem(out: Path) -> str | None:
     """Why the report cannot be written to ``out`` (checked before the runs), or None."""
     if out.is_dir():
@@ -84,7 +74,7 @@ def _output_problem(out: Path) -> str | None:
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and write the report; exit status 2 (and nothing written) for a bad ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=_repeats, default=5, help="runs of the baseline, >= 1")
+    parser.add_argument("--repeats", type=int_at_least(1), default=5, help="runs of the baseline, >= 1")
     parser.add_argument("--out", default="results/benchmarks/sim_speed.json", help="JSON report file")
     args = parser.parse_args(argv)
     out = Path(args.out)

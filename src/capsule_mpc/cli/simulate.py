@@ -32,6 +32,7 @@ from ..magnetics import force_map
 from ..outputs import output_folder
 from ..path_reach import check_epm_workspace
 from ..paths import ReferencePath, path_from_scenario
+from .arguments import int_at_least
 
 if TYPE_CHECKING:
     from ..sim import RunResult
@@ -64,24 +65,13 @@ _EXIT_HELP = (
 )
 
 
-def _seed_argument(text: str) -> int:
-    """``--seed``: an integer >= 0 (a NumPy seed cannot be negative), else an argparse error (exit 2)."""
-    try:
-        seed = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if seed < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {seed}")
-    return seed
-
-
 def add_run_arguments(p: argparse.ArgumentParser) -> None:
     """The options ``simulate`` and ``compare`` share."""
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
     p.add_argument("--out", required=True, help="output folder (created)")
     p.add_argument(
         "--seed",
-        type=_seed_argument,
+        type=int_at_least(0),  # a NumPy seed cannot be negative
         default=None,
         help="random seed, an integer >= 0 (default: sim.seed of the config)",
     )
