@@ -13,7 +13,7 @@ then holds it on the workspace face and the capsule stalls short of the path.
 the EPM must be there: at rest at the path's start and end
 (:func:`~capsule_mpc.magnetics.model_equilibrium_lead`, where ``start_pose`` puts
 it), and sliding steadily at the path's speed along each segment that arrives at or
-leaves the waypoint (:func:`~capsule_mpc.learning.predict.steady_lead` with the
+leaves the waypoint (:func:`~capsule_mpc.steady.steady_lead` with the
 controller's friction law). Along a segment the steady lead is constant, so the EPM
 runs the segment shifted by it, and the workspace box being convex, checking both
 ends of every segment covers the segment. :func:`check_epm_workspace` refuses a path
@@ -35,6 +35,7 @@ from .config import ConfigError, Scenario
 from .friction import FrictionRangeWarning, NegativeFrictionWarning, SteadyFrictionLaw
 from .magnetics import capsule_force_function, model_equilibrium_lead
 from .paths import ReferencePath
+from .steady import steady_lead
 
 __all__ = ["EPM_WORKSPACE_MARGIN_M", "EpmNeed", "check_epm_workspace", "epm_positions_needed"]
 
@@ -88,7 +89,6 @@ def _steady_leads(
 ) -> list[np.ndarray]:
     """The nominal model's steady lead along each segment (unit ``directions``) at the path's speed,
     m (2,) each; refused beyond the coupling limit from the rest lead ``rest_m``."""
-    from .learning.predict import steady_lead  # the learning package is heavy: load it only here
 
     law = SteadyFrictionLaw.from_scenario(scenario)
     with warnings.catch_warnings():  # the controller warns about its law's range where it uses it
