@@ -147,3 +147,19 @@ def test_breakaway_friction_heals_logarithmically_with_rest_time():
     assert np.all(steps > 0)
     np.testing.assert_allclose(steps, PLANT_LAW.b * math.log(10), rtol=0.02)
     assert peaks[1] == pytest.approx(0.26, abs=0.005)  # 1 s at rest: the previous constant mu_s
+
+
+def test_range_clamp_is_hard_by_default_and_smooth_when_asked():
+    """The MPC's law clamps c(v)'s speed hard (exact at the range's end); the planner's smoothly."""
+    law = SteadyFrictionLaw([2.0, 0.01], 0.22, 0.2, (0.005, 0.04), smoothing_eps_mps=1e-6)
+    v = ca.MX.sym("v")
+    hard = ca.Function("hard", [v], [ca.jacobian(law.casadi_mu(v), v)])
+    smooth = ca.Function("smooth", [v], [ca.jacobian(law.casadi_mu(v, 1e-4), v)])
+    below, above = 0.005 - 1e-5, 0.005 + 1e-5
+    # Hard: the slope jumps by c'(v) ln(v*/v) at the end; smooth: it changes continuously.
+    jump = -2.0 * math.log(0.2 / 0.005)  # d/dv of -c(v) ln(v*/v) gains -c'(v) ln(v*/v) above the end
+    assert float(hard(above)) - float(hard(below)) == pytest.approx(jump, rel=5e-3)
+    assert abs(float(smooth(above)) - float(smooth(below))) < 0.2 * abs(jump)
+    assert float(law.casadi_mu(ca.DM(0.01))) == pytest.approx(
+        float(law.casadi_mu(ca.DM(0.01), 1e-4)), abs=1e-5
+    )

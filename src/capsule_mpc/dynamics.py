@@ -75,7 +75,9 @@ class CapsuleModel:
     n_u: int = N_INPUTS
 
 
-def capsule_model(scenario: Scenario, force_model: str | None = None) -> CapsuleModel:
+def capsule_model(
+    scenario: Scenario, force_model: str | None = None, range_smoothing_mps: float = 0.0
+) -> CapsuleModel:
     """Build the controller's model from the scenario.
 
     Parameters
@@ -84,6 +86,9 @@ def capsule_model(scenario: Scenario, force_model: str | None = None) -> Capsule
         Parameters; friction from ``friction.learned`` if set, else the paper's c(v).
     force_model : {'dipole', 'lookup'}, optional
         Defaults to ``scenario.force_model``.
+    range_smoothing_mps : float
+        Width of the smooth clamp of the speed into c(v)'s range (0: a hard clamp, the MPC's;
+        the planner uses :data:`~capsule_mpc.friction.C_RANGE_SMOOTHING_MPS`).
     """
     kind = scenario.force_model if force_model is None else force_model
     force_fn = capsule_force_function(scenario, kind)
@@ -98,7 +103,7 @@ def capsule_model(scenario: Scenario, force_model: str | None = None) -> Capsule
     force = force_fn(lead, height)
     f_n = normal_force_expr(scenario, force[2])
     speed = ca.sqrt(ca.sumsqr(vel) + eps**2)
-    mu = law.casadi_mu(vel)
+    mu = law.casadi_mu(vel, range_smoothing_mps)
     # A capsule off the plate (F_N < 0) feels no friction; the controller keeps F_N > 0.
     resist = mu * ca.fmax(f_n, 0) + scenario.friction.tether_drag_n
     acc = (force[0:2] - resist * vel / speed) / mass

@@ -33,11 +33,15 @@ __all__ = [
 
 #: Width of the smooth max(mu, 0) in the CasADi law (dimensionless; 1 % of mu0).
 MU_SMOOTHING = 2e-3
-#: Width of the smooth clamp of the speed into c(v)'s validity range in the CasADi law, m/s
-#: (2 % of the paper's 5 mm/s lower end; the clamped speed is at most half of it off the hard
-#: clamp). A hard clamp puts a kink in mu(v) at the range's ends: a plan at the paper's 5 mm/s
-#: sits on it wherever the capsule slows in a bend, and IPOPT cycled there for 500 iterations
-#: (pipe at 5 mm/s; one bend of it: Maximum_Iterations_Exceeded, 56 iterations when smooth).
+#: Width of the smooth clamp of the speed into c(v)'s validity range that the *planner's* model
+#: uses, m/s (2 % of the paper's 5 mm/s lower end; the clamped speed is at most half of it off
+#: the hard clamp). A hard clamp puts a kink in mu(v) at the range's ends: a plan at the paper's
+#: 5 mm/s sits on it wherever the capsule slows in a bend, and IPOPT (exact Hessian) cycled there
+#: for 500 iterations (pipe at 5 mm/s; one bend of it: Maximum_Iterations_Exceeded, 56 iterations
+#: when smooth). The MPC keeps the hard clamp: its one Gauss-Newton step per frame did worse with
+#: any smoothing there (pipe at 5 mm/s, lab seed 0, cross-track RMS 0.82 mm hard; 2.52 mm with
+#: this width, 2.43 mm with 1 mm/s, 1.75 mm with a C1 clamp exact inside the range), because the
+#: capsule's speed hovers around 5 mm/s, right where the smoothing bends mu(v).
 C_RANGE_SMOOTHING_MPS = 1e-4
 
 
@@ -153,19 +157,23 @@ class SteadyFrictionLaw:
             )
         return np.asarray(np.maximum(mu, 0.0))
 
-    def casadi_mu(self, velocity: Any) -> Any:
+    def casadi_mu(self, velocity: Any, range_smoothing_mps: float = 0.0) -> Any:
         """Smooth CasADi mu of a velocity (vector or scalar) expression, m/s.
 
         The speed is smoothed as sqrt(|v|^2 + eps^2) so the logarithm and every
         derivative are finite at rest, c(v) is held constant outside the validity
-        range (by a smooth clamp of width :data:`C_RANGE_SMOOTHING_MPS`: no kink at its
-        ends), and mu >= 0 by a smooth max of width :data:`MU_SMOOTHING`.
+        range (by a clamp: hard for ``range_smoothing_mps`` = 0, else smooth of that width,
+        e.g. :data:`C_RANGE_SMOOTHING_MPS` for the planner), and mu >= 0 by a smooth max of
+        width :data:`MU_SMOOTHING`.
         """
         smooth = ca.sqrt(ca.sumsqr(velocity) + self.smoothing_eps_mps**2)
         lo, hi = self.validity_mps
-        d2 = C_RANGE_SMOOTHING_MPS**2
-        above_lo = 0.5 * (smooth + lo + ca.sqrt((smooth - lo) ** 2 + d2))
-        v_c = 0.5 * (above_lo + hi - ca.sqrt((above_lo - hi) ** 2 + d2))
+        if range_smoothing_mps > 0:
+            d2 = range_smoothing_mps**2
+            above_lo = 0.5 * (smooth + lo + ca.sqrt((smooth - lo) ** 2 + d2))
+            v_c = 0.5 * (above_lo + hi - ca.sqrt((above_lo - hi) ** 2 + d2))
+        else:
+            v_c = ca.fmin(ca.fmax(smooth, lo), hi)
         c = 0
         for coef in self.coefficients:  # Horner's scheme, highest power first
             c = c * v_c + float(coef)

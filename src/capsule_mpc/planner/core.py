@@ -1,9 +1,10 @@
 """Solve the whole-path problems and check the result: :func:`plan_path`, :class:`Plan`.
 
-The plan is computed on the controller's model (``capsule_model(scenario)``: the
-configured force model and the learned friction law if configured), never the
-plant. Every solve reports status, iterations and wall time; a failed solve is
-a :class:`Plan` with ``success = False``, not an exception. Two independent
+The plan is computed on the controller's model (``capsule_model``: the configured
+force model and the learned friction law if configured, with c(v)'s range clamped
+smoothly, :data:`~capsule_mpc.friction.C_RANGE_SMOOTHING_MPS`), never the plant.
+Every solve reports status, iterations and wall time; a failed solve is a
+:class:`Plan` with ``success = False``, not an exception. Two independent
 checks come with it:
 
 * :func:`dynamics_residual` -- re-integrates every step with
@@ -29,6 +30,7 @@ from tqdm import tqdm
 
 from ..config import Scenario
 from ..dynamics import capsule_model, discrete_step
+from ..friction import C_RANGE_SMOOTHING_MPS
 from ..interrupt import interrupted, interruptible, raise_if_interrupted, run_interruptibly, solver_call
 from ..magnetics import model_equilibrium_lead
 from ..paths import ReferencePath
@@ -335,7 +337,7 @@ def plan_path(
     with _progress_bar(variant, progress) as bar, interruptible():
         bar.set_postfix_str("building the NLP", refresh=progress)
         t0 = time.perf_counter()
-        model = capsule_model(scenario)
+        model = capsule_model(scenario, range_smoothing_mps=C_RANGE_SMOOTHING_MPS)
         lead_eq = model_equilibrium_lead(scenario)
         if variant == "fixed":
             pnlp = build_fixed_nlp(model, path, lead_eq, 1.0 / scenario.camera.rate_hz, options)
@@ -386,7 +388,7 @@ def dynamics_residual(scenario: Scenario, plan: Plan) -> PlanResidual:
 
     Each step ``x_{k+1} = step(x_k, u_k)`` is solved with
     :func:`capsule_mpc.dynamics.discrete_step` (implicit Euler, KINSOL root finding) over the
-    plan's ``dt_s`` on ``capsule_model(scenario)``, starting from the plan's own ``x_k``.
+    plan's ``dt_s`` on the planner's model, starting from the plan's own ``x_k``.
 
     Parameters
     ----------
@@ -400,7 +402,7 @@ def dynamics_residual(scenario: Scenario, plan: Plan) -> PlanResidual:
     PlanResidual
         Largest absolute differences of capsule position (m), velocity (m/s) and EPM position (m).
     """
-    model = capsule_model(scenario)
+    model = capsule_model(scenario, range_smoothing_mps=C_RANGE_SMOOTHING_MPS)
     step = discrete_step(model, plan.dt_s, "implicit_euler").map(plan.n_steps)
     xs = plan.states()
     nxt = np.asarray(step(xs[:, :-1], plan.epm_velocity_mps.T))
@@ -434,7 +436,7 @@ def constraint_report(scenario: Scenario, plan: Plan, path: ReferencePath) -> di
     e = plan.epm_position_m
     lo, hi = np.asarray(lim.workspace_min_m), np.asarray(lim.workspace_max_m)
     outside = np.maximum(np.maximum(lo - e, e - hi), 0.0)
-    outputs = capsule_model(scenario).outputs.map(plan.n_steps + 1)
+    outputs = capsule_model(scenario, range_smoothing_mps=C_RANGE_SMOOTHING_MPS).outputs.map(plan.n_steps + 1)
     lead, _force, f_n, _mu = (np.asarray(v) for v in outputs(plan.states()))
     coupling = np.linalg.norm(lead - plan.lead_eq_m[:, None], axis=0)
     cross = path.distance_to(plan.capsule_position_m)
