@@ -266,9 +266,11 @@ def _progress_bar(variant: str, enabled: bool) -> Iterator[Any]:
         yield bar
     finally:
         stop.set()
-        if enabled:
-            ticker.join()
-        bar.close()
+        try:  # Ctrl-C may land here (the solve just ended): the bar is still cleared
+            if enabled:
+                ticker.join()
+        finally:
+            bar.close()
 
 
 def _ipopt_solver(pnlp: PlanNLP, options: PlannerOptions, callback: ca.Callback | None = None) -> ca.Function:
