@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import signal
+import traceback
 import uuid
 from collections import deque
 from collections.abc import Callable, Generator, Iterator, Sequence
@@ -114,9 +115,16 @@ def crashed_entry(task: SeedTask, reason: str) -> dict[str, Any]:
 Outcome = tuple[SeedTask, dict[str, Any]]
 
 
-def _ignore_sigint() -> None:
-    """Worker initializer: Ctrl-C is the parent's to handle (it stops the workers)."""
+def _init_worker() -> None:
+    """Worker initializer: Ctrl-C is the parent's to handle (it stops the workers), and tqdm's lock
+    is a thread lock (a worker shows no bars; tqdm's default cross-process lock is a named
+    semaphore, reported as leaked when the worker is terminated)."""
+    import threading
+
+    from tqdm import tqdm
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    tqdm.set_lock(threading.RLock())
 
 
 def _new_pool(workers: int) -> ProcessPoolExecutor:
@@ -124,17 +132,22 @@ def _new_pool(workers: int) -> ProcessPoolExecutor:
 
     # spawn: a fresh interpreter per worker, whatever threads (tqdm, CasADi) the parent runs
     context = multiprocessing.get_context("spawn")
-    return ProcessPoolExecutor(workers, mp_context=context, initializer=_ignore_sigint)
+    return ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker)
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Stop a pool now, its running tasks included (no public API for that before Python 3.14)."""
+    """Stop a pool now, its running tasks included (no public API for that before Python 3.14).
+
+    The workers are terminated first; the pool's manager thread then sees them gone, and the
+    shutdown releases its queues (whose semaphores would otherwise be reported as leaked by
+    multiprocessing's resource tracker when ``capsule-mpc`` ends at once after Ctrl-C).
+    """
     procs = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
     for proc in procs:
         proc.terminate()
     for proc in procs:
         proc.join(timeout=5)
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def run_on_process_pool(
@@ -182,10 +195,11 @@ def run_on_process_pool(
                 running.clear()
                 _stop_pool(pool)
                 pool = _new_pool(workers)
-    except BaseException:
+        pool.shutdown(wait=True)
+    except BaseException as exc:  # Ctrl-C (in the parent; the workers ignore it), or the caller stopped
+        traceback.clear_frames(exc.__traceback__)  # an interrupted shutdown's frames hold its queues
         _stop_pool(pool)
         raise
-    pool.shutdown(wait=True)
 
 
 def run_on_dask(
