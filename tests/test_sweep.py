@@ -237,6 +237,7 @@ def test_ctrl_c_stops_the_workers_keeps_finished_runs_and_the_same_arguments_res
     assert not (out / "summary.json").exists() and read_manifest(out)["status"] == "interrupted"
     # The same arguments: the finished run is skipped, the others run.
     assert main([*args, "--no-progress"]) == 0
+    assert f"resuming the sweep in {out}: {len(done)} of 3 runs done" in capsys.readouterr().out
     assert first.stat().st_mtime_ns == stamp  # skipped
     summary = json.loads((out / "summary.json").read_text())
     assert summary["seeds"] == [0, 1, 2] and summary["controllers"]["follow"]["n_runs"] == 3

@@ -58,7 +58,7 @@ from ..arguments import int_at_least
 from ..compare import RUNS_FOLDER, _controller_names, summary_table
 from ..simulate import add_run_arguments, prepare_run
 from .campaign import sweep
-from .results import SPEC_FILE, check_resume, sweep_spec, worst_runs, worst_table
+from .results import SPEC_FILE, check_resume, finished_runs, sweep_spec, worst_runs, worst_table
 from .tasks import EXECUTORS, WALL_CLOCK_KEYS, SeedTask, dask_client, run_seed
 from .vary import VARY_STREAM, VaryRange, check_vary, parse_vary
 
@@ -153,6 +153,9 @@ def run(args: argparse.Namespace) -> int:
     seed = scenario.sim.seed if args.seed is None else args.seed
     names = _controller_names(args.controllers)
     resume = check_resume(args.out, sweep_spec(scenario, path, seed, args.runs, names, vary))
+    if resume:
+        done = len(finished_runs(Path(args.out), [seed + k for k in range(args.runs)]))
+        print(f"capsule-mpc sweep: resuming the sweep in {args.out}: {done} of {args.runs} runs done")
     with ExitStack() as stack:
         client = stack.enter_context(dask_client(args.scheduler, args.workers)) if args.scheduler else None
         out = stack.enter_context(
