@@ -57,6 +57,13 @@ def read_manifest(folder: str | Path) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
+def _listed(folder: Path) -> list[str]:
+    """The files the manifest in ``folder`` lists (none without a readable manifest)."""
+    previous = read_manifest(folder) or {}
+    files = previous.get("files", [])
+    return [f for f in files if isinstance(f, str)] if isinstance(files, list) else []
+
+
 def _pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -141,6 +148,7 @@ def output_folder(
     replace_previous: bool = True,
     argv: Sequence[str] | None = None,
     refusals: tuple[type[BaseException], ...] = (ConfigError,),
+    resume: bool = False,
 ) -> Iterator[Path]:
     """Prepare ``path`` for ``command``'s outputs and yield it; see the module docstring.
 
@@ -159,6 +167,10 @@ def output_folder(
     refusals : tuple of exception types
         Exceptions that mean the command refused its input (default ``ConfigError``): what it
         wrote is removed, and the folder too if this call created it.
+    resume : bool
+        The command continues its own earlier, unfinished work in ``path`` (``sweep``): with
+        ``replace_previous`` False, the manifest lists the files the previous manifest listed
+        that are still there as well as those written now.
 
     Raises
     ------
@@ -180,10 +192,8 @@ def output_folder(
     lock = _acquire_lock(folder, command)
     try:
         if replace_previous:
-            previous = read_manifest(folder)
-            if previous is not None:
-                files = previous.get("files", [])
-                _remove_files(folder, [f for f in files if isinstance(f, str)])
+            _remove_files(folder, _listed(folder))
+        kept = _listed(folder) if resume else []
         before = _snapshot(folder)
         started = time.time()
         status: str | None = "failed"
@@ -202,6 +212,10 @@ def output_folder(
             raise
         finally:
             written = _written_since(folder, before) if status is not None else []
+            if written or status == "complete":  # the earlier work resumed is part of this result
+                written = sorted(
+                    set(written) | {f for f in kept if (k := _inside(folder, f)) is not None and k.is_file()}
+                )
             # A command stopped before it wrote anything leaves nothing, not a manifest of nothing.
             if status == "complete" or written:
                 manifest = {

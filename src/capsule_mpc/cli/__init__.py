@@ -24,7 +24,9 @@ __all__ = ["main"]
 
 #: Sub-modules of this package that each define ``register(subparsers)``; the parser they add
 #: sets ``func(args) -> int``.
-_COMMANDS = ("info", "docs", "demo", "learn", "demonstrate", "simulate", "compare", "arm", "plan", "bench")
+_COMMANDS = (
+    "info", "docs", "demo", "learn", "demonstrate", "simulate", "compare", "arm", "plan", "bench", "sweep",
+)  # fmt: skip
 #: Exit status after Ctrl-C (128 + SIGINT, as a shell reports a command it interrupted).
 EXIT_INTERRUPTED = 130
 

@@ -75,6 +75,7 @@ __all__ = [
     "register",
     "rescore_on_common_window",
     "run",
+    "run_seed_controllers",
     "summary_table",
 ]
 
@@ -320,6 +321,71 @@ def _controller_names(controllers: Sequence[str] | None) -> list[str]:
     return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
 
 
+def run_seed_controllers(
+    scenario: Scenario,
+    path: ReferencePath,
+    seed: int,
+    names: Sequence[str],
+    *,
+    meta: dict[str, Any] | None = None,
+    progress: bool = False,
+    bar: Any = None,
+    plant_scenario: Scenario | None = None,
+) -> tuple[dict[str, RunResult], dict[str, dict[str, Any]], float]:
+    """Run controllers on one seed and re-score their runs on the seed's common window.
+
+    Parameters
+    ----------
+    scenario, path
+        As for :func:`capsule_mpc.sim.simulate` (what the controllers believe).
+    seed : int
+        The seed of every run.
+    names : sequence of str
+        The controllers, in this order.
+    meta : dict, optional
+        Provenance for each run.
+    progress : bool
+        Show the planner's progress bar before the ``plan`` controller's first run.
+    bar : tqdm, optional
+        A progress bar over the runs: its postfix names the run, and it advances after each.
+    plant_scenario : Scenario, optional
+        The scenario the plant's truth is drawn from with ``seed`` (default ``scenario``), e.g.
+        with plant fields overridden by ``sweep --vary``; the controllers are given ``scenario``.
+
+    Returns
+    -------
+    (dict, dict, float)
+        The runs that finished by controller name; ``{"error", "traceback"}`` for each
+        controller that raised instead; the end of the common window, s
+        (:func:`rescore_on_common_window`).
+    """
+    from ..interrupt import raise_if_interrupted
+    from ..planner import cached_plan
+    from ..sim import CapsulePlant, draw_plant_truth, simulate
+
+    truth = None if plant_scenario is None else draw_plant_truth(plant_scenario, seed)
+    results: dict[str, RunResult] = {}
+    entries: dict[str, dict[str, Any]] = {}
+    for name in names:
+        if bar is not None:
+            bar.set_postfix_str(f"seed {seed}, {name}")
+        try:
+            if name == PLANNING_CONTROLLER:  # the planner stage, with its own progress bar
+                cached_plan(scenario, path, progress=progress)
+            if plant_scenario is None:
+                results[name] = simulate(scenario, name, path, seed, progress=False, meta=meta)
+            else:
+                plant = CapsulePlant(plant_scenario, truth=truth)
+                results[name] = simulate(scenario, name, path, seed, progress=False, meta=meta, plant=plant)
+        except Exception as exc:  # one broken controller must not hide the others' results
+            raise_if_interrupted()  # ... but Ctrl-C (which CasADi may turn into any error) stops all
+            error = f"{type(exc).__name__}: {exc}"
+            entries[name] = {"error": error, "traceback": traceback.format_exc()}
+        if bar is not None:
+            bar.update(1)
+    return results, entries, rescore_on_common_window(results, path, scenario)
+
+
 def compare_controllers(
     scenario: Scenario,
     path: ReferencePath,
@@ -369,9 +435,7 @@ def compare_controllers(
     from tqdm import tqdm
 
     from ..atomic import atomic_path, write_text_atomic
-    from ..interrupt import raise_if_interrupted
-    from ..planner import cached_plan
-    from ..sim import simulate, write_run
+    from ..sim import write_run
 
     if runs < 1:
         raise ValueError(f"runs: must be an integer >= 1, got {runs}")
@@ -385,20 +449,9 @@ def compare_controllers(
     prediction_figure = None
     with tqdm(total=runs * len(names), desc="compare", unit="run", disable=not progress) as bar:
         for k, s in enumerate(seeds):
-            results: dict[str, RunResult] = {}
-            entries: dict[str, dict[str, Any]] = {}
-            for name in names:
-                bar.set_postfix_str(f"seed {s}, {name}")
-                try:
-                    if name == PLANNING_CONTROLLER:  # the planner stage, with its own progress bar
-                        cached_plan(scenario, path, progress=progress)
-                    results[name] = simulate(scenario, name, path, s, progress=False, meta=meta)
-                except Exception as exc:  # one broken controller must not hide the others' results
-                    raise_if_interrupted()  # ... but Ctrl-C (which CasADi may turn into any error) stops all
-                    error = f"{type(exc).__name__}: {exc}"
-                    entries[name] = {"error": error, "traceback": traceback.format_exc()}
-                bar.update(1)
-            window_end = rescore_on_common_window(results, path, scenario)
+            results, entries, window_end = run_seed_controllers(
+                scenario, path, s, names, meta=meta, progress=progress, bar=bar
+            )
             base = out if runs == 1 else out / RUNS_FOLDER / f"seed_{s}"
             for name, result in results.items():
                 run_dir = write_run(result, base / name.replace("/", "_"))

@@ -1,0 +1,190 @@
+"""``capsule-mpc sweep``: a campaign over seeded plant draws, every chosen controller on each, in parallel.
+
+Run ``k`` of ``--runs N`` uses the seed ``seed + k``. As in ``compare --runs``, a seed fixes the
+plant drawn around the nominal scenario (the ``plant`` section,
+:func:`capsule_mpc.sim.draw_plant_truth`), the start offset and the camera noise; every controller
+runs on that draw and the runs of one seed are scored on their common window
+(:func:`capsule_mpc.cli.compare.run_seed_controllers`). ``--vary plant.FIELD=LO:HI`` replaces
+that field's draw by a uniform draw in [LO, HI] from the run's own stream
+(``default_rng([seed, VARY_STREAM, i])``, ``i`` the field's index in
+:data:`capsule_mpc.config.PLANT_FIXED`): the other fields draw as they would without it, and the
+controllers are given the nominal scenario only (their belief), never the plant's values.
+
+A run (one seed, every controller) is one task. The tasks run on a local process pool
+(``concurrent.futures.ProcessPoolExecutor``, ``--workers`` processes, default the CPU count) or,
+with ``--executor dask``, on Dask distributed: a ``LocalCluster`` of ``--workers`` processes, or
+the cluster whose scheduler is at ``--scheduler``. A task's result does not depend on where it
+runs: the same seeds give the same results on any executor and any number of workers, except the
+wall-clock figures (:data:`WALL_CLOCK_KEYS`) and with ``plant.compute_delay_mode: solve_time``.
+
+Writes, into ``--out``:
+
+* ``sweep.json``: what the sweep is (the scenario with its overrides, the path, seeds,
+  controllers and ``--vary`` ranges);
+* ``runs/seed_<S>.json``, one per run as soon as it finishes (written atomically): the seed, the
+  common window, each controller's metrics and flags as in ``compare``'s ``runs`` (or its
+  ``error``), the plant's drawn values (``plant``) and the varied ones (``varied``);
+* ``summary.json``, in the schema of ``compare --runs`` (``controllers.NAME.METRIC`` means,
+  ``controllers.NAME.spread.METRIC`` ``{sd, min, max, n}``, ``runs``: every seed's file;
+  :func:`capsule_mpc.cli.compare.aggregate_runs`), plus ``plant_preset``, ``vary`` and
+  ``worst`` (:func:`worst_runs`: per controller and metric the seeds of the worst runs, the
+  seeds where a flag was raised, and those that failed);
+* ``summary.md`` (the table of ``compare --runs``, printed too, and the worst runs);
+* ``metrics.png`` (the distributions of tracking RMS, cross-track RMS and final error) and one
+  ``distribution_<metric>.png`` per metric of the table (a box plot per controller, every run a
+  point).
+
+Resume: a sweep re-run into its folder with the same arguments (the executor and ``--workers``
+may differ) skips the runs whose files are there and runs the others; with other arguments it is
+refused (exit 2, naming the difference). A worker process that dies loses its run only: the run
+is recorded as crashed (every controller failed, with the reason), the others go on, and a
+resumed sweep runs it again. Exit status: 0 when every controller ran on every seed; 1 when any
+controller failed or a run crashed (each named on stderr); 2 on bad input (nothing is written);
+130 on Ctrl-C (the workers are stopped, the finished runs' files are kept, no summary is written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from ...config import ConfigError
+from ...control import available_controllers
+from ...outputs import output_folder
+from ..arguments import int_at_least
+from ..compare import RUNS_FOLDER, _controller_names, summary_table
+from ..simulate import add_run_arguments, prepare_run
+from .campaign import sweep
+from .results import SPEC_FILE, check_resume, finished_runs, sweep_spec, worst_runs, worst_table
+from .tasks import EXECUTORS, WALL_CLOCK_KEYS, SeedTask, dask_client, run_seed
+from .vary import VARY_STREAM, VaryRange, check_vary, parse_vary
+
+__all__ = [
+    "EXECUTORS",
+    "SPEC_FILE",
+    "VARY_STREAM",
+    "WALL_CLOCK_KEYS",
+    "SeedTask",
+    "VaryRange",
+    "parse_vary",
+    "register",
+    "run",
+    "run_seed",
+    "sweep",
+    "worst_runs",
+]
+
+
+def register(sub: Any) -> None:
+    """Add the ``sweep`` command."""
+    p = sub.add_parser(
+        "sweep",
+        help="a campaign: controllers on many seeded plant draws, in parallel",
+        description=(
+            "Run controllers (default: every registered one) on --runs plant draws (seeds seed, seed + 1, "
+            "...; --vary plant.FIELD=LO:HI draws that field from U(LO, HI) instead of the preset's range; "
+            "the controllers keep the nominal scenario), in parallel on a local process pool or on Dask. "
+            "Writes runs/seed_<S>.json as each run finishes, then summary.json (the schema of compare "
+            "--runs, plus the worst runs' seeds), summary.md, metrics.png and distribution_<metric>.png. "
+            "Re-run with the same arguments, an interrupted sweep resumes and skips its finished runs. A "
+            "worker that dies loses its run only (recorded as crashed; exit status 1)."
+        ),
+    )
+    add_run_arguments(p)
+    p.add_argument(
+        "--runs", type=int_at_least(1), required=True, metavar="N", help="number of runs (seeds), >= 1"
+    )
+    p.add_argument(
+        "--controllers", nargs="+", default=None, help="only these controllers (default: all available)"
+    )
+    p.add_argument(
+        "--vary",
+        type=parse_vary,
+        action="append",
+        default=None,
+        metavar="plant.FIELD=LO:HI",
+        help="draw this plant field uniformly from [LO, HI] in every run (repeatable); FIELD is a drawable "
+        "field of the plant section and LO, HI lie in its allowed range (docs/config.md)",
+    )
+    p.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="process",
+        help="process: a local process pool (default); dask: Dask distributed (a LocalCluster unless "
+        "--scheduler is given)",
+    )
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="address of a running Dask scheduler (e.g. tcp://host:8786); only with --executor dask",
+    )
+    p.add_argument(
+        "--workers",
+        type=int_at_least(1),
+        default=None,
+        metavar="K",
+        help="worker processes, >= 1 (default: the CPU count); not with --scheduler (the cluster has "
+        "its own)",
+    )
+    p.set_defaults(func=run)
+
+
+def _check_executor_arguments(args: argparse.Namespace) -> None:
+    if args.scheduler is not None and args.executor != "dask":
+        raise ConfigError(f"--scheduler: needs --executor dask, got --executor {args.executor}")
+    if args.scheduler is not None and args.workers is not None:
+        raise ConfigError("--workers: not with --scheduler (the cluster's workers are its own)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the sweep; exit status 1 if a controller failed or a run crashed, 2 on bad input."""
+    _check_executor_arguments(args)
+    vary = list(args.vary or [])
+    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
+    check_vary(scenario, vary)
+    known = available_controllers()
+    unknown = [n for n in args.controllers or [] if n not in known]
+    if unknown:
+        raise ConfigError(f"--controllers: unknown {unknown}; available: {known}")
+    seed = scenario.sim.seed if args.seed is None else args.seed
+    names = _controller_names(args.controllers)
+    resume = check_resume(args.out, sweep_spec(scenario, path, seed, args.runs, names, vary))
+    if resume:
+        done = len(finished_runs(Path(args.out), [seed + k for k in range(args.runs)]))
+        print(f"capsule-mpc sweep: resuming the sweep in {args.out}: {done} of {args.runs} runs done")
+    with ExitStack() as stack:
+        client = stack.enter_context(dask_client(args.scheduler, args.workers)) if args.scheduler else None
+        out = stack.enter_context(
+            output_folder(args.out, "sweep", replace_previous=not resume, resume=resume)
+        )
+        summary = sweep(
+            scenario, path, out, seed, args.runs, controllers=names, vary=vary, executor=args.executor,
+            workers=args.workers, client=client, meta=meta, progress=not args.no_progress,
+        )  # fmt: skip
+    print(summary_table(summary["controllers"], args.runs), end="")
+    print(worst_table(summary["worst"]), end="")
+    failed = False
+    for entry in summary["runs"]:
+        if "crashed" in entry:
+            failed = True
+            print(
+                f"capsule-mpc sweep: run of seed {entry['seed']} crashed: {entry['crashed']}", file=sys.stderr
+            )
+            continue
+        for name, result in entry["controllers"].items():
+            if "error" in result:
+                failed = True
+                print(
+                    f"capsule-mpc sweep: controller {name!r} failed (seed {entry['seed']}): "
+                    f"{result['error']}",
+                    file=sys.stderr,
+                )
+    print(
+        f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, "
+        f"{RUNS_FOLDER}/seed_<S>.json)"
+    )
+    return 1 if failed else 0

@@ -1,0 +1,244 @@
+"""What a sweep keeps in its folder: its definition (to resume it), and its summary and figures."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from ...config import ConfigError, Scenario
+from ...paths import ReferencePath
+from ..compare import RUNS_FOLDER, SUMMARY_COLUMNS, _json_value, summary_table
+from .vary import VaryRange
+
+__all__ = [
+    "SPEC_FILE",
+    "WORST_COUNT",
+    "check_resume",
+    "finished_runs",
+    "spec_difference",
+    "summary_markdown",
+    "sweep_spec",
+    "worst_runs",
+    "worst_table",
+    "write_figures",
+]
+
+#: Where the sweep's definition is kept in its folder (checked when it is resumed).
+SPEC_FILE = "sweep.json"
+#: Worst runs listed per controller and metric.
+WORST_COUNT = 3
+#: The flags of the table (true/false per run): their seeds are listed, not ranked.
+_FLAGS = ("decoupled", "dropped", "stalled")
+#: The metrics of the table that get a distribution figure and a worst-runs ranking.
+_RANKED = tuple((key, header) for key, header, _ in SUMMARY_COLUMNS if key not in _FLAGS)
+
+
+def sweep_spec(
+    scenario: Scenario,
+    path: ReferencePath,
+    seed: int,
+    runs: int,
+    controllers: Sequence[str],
+    vary: Sequence[VaryRange],
+) -> dict[str, Any]:
+    """What a sweep is, as kept in ``sweep.json`` (JSON-ready): a resumed sweep must match it."""
+    spec = {
+        "command": "sweep",
+        "config": scenario.model_dump(mode="json"),
+        "path": {
+            "waypoints_m": path.waypoints_m.tolist(),
+            "closed": path.closed,
+            "speed_mps": path.speed_mps,
+        },
+        "seed": seed,
+        "runs": runs,
+        "controllers": list(controllers),
+        "vary": {v.field: [v.lo, v.hi] for v in vary},
+    }
+    return dict(json.loads(json.dumps(_json_value(spec))))
+
+
+#: The parts of :func:`sweep_spec` checked on resume, and the argument each comes from.
+_SPEC_ARGUMENTS = (
+    ("command", "the command"),
+    ("seed", "--seed"),
+    ("runs", "--runs"),
+    ("controllers", "--controllers"),
+    ("vary", "--vary"),
+    ("path", "the path (--waypoints, --speed or the config's path)"),
+    ("config", "config"),
+)
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _first_difference(held: Any, now: Any, where: str = "") -> tuple[str, Any, Any]:
+    """The first dotted key where two JSON values differ, with both values there."""
+    if isinstance(held, dict) and isinstance(now, dict):
+        for key in [*held, *(k for k in now if k not in held)]:
+            if held.get(key) != now.get(key):
+                return _first_difference(held.get(key), now.get(key), f"{where}.{key}" if where else key)
+    return where, held, now
+
+
+def spec_difference(held: Mapping[str, Any], now: Mapping[str, Any]) -> str | None:
+    """How the sweep in a folder (``held``) differs from the one asked for (``now``); None if alike."""
+    for key, label in _SPEC_ARGUMENTS:
+        if held.get(key) != now.get(key):
+            if key == "config" and isinstance(held.get(key), dict):
+                where, a, b = _first_difference(held[key], now[key])
+                return f"config {where}: {_short(a)} in the folder, {_short(b)} now"
+            return f"{label}: {_short(held.get(key))} in the folder, {_short(now.get(key))} now"
+    return None
+
+
+def check_resume(out: str | Path, spec: Mapping[str, Any]) -> bool:
+    """Whether ``out`` holds this sweep (to resume); False if it holds none.
+
+    Raises
+    ------
+    ConfigError
+        ``out`` holds a sweep with other arguments (the message names the first difference), or
+        its ``sweep.json`` cannot be read.
+    """
+    held_file = Path(out) / SPEC_FILE
+    if not held_file.is_file():
+        return False
+    try:
+        held = json.loads(held_file.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ConfigError(
+            f"--out: {held_file} cannot be read ({exc}); delete it or use another folder"
+        ) from None
+    difference = spec_difference(held if isinstance(held, dict) else {}, spec)
+    if difference is not None:
+        raise ConfigError(
+            f"--out: {out} holds a sweep with other arguments ({difference}); re-run it with the same "
+            "arguments to resume it, or use another folder"
+        )
+    return True
+
+
+def finished_runs(out: Path, seeds: Sequence[int]) -> dict[int, dict[str, Any]]:
+    """The runs whose files are in ``out/runs/`` (a crashed or unreadable one is run again)."""
+    done: dict[int, dict[str, Any]] = {}
+    for seed in seeds:
+        try:
+            entry = json.loads((out / RUNS_FOLDER / f"seed_{seed}.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if (
+            isinstance(entry, dict)
+            and entry.get("seed") == seed
+            and isinstance(entry.get("controllers"), dict)
+            and "crashed" not in entry
+        ):
+            done[seed] = entry
+    return done
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def worst_runs(per_seed: Sequence[Mapping[str, Any]], count: int = WORST_COUNT) -> dict[str, dict[str, Any]]:
+    """The worst runs per controller: ``summary.json``'s ``worst``.
+
+    Parameters
+    ----------
+    per_seed : sequence of mapping
+        ``summary.json``'s ``runs``.
+    count : int
+        Runs listed per metric.
+
+    Returns
+    -------
+    dict of str to dict
+        Per controller: ``metrics``, for each metric of the table, the ``count`` runs with the
+        largest finite values (every metric is worse when larger), ``[{"seed", "value"}]`` from
+        the worst, ties by seed; ``flags``, for ``decoupled``, ``dropped`` and ``stalled``, the
+        seeds where it was raised; ``failed``, the seeds where the controller raised or the run
+        crashed.
+    """
+    names = list(dict.fromkeys(n for seed in per_seed for n in seed["controllers"]))
+    out: dict[str, dict[str, Any]] = {}
+    for name in names:
+        runs = [(int(s["seed"]), s["controllers"][name]) for s in per_seed if name in s["controllers"]]
+        ok = [(seed, entry) for seed, entry in runs if "error" not in entry]
+        metrics = {}
+        for key, _ in _RANKED:
+            values = sorted(
+                ((seed, float(e[key])) for seed, e in ok if _finite(e.get(key))),
+                key=lambda sv: (-sv[1], sv[0]),
+            )
+            metrics[key] = [{"seed": seed, "value": value} for seed, value in values[:count]]
+        flags = {flag: [seed for seed, e in ok if e.get(flag) is True] for flag in _FLAGS}
+        failed = [seed for seed, entry in runs if "error" in entry]
+        out[name] = {"metrics": metrics, "flags": flags, "failed": failed}
+    return out
+
+
+def worst_table(worst: Mapping[str, Mapping[str, Any]]) -> str:
+    """A markdown table of :func:`worst_runs` (metrics whose worst value is 0 and empty lists left out)."""
+    headers = dict(_RANKED)
+    lines = ["| controller | metric | worst runs: seed (value) |", "|---|---|---|"]
+    for name, entry in worst.items():
+        for key, ranked in entry["metrics"].items():
+            if ranked and ranked[0]["value"] != 0:
+                cells = ", ".join(f"{r['seed']} ({r['value']:.4g})" for r in ranked)
+                lines.append(f"| {name} | {headers[key]} | {cells} |")
+        for flag, seeds in entry["flags"].items():
+            if seeds:
+                lines.append(f"| {name} | {flag} | {', '.join(map(str, seeds))} |")
+        if entry["failed"]:
+            lines.append(f"| {name} | failed | {', '.join(map(str, entry['failed']))} |")
+    return "\n".join(lines) + "\n"
+
+
+def summary_markdown(
+    scenario: Scenario, path: ReferencePath, seeds: Sequence[int], summary: Mapping[str, Any]
+) -> str:
+    """summary.md: the table of ``compare --runs`` and the worst runs."""
+    runs = len(seeds)
+    varied = ", ".join(f"plant.{f} ~ U({lo:g}, {hi:g})" for f, (lo, hi) in summary["vary"].items())
+    title = (
+        f"# sweep: {scenario.name}, plant {scenario.plant.preset}, v = {path.speed_mps} m/s, "
+        f"seeds {seeds[0]}..{seeds[-1]}\n\n"
+    )
+    what = f"Varied: {varied}.\n\n" if varied else ""
+    note = (
+        f"\nMean ± sd (ddof 1) over the {runs} runs; `(n/N)`: only n runs had a value (e.g. arrived); "
+        "flags: runs where true. Each seed's runs are scored on a common window (t = 0 to the latest end "
+        "among them).\n"
+    )
+    worst = (
+        f"\n## Worst runs\n\nPer controller and metric, the seeds of the {WORST_COUNT} largest values; "
+        "flags and failures: every seed where raised.\n\n" + worst_table(summary["worst"])
+    )
+    return title + what + summary_table(summary["controllers"], runs) + note + worst
+
+
+def write_figures(out: Path, per_seed: Sequence[Mapping[str, Any]]) -> list[str]:
+    """metrics.png and one distribution_<metric>.png per metric of the table; the file names."""
+    from ...atomic import atomic_path
+    from ...plots import plot_metrics
+
+    done: dict[str, list[Mapping[str, Any]]] = {}
+    for seed in per_seed:
+        for name, entry in seed["controllers"].items():
+            if "error" not in entry:
+                done.setdefault(name, []).append(entry)
+    if not done:  # no controller finished a run: nothing to draw
+        return []
+    draw: dict[str, Sequence[tuple[str, str]] | None] = {"metrics.png": None}
+    draw.update({f"distribution_{key}.png": [(key, header)] for key, header in _RANKED})
+    for name, keys in draw.items():  # each figure complete or absent, never half written
+        with atomic_path(out / name) as tmp:
+            plot_metrics(done, tmp, keys)
+    return list(draw)
