@@ -76,6 +76,7 @@ __all__ = [
     "rescore_on_common_window",
     "run",
     "run_seed_controllers",
+    "summary_header",
     "summary_table",
 ]
 
@@ -386,6 +387,21 @@ def run_seed_controllers(
     return results, entries, rescore_on_common_window(results, path, scenario)
 
 
+def summary_header(
+    meta: Mapping[str, Any], seed: int, path: ReferencePath, runs: int, seeds: Sequence[int]
+) -> dict[str, Any]:
+    """The head of a ``summary.json`` (``compare --runs`` and ``sweep``): provenance and the runs."""
+    return {
+        "config": meta.get("config"),
+        "seed": seed,
+        "speed_mps": path.speed_mps,
+        "waypoints_file": meta.get("waypoints_file"),
+        "path_length_m": path.length_m,
+        "runs_requested": runs,
+        "seeds": list(seeds),
+    }
+
+
 def compare_controllers(
     scenario: Scenario,
     path: ReferencePath,
@@ -480,13 +496,7 @@ def compare_controllers(
     if prediction_figure is not None:
         figures.append(prediction_figure.name)
     summary = {
-        "config": meta.get("config"),
-        "seed": seed,
-        "speed_mps": path.speed_mps,
-        "waypoints_file": meta.get("waypoints_file"),
-        "path_length_m": path.length_m,
-        "runs_requested": runs,
-        "seeds": seeds,
+        **summary_header(meta, seed, path, runs, seeds),
         "controllers": aggregated,
         "runs": per_seed,
         "figures": figures,

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from ...config import Scenario
 from ...paths import ReferencePath
-from ..compare import RUNS_FOLDER, _controller_names, _json_value, aggregate_runs
+from ..compare import RUNS_FOLDER, _controller_names, _json_value, aggregate_runs, summary_header
 from .results import (
     SPEC_FILE,
     check_resume,
@@ -124,13 +124,7 @@ def sweep(
     per_seed = [done[s] for s in seeds]
     aggregated = aggregate_runs(per_seed)
     summary = {
-        "config": meta.get("config"),
-        "seed": seed,
-        "speed_mps": path.speed_mps,
-        "waypoints_file": meta.get("waypoints_file"),
-        "path_length_m": path.length_m,
-        "runs_requested": runs,
-        "seeds": seeds,
+        **summary_header(meta, seed, path, runs, seeds),
         "plant_preset": scenario.plant.preset,
         "vary": spec["vary"],
         "controllers": aggregated,
