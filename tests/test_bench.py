@@ -50,8 +50,8 @@ def test_report_layout_and_machine_info(report):
 def test_build_times_cold_compile_then_warm_cache(report):
     (case,) = report["cases"]
     assert (case["scheme"], case["horizon"]) == ("rti", HORIZON)
-    # 7 states + 3 inputs + 2 slacks per stage.
-    assert case["n_variables"] == 12 * HORIZON
+    # Stage-wise: 10 states and 7 inputs per stage, 10 states at the last.
+    assert case["n_variables"] == 17 * HORIZON + 10
     build = case["build"]
     assert set(build) == {"uncompiled", "compiled_cold", "compiled_warm"}
     for b in build.values():
@@ -81,11 +81,10 @@ def test_closed_loop_solve_statistics(report):
         assert 0 <= run["frames_over_p99_target"] <= run["frames"]
         slow = [f["solve_ms"] for f in run["slowest_frames"]]
         assert slow == sorted(slow, reverse=True) and slow[0] == pytest.approx(run["solve"]["max_ms"])
-        # Every frame but the first is an RTI step (or a recovery), profiled from CasADi's stats.
+        # Every frame but the first is an RTI step (or a recovery).
         rti = run["solver_profile"]["rti"]
         assert rti["calls"] >= run["frames"] and rti["iterations_max"] == 1  # one SQP step per call
-        assert _positive(rti["t_wall_QP_median_ms"]) and _positive(rti["wall_median_ms"])
-        assert rti["t_wall_QP_median_ms"] < rti["wall_median_ms"]
+        assert _positive(rti["wall_median_ms"]) and rti["wall_median_ms"] <= rti["wall_max_ms"]
         assert not run["metrics"]["decoupled"] and not run["metrics"]["dropped"]
         assert _positive(run["metrics"]["cross_track_rms_mm"])
 

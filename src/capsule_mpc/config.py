@@ -508,18 +508,31 @@ class MPCConfig(_Strict):
     scheme: Literal["rti", "sqp", "ipopt"] = Field(
         "rti",
         description=(
-            "rti: one Gauss-Newton SQP step per frame (qrqp), warm-started, first frame solved to "
-            "convergence by IPOPT; sqp: Gauss-Newton SQP to convergence; ipopt: interior point."
+            "rti: one Gauss-Newton SQP step per frame (one CasADi function around the QP of "
+            "qp_solver), warm-started, first frame solved to convergence by IPOPT; sqp: the same "
+            "step iterated with a line search to convergence; ipopt: interior point every frame."
         ),
     )
-    qp_solver: Literal["piqp", "qrqp"] = Field(
-        "piqp",
+    qp_solver: Literal["hpipm", "piqp", "qrqp"] = Field(
+        "hpipm",
         description=(
-            "QP solver inside the SQP schemes: piqp (interior point; tight worst case) or qrqp "
-            "(CasADi's active set; same median, slower after large changes)."
+            "QP solver inside the SQP schemes, on the same stage-wise problem: hpipm (Riccati-"
+            "structured interior point; fastest), piqp (sparse interior point) or qrqp (CasADi's "
+            "active set; slow after large changes)."
         ),
     )
     max_sqp_iter: Integer = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
+    recovery_sqp_iter: Integer = Field(
+        3,
+        ge=0,
+        le=50,
+        description=(
+            "rti: SQP iterations with line search (fewer if converged) that recover a frame whose "
+            "step failed (a violation above the step limit), [0, 50]; if they fail too, or with 0, "
+            "the shifted previous plan is used. IPOPT runs only on the first frame (and after the "
+            "shifted plan ran out)."
+        ),
+    )
     max_ipopt_iter: Integer = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
     position_tol_m: Number = Field(
         1e-3,
@@ -586,8 +599,8 @@ class MPCConfig(_Strict):
     compile_c: StrictBool = Field(
         True,
         description=(
-            "Compile the SQP's NLP functions to C (gcc) once, cached on disk by a hash of the "
-            "problem; about 0.6 ms faster per frame at N = 20. Falls back, with a warning, if gcc fails."
+            "Compile the NLP's derivative and value functions of the SQP schemes to C (gcc) once, "
+            "cached on disk by a hash of the problem. Falls back, with a warning, if gcc fails."
         ),
     )
 

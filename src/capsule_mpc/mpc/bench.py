@@ -185,19 +185,11 @@ def _fresh_build_main(t0: float) -> None:
         "import_s": t_import,
         "build_s": time.perf_counter() - t1,
         "loaded_from_cache": stack.solver.loaded_from_cache,
-        "compiled": _is_compiled(stack.solver),
+        "compiled": stack.solver.compiled,
         "n_variables": stack.ocp.n_w,
         "warnings": [str(w.message) for w in caught],
     }
     print(json.dumps(result))
-
-
-def _is_compiled(solver: MPCSolver) -> bool:
-    """Whether the SQP evaluates its NLP through compiled code (``External`` functions)."""
-    sqp = solver._sqp
-    if sqp is None:
-        return False
-    return all(sqp.get_function(name).class_name() == "External" for name in sqp.get_function())
 
 
 # ---------------------------------------------------------------------------- closed-loop timing
@@ -215,17 +207,17 @@ class _TimedFunction:
     def __init__(self, fn: ca.Function, kind: str, log: _CallLog) -> None:
         self._fn, self._kind, self._log = fn, kind, log
 
-    def __call__(self, **kwargs: Any) -> Any:
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
         c0, w0 = time.process_time(), time.perf_counter()
         try:
-            return self._fn(**kwargs)
+            return self._fn(*args, **kwargs)
         finally:
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0
             rec: dict[str, Any] = {"frame": self._log.frame, "kind": self._kind}
             rec |= {"wall_ms": 1e3 * wall, "cpu_ms": 1e3 * cpu}
             stats = self._fn.stats()
             rec |= {k: 1e3 * v for k, v in stats.items() if k.startswith("t_wall_") and isinstance(v, float)}
-            rec["iterations"] = int(stats.get("iter_count", 0))
+            rec["iterations"] = int(stats.get("iter_count", 1)) if self._kind.startswith("ipopt") else 1
             self._log.calls.append(rec)
 
     def stats(self) -> dict[str, Any]:
@@ -236,7 +228,7 @@ class _TimedFunction:
 @contextmanager
 def _timed_solvers(solver: MPCSolver, log: _CallLog) -> Iterator[None]:
     """Wrap the solver's CasADi functions for the duration of a run (restored afterwards)."""
-    names = {"_sqp": solver.scheme, "_ipopt": "ipopt", "_ipopt_warm": "ipopt_warm"}
+    names = {"_rti": "rti", "_direction": "sqp", "_ipopt": "ipopt", "_ipopt_warm": "ipopt_warm"}
     saved = {name: getattr(solver, name) for name in names}
     try:
         for name, kind in names.items():

@@ -1,0 +1,177 @@
+"""The MPC's stage-wise layout and its HPIPM real-time iteration (issue 10, item 1)."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from capsule_mpc.dynamics import capsule_model, discrete_step
+from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack
+from capsule_mpc.mpc.problem import N_PATH, N_STATE, X_SCALE
+from capsule_mpc.mpc.solver import HPIPM_OPTIONS, nlp_functions, rti_function
+from capsule_mpc.paths import ReferencePath
+from capsule_mpc.sim import simulate
+
+PATH = ReferencePath(np.array([[0.0, 0.0], [0.03, 0.0], [0.03, 0.015]]), closed=False, speed_mps=0.02)
+#: Today's solver (sqpmethod + piqp on the former layout, commit 8b74c88) on ``closed_loop`` below:
+#: cross-track RMS 0.2296 mm and tracking RMS 2.031 mm (seed 3, ideal plant).
+BEFORE_CROSS_TRACK_RMS_MM = 0.2296
+BEFORE_TRACKING_RMS_MM = 2.031
+
+
+@pytest.fixture(scope="module")
+def fast(scenario):
+    """The paper scenario (ideal plant), uncompiled NLP functions, short settle and tail."""
+    return scenario.model_copy(
+        update={
+            "mpc": scenario.mpc.model_copy(update={"compile_c": False}),
+            "sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def recorded(fast):
+    """A closed-loop run with the default solver (hpipm): the run, every RTI call's ``(p, w0,
+    result)`` and the number of IPOPT and SQP-recovery calls."""
+    solver = build_mpc_stack(fast).solver
+    assert solver.qpsol == "hpipm"
+    frames: list[tuple[np.ndarray, np.ndarray, SolveResult]] = []
+    calls = {"solve_converged": 0, "sqp": 0}
+    methods = {name: getattr(type(solver), name) for name in ("rti", *calls)}
+
+    def rti(p, w0):
+        res = methods["rti"](solver, p, w0)
+        frames.append((p.copy(), w0.copy(), res))
+        return res
+
+    def counted(name):
+        def call(*args, **kwargs):
+            calls[name] += 1
+            return methods[name](solver, *args, **kwargs)
+
+        return call
+
+    solver.rti = rti  # type: ignore[method-assign]
+    for name in calls:
+        setattr(solver, name, counted(name))
+    try:
+        run = simulate(fast, MPCController(), PATH, seed=3)
+    finally:
+        for name in methods:
+            delattr(solver, name)
+    return run, frames, calls
+
+
+def _stage_rows(ocp, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gap rows (N x 10) and implicit-velocity rows (N x 2) of the constraint vector."""
+    per_stage = g.reshape(ocp.horizon, N_STATE + N_PATH)
+    return per_stage[:, :N_STATE], per_stage[:, N_STATE : N_STATE + 2]
+
+
+def test_layout_is_what_hpipm_needs(fast):
+    ocp = build_mpc_stack(fast).ocp
+    n = ocp.horizon
+    assert ocp.structure == {"N": n, "nx": [10] * (n + 1), "nu": [7] * n + [0], "ng": [5] * n + [0]}
+    assert ocp.n_w == 17 * n + 10
+    qp_data, _ = nlp_functions(ocp)
+    hess, _grad, _g, jac = (np.asarray(ca.DM(qp_data.sparsity_out(i), 1)) for i in range(4))
+    # Hessian block diagonal by stage (17 x 17 blocks, the last stage 10 x 10).
+    stage_of = np.minimum(np.arange(ocp.n_w) // 17, n)
+    rows, cols = np.nonzero(hess)
+    assert np.all(stage_of[rows] == stage_of[cols])
+    # Constraint rows of stage k touch only (x_k, u_k) and, in the gap rows, x_{k+1} -- as the identity.
+    for k in range(n):
+        block = jac[k * 15 : (k + 1) * 15]
+        used = np.nonzero(block.any(axis=0))[0]
+        assert used.min() >= 17 * k and used.max() < 17 * (k + 1) + 10
+        assert np.array_equal(block[:10, 17 * (k + 1) : 17 * (k + 1) + 10] != 0, np.eye(10, dtype=bool))
+        assert not block[10:, 17 * (k + 1) :].any()
+
+
+def test_dynamics_residual_matches_the_models_implicit_euler(fast):
+    """A rollout of the model's implicit Euler step (KINSOL) satisfies every gap and velocity
+    row; off it, the velocity row is the model's implicit Euler equation itself."""
+    stack = build_mpc_stack(fast)
+    ocp = stack.ocp
+    n, dt = ocp.horizon, ocp.dt_s
+    model = capsule_model(fast)
+    step = discrete_step(model, dt, "implicit_euler")
+    lead = ocp.lead_eq_m
+    x0 = np.array([0.0, 0.0, 0.0, 0.0, lead[0] + 0.002, lead[1], fast.plate.epm_height_m])
+    u_prev = np.array([0.01, 0.0, 0.0])
+    t = np.arange(n)
+    us = np.vstack([0.01 + 0.0005 * t, 0.004 * np.sin(t / 3), np.zeros(n)])
+    xs, x = [], x0
+    for k in range(n):
+        x = np.asarray(step(x, us[:, k])).ravel()
+        xs.append(x)
+    xs_a = np.array(xs).T
+    assert np.abs(xs_a[2:4]).max() > 0.005  # the capsule really moves (friction active)
+    w = ocp.pack_variables(xs_a, us, np.zeros((2, n)), x0, u_prev)
+    p = ocp.pack_parameters(x0, np.zeros((6, n)), u_prev, np.zeros(3))
+    _, merit = nlp_functions(ocp)
+    gap, vel = _stage_rows(ocp, np.asarray(merit(w, p)[1]).ravel())
+    assert np.abs(gap).max() < 1e-9  # exact: p, e, h and the command follow explicitly
+    assert np.abs(vel).max() < 1e-6  # cm/s: the KINSOL root's tolerance
+    # Perturb the velocities (positions following them, so every gap stays closed): the velocity
+    # rows are then the implicit Euler equation (v_{k+1} - v_k - dt a(x_{k+1}, u_k)) / scale.
+    rng = np.random.default_rng(0)
+    xs_b = xs_a.copy()
+    xs_b[2:4] += rng.normal(0, 2e-3, (2, n))
+    xs_b[0:2] = x0[0:2, None] + dt * np.cumsum(xs_b[2:4], axis=1)
+    w_b = ocp.pack_variables(xs_b, us, np.zeros((2, n)), x0, u_prev)
+    gap_b, vel_b = _stage_rows(ocp, np.asarray(merit(w_b, p)[1]).ravel())
+    assert np.abs(gap_b).max() < 1e-9
+    prev = np.column_stack([x0, xs_b[:, :-1]])
+    accel = np.column_stack([np.asarray(model.ode(xs_b[:, k], us[:, k])).ravel()[2:4] for k in range(n)])
+    expected = (xs_b[2:4] - prev[2:4] - dt * accel) / X_SCALE[2:4, None]
+    assert np.abs(expected).max() > 1.0  # far from satisfied
+    assert vel_b.T == pytest.approx(expected, abs=1e-8)
+
+
+def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(fast, recorded):
+    """On the recorded closed-loop frames the HPIPM step (issue settings) and a piqp step solved
+    to 1e-10 give the same plan."""
+    _run, frames, _calls = recorded
+    ocp = build_mpc_stack(fast).ocp
+    qp_data, merit = nlp_functions(ocp)
+    hpipm = rti_function(ocp, qp_data, merit, "hpipm")
+    tight = {"error_on_fail": False, "piqp": {"eps_abs": 1e-10, "eps_rel": 1e-10, "verbose": False}}
+    piqp = rti_function(ocp, qp_data, merit, "piqp", tight)
+    assert HPIPM_OPTIONS["mode"] == "speed"
+    du_max, dx_max = 0.0, 0.0
+    for p, w0, _res in frames[:: max(1, len(frames) // 60)]:
+        w_h, viol_h, _ = hpipm(w0, p)
+        w_p, viol_p, _ = piqp(w0, p)
+        xs_h, us_h, _ = ocp.unpack(np.asarray(w_h).ravel())
+        xs_p, us_p, _ = ocp.unpack(np.asarray(w_p).ravel())
+        du_max = max(du_max, float(np.abs(us_h - us_p).max()))
+        dx_max = max(dx_max, float(np.abs(xs_h[0:2] - xs_p[0:2]).max()))
+        assert float(viol_h) == pytest.approx(float(viol_p), abs=1e-3)
+    assert du_max < 1e-5  # m/s: 0.01 mm/s on every planned command
+    assert dx_max < 1e-6  # m: 1 um on every predicted capsule position
+
+
+def test_closed_loop_with_hpipm_tracks_as_well_as_before(recorded):
+    run, frames, _calls = recorded
+    m = run.metrics
+    assert m["completed"] and not m["decoupled"] and not m["dropped"]
+    assert len(frames) > 100
+    assert m["cross_track_rms_mm"] <= 1.05 * BEFORE_CROSS_TRACK_RMS_MM
+    assert m["tracking_rms_mm"] <= 1.05 * BEFORE_TRACKING_RMS_MM
+
+
+def test_piqp_and_qrqp_run_the_same_layout(fast):
+    """The other QP solvers, selected by ``mpc.qp_solver``, give the same commands."""
+    short = ReferencePath(PATH.vertices_m[:2], closed=False, speed_mps=0.02)
+    for qpsol in ("piqp", "qrqp"):
+        sc = fast.model_copy(update={"mpc": fast.mpc.model_copy(update={"qp_solver": qpsol})})
+        assert build_mpc_stack(sc).solver.qpsol == qpsol
+        other = simulate(sc, MPCController(), short, seed=3)
+        ref = simulate(fast, MPCController(), short, seed=3)
+        a = np.column_stack([other.log["cmd_vx_mps"], other.log["cmd_vy_mps"]])
+        b = np.column_stack([ref.log["cmd_vx_mps"], ref.log["cmd_vy_mps"]])
+        assert a.shape == b.shape
+        assert np.abs(a - b).max() < 1e-4, qpsol  # m/s: 0.1 mm/s after a closed loop of differences
