@@ -6,6 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from capsule_mpc.control import Measurement
 from capsule_mpc.dynamics import capsule_model, discrete_step
 from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack
 from capsule_mpc.mpc.problem import N_PATH, N_STATE, X_SCALE
@@ -175,3 +176,76 @@ def test_piqp_and_qrqp_run_the_same_layout(fast):
         b = np.column_stack([ref.log["cmd_vx_mps"], ref.log["cmd_vy_mps"]])
         assert a.shape == b.shape
         assert np.abs(a - b).max() < 1e-4, qpsol  # m/s: 0.1 mm/s after a closed loop of differences
+
+
+# ---------------------------------------------------------------------------- recovery (item 2)
+def test_no_ipopt_after_the_first_frame(recorded):
+    run, frames, calls = recorded
+    assert calls["solve_converged"] == 1  # the first frame only
+    statuses = [s.status for s in run.step_stats if s.status != "no_measurement"]
+    assert statuses[0] == "Solve_Succeeded"
+    failed_steps = [res for _p, _w, res in frames if not res.success]
+    assert failed_steps  # the run has steps to recover (friction's sign change at rest)
+    assert calls["sqp"] == sum(s.startswith(("recovered", "failed")) for s in statuses[1:]) > 0
+    for s in statuses[1:]:
+        assert s == "step" or s.startswith(("recovered (infeasible", "held (", "failed: infeasible"))
+    assert run.metrics["solver_failures"] <= 0.01 * len(statuses)
+
+
+def test_sqp_recovery_repairs_the_failed_steps(fast, recorded):
+    """On the recorded frames whose RTI step failed, 3 SQP iterations with line search from the
+    same guess give a usable point whose first command is close to IPOPT's converged one."""
+    _run, frames, _calls = recorded
+    solver = build_mpc_stack(fast).solver
+    ocp = solver.ocp
+    failed = [(p, w0, res) for p, w0, res in frames if not res.success]
+    repaired, du = 0, []
+    for p, w0, res in failed:
+        rec = solver.sqp(p, w0, 3)
+        assert rec.iterations <= 3 and rec.violation < res.violation
+        repaired += rec.success
+        ipopt = solver.solve_converged(p, w0)
+        assert ipopt.success
+        du.append(float(np.abs(ocp.unpack(rec.w)[1][:, 0] - ocp.unpack(ipopt.w)[1][:, 0]).max()))
+    assert repaired >= 0.8 * len(failed)
+    assert np.median(du) < 1e-3  # m/s
+    # Iterated to convergence, the SQP reaches IPOPT's solution.
+    p, w0, _res = failed[0]
+    conv = solver.sqp(p, w0, 30)
+    assert conv.status == "converged"
+    ipopt = solver.solve_converged(p, w0)
+    assert ocp.unpack(conv.w)[1] == pytest.approx(ocp.unpack(ipopt.w)[1], abs=1e-6)
+
+
+def test_a_failed_step_is_held_in_settle_and_recovered_after(fast, monkeypatch):
+    """While the rig holds the EPM (t < 0) a failed step is accepted without more work; in motion
+    the same failure runs the SQP recovery."""
+    ctrl = MPCController()
+    epm = np.array([-0.017, 0.0, fast.plate.epm_height_m])
+    ctrl.reset(fast, PATH, epm)
+    solver = ctrl.stack.solver
+    dt = ctrl.dt_s
+    rti, sqp = type(solver).rti, type(solver).sqp
+    sqp_calls = []
+
+    def failing_rti(p, w0):
+        res = rti(solver, p, w0)
+        return SolveResult(False, "infeasible step (injected)", 1, res.solve_ms, "rti", res.w,
+                           res.lam_x, res.lam_g, 99.0)  # fmt: skip
+
+    def counted_sqp(p, w0, max_iter=None):
+        sqp_calls.append(max_iter)
+        return sqp(solver, p, w0, max_iter)
+
+    monkeypatch.setattr(solver, "rti", failing_rti)
+    monkeypatch.setattr(solver, "sqp", counted_sqp)
+    measurement = Measurement(-0.2, -0.2 - dt, PATH.position(0.0))
+    first = ctrl.step(-0.2, measurement, epm)  # IPOPT: no plan yet
+    held = ctrl.step(-0.2 + dt, Measurement(-0.2 + dt, -0.2, PATH.position(0.0)), epm)
+    assert first.stats.status == "Solve_Succeeded"
+    assert held.stats.status == "held (infeasible step (injected))" and not held.stats.failed
+    assert np.all(held.epm_velocity_mps == 0) and sqp_calls == []
+    moving = ctrl.step(0.0, Measurement(0.0, -dt, PATH.position(0.0)), epm)
+    assert sqp_calls == [fast.mpc.recovery_sqp_iter]
+    assert moving.stats.status == "recovered (infeasible step (injected))"
+    assert not moving.stats.failed and moving.stats.iterations >= 2  # the step and the SQP
