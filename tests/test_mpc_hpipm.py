@@ -134,7 +134,7 @@ def test_dynamics_residual_matches_the_models_implicit_euler(fast):
 
 def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(fast, recorded):
     """On the recorded closed-loop frames the HPIPM step (issue settings) and a piqp step solved
-    to 1e-10 give the same plan."""
+    to 1e-10 give the same plan (issue 10: commands within 0.15 mm/s)."""
     _run, frames, _calls = recorded
     ocp = build_mpc_stack(fast).ocp
     qp_data, merit = nlp_functions(ocp)
@@ -144,14 +144,15 @@ def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(fast, recorded):
     assert HPIPM_OPTIONS["mode"] == "speed"
     du_max, dx_max = 0.0, 0.0
     for p, w0, _res in frames[:: max(1, len(frames) // 60)]:
-        w_h, viol_h, _ = hpipm(w0, p)
-        w_p, viol_p, _ = piqp(w0, p)
+        w_h, viol_h, *_ = hpipm(w0, p)
+        w_p, viol_p, *_ = piqp(w0, p)
         xs_h, us_h, _ = ocp.unpack(np.asarray(w_h).ravel())
         xs_p, us_p, _ = ocp.unpack(np.asarray(w_p).ravel())
         du_max = max(du_max, float(np.abs(us_h - us_p).max()))
         dx_max = max(dx_max, float(np.abs(xs_h[0:2] - xs_p[0:2]).max()))
         assert float(viol_h) == pytest.approx(float(viol_p), abs=1e-3)
-    assert du_max < 1e-5  # m/s: 0.01 mm/s on every planned command
+    # HPIPM stops at its iteration cap (10) on a few frames: 0.06 mm/s measured at most.
+    assert du_max < 1e-4  # m/s: 0.1 mm/s on every planned command
     assert dx_max < 1e-6  # m: 1 um on every predicted capsule position
 
 
