@@ -9,6 +9,7 @@ import pytest
 from capsule_mpc.control import Measurement
 from capsule_mpc.dynamics import capsule_model, discrete_step
 from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack
+from capsule_mpc.mpc.controller import model_scenario
 from capsule_mpc.mpc.problem import N_PATH, N_STATE, X_SCALE
 from capsule_mpc.mpc.solver import HPIPM_OPTIONS, nlp_functions, rti_function
 from capsule_mpc.paths import ReferencePath
@@ -91,13 +92,17 @@ def test_layout_is_what_hpipm_needs(fast):
         assert not block[10:, 17 * (k + 1) :].any()
 
 
-def test_dynamics_residual_matches_the_models_implicit_euler(fast):
+@pytest.mark.parametrize("eps_mps", [None, 0.003])
+def test_dynamics_residual_matches_the_models_implicit_euler(fast, eps_mps):
     """A rollout of the model's implicit Euler step (KINSOL) satisfies every gap and velocity
-    row; off it, the velocity row is the model's implicit Euler equation itself."""
-    stack = build_mpc_stack(fast)
+    row; off it, the velocity row is the model's implicit Euler equation itself -- with the
+    friction smoothing of ``mpc.friction_smoothing_eps_mps`` when set."""
+    sc = fast.model_copy(update={"mpc": fast.mpc.model_copy(update={"friction_smoothing_eps_mps": eps_mps})})
+    stack = build_mpc_stack(sc)
     ocp = stack.ocp
     n, dt = ocp.horizon, ocp.dt_s
-    model = capsule_model(fast)
+    model = capsule_model(model_scenario(sc))
+    assert model.scenario.friction.smoothing_eps_mps == (eps_mps or fast.friction.smoothing_eps_mps)
     step = discrete_step(model, dt, "implicit_euler")
     lead = ocp.lead_eq_m
     x0 = np.array([0.0, 0.0, 0.0, 0.0, lead[0] + 0.002, lead[1], fast.plate.epm_height_m])
@@ -130,6 +135,12 @@ def test_dynamics_residual_matches_the_models_implicit_euler(fast):
     expected = (xs_b[2:4] - prev[2:4] - dt * accel) / X_SCALE[2:4, None]
     assert np.abs(expected).max() > 1.0  # far from satisfied
     assert vel_b.T == pytest.approx(expected, abs=1e-8)
+    if eps_mps is not None:  # the smoothing matters at these speeds: the default model differs
+        default = capsule_model(fast)
+        accel_default = np.column_stack(
+            [np.asarray(default.ode(xs_b[:, k], us[:, k])).ravel()[2:4] for k in range(n)]
+        )
+        assert np.abs(accel_default - accel).max() > 0.01  # m/s^2
 
 
 def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(fast, recorded):

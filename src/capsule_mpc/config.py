@@ -534,6 +534,16 @@ class MPCConfig(_Strict):
         ),
     )
     max_ipopt_iter: Integer = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
+    friction_smoothing_eps_mps: Number | None = Field(
+        None,
+        gt=0,
+        le=0.01,
+        description=(
+            "Speed smoothing eps of the friction in the controller's model (|v| -> sqrt(v^2 + eps^2)), "
+            "m/s, (0, 0.01]; None: friction.smoothing_eps_mps. A larger eps makes the friction's sign "
+            "change at rest less abrupt, so one Gauss-Newton step predicts it (the plant is unchanged)."
+        ),
+    )
     position_tol_m: Number = Field(
         1e-3,
         gt=0,

@@ -36,7 +36,7 @@ from ..safety import safe_command
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 
-__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "safe_command"]
+__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "model_scenario", "safe_command"]
 
 
 #: Speed above which the velocity innovation is attributed to friction along the motion, m/s.
@@ -56,6 +56,16 @@ class MPCStack:
 _STACKS: dict[str, MPCStack] = {}
 
 
+def model_scenario(scenario: Scenario) -> Scenario:
+    """The scenario the controller's model is built from: ``scenario`` with the friction smoothing
+    of ``mpc.friction_smoothing_eps_mps`` (when set)."""
+    eps = scenario.mpc.friction_smoothing_eps_mps
+    if eps is None or eps == scenario.friction.smoothing_eps_mps:
+        return scenario
+    friction = scenario.friction.model_copy(update={"smoothing_eps_mps": eps})
+    return scenario.model_copy(update={"friction": friction})
+
+
 def build_mpc_stack(scenario: Scenario) -> MPCStack:
     """Build (or reuse, within the process) the OCP and solver for ``scenario``."""
     key = scenario.model_dump_json(exclude={"sim", "camera", "path", "name"})
@@ -64,7 +74,7 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
     t0 = time.perf_counter()
     cfg = scenario.mpc
     dt = cfg.dt_s if cfg.dt_s is not None else 1.0 / scenario.camera.rate_hz
-    model = capsule_model(scenario)
+    model = capsule_model(model_scenario(scenario))
     force = capsule_force_function(scenario)
     lead_eq = model_equilibrium_lead(scenario)
     ocp = build_ocp(model, dt, lead_eq)
