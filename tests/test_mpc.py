@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from capsule_mpc.control import Measurement
 from capsule_mpc.dynamics import capsule_model, discrete_step
 from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack, safe_command
+from capsule_mpc.mpc.controller import model_scenario
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import simulate
 
@@ -100,7 +101,7 @@ def test_plan_satisfies_the_model_dynamics(fast):
     assert res.success, res.status
     xs, us, _ = ocp.unpack(res.w)
     # Re-check the implicit Euler steps independently with the model's own step function.
-    step = discrete_step(capsule_model(fast), ocp.dt_s, "implicit_euler")
+    step = discrete_step(capsule_model(model_scenario(fast)), ocp.dt_s, "implicit_euler")
     prev = x0
     for k in range(n):
         nxt = np.asarray(step(prev, us[:, k])).ravel()

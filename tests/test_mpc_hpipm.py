@@ -34,10 +34,17 @@ def fast(scenario):
 
 
 @pytest.fixture(scope="module")
-def recorded(fast):
-    """A closed-loop run with the default solver (hpipm): the run, every RTI call's ``(p, w0,
-    result)`` and the number of IPOPT and SQP-recovery calls."""
-    solver = build_mpc_stack(fast).solver
+def sharp(fast):
+    """``fast`` with the model's friction smoothed over 1 mm/s only: its RTI steps fail where the
+    friction's sign changes (the capsule starting and stopping), so the recovery has work."""
+    return fast.model_copy(update={"mpc": fast.mpc.model_copy(update={"friction_smoothing_eps_mps": 1e-3})})
+
+
+@pytest.fixture(scope="module")
+def recorded(sharp):
+    """A closed-loop run of ``sharp`` with the default solver (hpipm): the run, every RTI call's
+    ``(p, w0, result)`` and the number of IPOPT and SQP-recovery calls."""
+    solver = build_mpc_stack(sharp).solver
     assert solver.qpsol == "hpipm"
     frames: list[tuple[np.ndarray, np.ndarray, SolveResult]] = []
     calls = {"solve_converged": 0, "sqp": 0}
@@ -59,7 +66,7 @@ def recorded(fast):
     for name in calls:
         setattr(solver, name, counted(name))
     try:
-        run = simulate(fast, MPCController(), PATH, seed=3)
+        run = simulate(sharp, MPCController(), PATH, seed=3)
     finally:
         for name in methods:
             delattr(solver, name)
@@ -143,11 +150,11 @@ def test_dynamics_residual_matches_the_models_implicit_euler(fast, eps_mps):
         assert np.abs(accel_default - accel).max() > 0.01  # m/s^2
 
 
-def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(fast, recorded):
+def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(sharp, recorded):
     """On the recorded closed-loop frames the HPIPM step (issue settings) and a piqp step solved
     to 1e-10 give the same plan (issue 10: commands within 0.15 mm/s)."""
     _run, frames, _calls = recorded
-    ocp = build_mpc_stack(fast).ocp
+    ocp = build_mpc_stack(sharp).ocp
     qp_data, merit = nlp_functions(ocp)
     hpipm = rti_function(ocp, qp_data, merit, "hpipm")
     tight = {"error_on_fail": False, "piqp": {"eps_abs": 1e-10, "eps_rel": 1e-10, "verbose": False}}
@@ -167,11 +174,13 @@ def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(fast, recorded):
     assert dx_max < 1e-6  # m: 1 um on every predicted capsule position
 
 
-def test_closed_loop_with_hpipm_tracks_as_well_as_before(recorded):
-    run, frames, _calls = recorded
+@pytest.mark.parametrize("smoothing", ["default", "sharp"])
+def test_closed_loop_with_hpipm_tracks_as_well_as_before(fast, recorded, smoothing):
+    """With the model of the former solver (friction smoothed over 1 mm/s) and with the default
+    (5 mm/s), the HPIPM loop tracks at least as well as the former solver did."""
+    run = recorded[0] if smoothing == "sharp" else simulate(fast, MPCController(), PATH, seed=3)
     m = run.metrics
     assert m["completed"] and not m["decoupled"] and not m["dropped"]
-    assert len(frames) > 100
     assert m["cross_track_rms_mm"] <= 1.05 * BEFORE_CROSS_TRACK_RMS_MM
     assert m["tracking_rms_mm"] <= 1.05 * BEFORE_TRACKING_RMS_MM
 
@@ -204,11 +213,11 @@ def test_no_ipopt_after_the_first_frame(recorded):
     assert run.metrics["solver_failures"] <= 0.01 * len(statuses)
 
 
-def test_sqp_recovery_repairs_the_failed_steps(fast, recorded):
+def test_sqp_recovery_repairs_the_failed_steps(sharp, recorded):
     """On the recorded frames whose RTI step failed, 3 SQP iterations with line search from the
     same guess give a usable point whose first command is close to IPOPT's converged one."""
     _run, frames, _calls = recorded
-    solver = build_mpc_stack(fast).solver
+    solver = build_mpc_stack(sharp).solver
     ocp = solver.ocp
     failed = [(p, w0, res) for p, w0, res in frames if not res.success]
     repaired, du = 0, []

@@ -535,13 +535,18 @@ class MPCConfig(_Strict):
     )
     max_ipopt_iter: Integer = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
     friction_smoothing_eps_mps: Number | None = Field(
-        None,
+        0.005,
         gt=0,
         le=0.01,
         description=(
             "Speed smoothing eps of the friction in the controller's model (|v| -> sqrt(v^2 + eps^2)), "
             "m/s, (0, 0.01]; None: friction.smoothing_eps_mps. A larger eps makes the friction's sign "
-            "change at rest less abrupt, so one Gauss-Newton step predicts it (the plant is unchanged)."
+            "change at rest less abrupt, so one Gauss-Newton step predicts it (the plant is unchanged). "
+            "Measured over the rectangle at 0.01/0.02/0.04 m/s and the pipe at 0.005/0.02/0.045 m/s, "
+            "5 seeds each, lab plant, against the former solver at 1 mm/s (issue 10): 5 mm/s gave "
+            "cross-track RMS -14 %, tracking RMS -4 % (geometric means), final error 0.47 mm (0.71 "
+            "before) and 12 fallback frames in the 30 runs; 3 mm/s -10 %, +2 %, 0.43 mm, 56; 7.5 "
+            "mm/s -16 %, -5 %, 0.66 mm, 0 (and the ideal plant's capsule never settled at the end)."
         ),
     )
     position_tol_m: Number = Field(

@@ -4,8 +4,9 @@
   solution: ONE CasADi Function (:func:`rti_function`) that linearises the stage-wise NLP
   (:mod:`capsule_mpc.mpc.problem`; Hessian ``J_R^T J_R``), solves the QP with the chosen
   ``conic`` plugin (``hpipm`` by default: a Riccati-structured interior point that uses the
-  layout) and returns the new iterate and its constraint violation. Called with DM in and
-  ``.full()`` out, without option dicts or ``stats()`` on the frame.
+  layout) and returns the new iterate and its constraint violation. Called through CasADi's
+  buffer interface (:class:`FastCall`: NumPy arrays in and out, no DM conversion), without
+  option dicts or ``stats()`` on the frame.
 * ``sqp`` -- the same step iterated with a backtracking line search on the l1 merit function
   (:meth:`MPCSolver.sqp`), to convergence (``mpc.max_sqp_iter``). The controller also uses a
   few of these iterations to recover a frame whose RTI step failed.
@@ -34,7 +35,7 @@ import casadi as ca
 import numpy as np
 
 from ..interrupt import raise_if_interrupted, run_interruptibly, solver_call
-from .problem import N_STATE, OCP, STATE_SCALE
+from .problem import N_REF, N_STATE, OCP, STATE_SCALE, U_SCALE, X_SCALE
 
 __all__ = [
     "HPIPM_OPTIONS",
@@ -43,6 +44,7 @@ __all__ = [
     "FastCall",
     "MPCSolver",
     "SolveResult",
+    "compiled_nlp_functions",
     "l1_merit_function",
     "nlp_functions",
     "qp_options",
@@ -154,9 +156,9 @@ def nlp_functions(ocp: OCP, expand: bool = True) -> tuple[ca.Function, ca.Functi
 
 def _linearisation_point(ocp: OCP, w: ca.MX, p: ca.MX) -> tuple[ca.MX, ca.MX, ca.MX]:
     """``w`` with stage 0 set from the parameters, and the variable bounds (``x_0`` fixed)."""
-    n = ocp.horizon
-    i_u = 7 + 6 * n
-    x0 = ca.vertcat(p[0:7], p[i_u : i_u + 3]) / ca.DM(STATE_SCALE)
+    nx, nu = len(X_SCALE), len(U_SCALE)  # the model's state and input: p = (x0, ref, u_prev, d)
+    i_u = nx + N_REF * ocp.horizon
+    x0 = ca.vertcat(p[0:nx], p[i_u : i_u + nu]) / ca.DM(STATE_SCALE)
     w_lin = ca.vertcat(x0, w[N_STATE:])
     lbw = ca.vertcat(x0, ca.DM(ocp.lbw[N_STATE:]))
     ubw = ca.vertcat(x0, ca.DM(ocp.ubw[N_STATE:]))
