@@ -11,7 +11,7 @@ from capsule_mpc.dynamics import capsule_model, discrete_step
 from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack
 from capsule_mpc.mpc.controller import model_scenario
 from capsule_mpc.mpc.problem import N_PATH, N_STATE, X_SCALE
-from capsule_mpc.mpc.solver import HPIPM_OPTIONS, nlp_functions, rti_function
+from capsule_mpc.mpc.solver import HPIPM_OPTIONS, FastCall, nlp_functions, rti_function
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import simulate
 
@@ -270,3 +270,17 @@ def test_a_failed_step_is_held_in_settle_and_recovered_after(fast, monkeypatch):
     assert sqp_calls == [fast.mpc.recovery_sqp_iter]
     assert moving.stats.status == "recovered (infeasible step (injected))"
     assert not moving.stats.failed and moving.stats.iterations >= 2  # the step and the SQP
+
+
+def test_fast_call_matches_the_function_and_returns_copies():
+    x, y = ca.MX.sym("x", 3), ca.MX.sym("y", 2)
+    fn = ca.Function("f", [x, y], [ca.vertcat(2 * x, ca.sum1(y)), x[0] * y])
+    fast = FastCall(fn)
+    a, b = np.array([1.0, 2.0, 3.0]), np.array([0.5, -1.5])
+    first = fast(a, b)
+    assert first[0] == pytest.approx(np.asarray(fn(a, b)[0]).ravel())
+    assert first[1] == pytest.approx([0.5, -1.5])
+    second = fast(2 * a, b)  # the buffers are reused; earlier results stay as they were
+    assert first[0] == pytest.approx([2.0, 4.0, 6.0, -1.0]) and second[0][0] == pytest.approx(4.0)
+    with pytest.raises(ValueError, match="sparse"):
+        FastCall(ca.Function("g", [x], [ca.MX(ca.Sparsity.diag(3), x)]))
