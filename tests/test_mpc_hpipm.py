@@ -174,11 +174,11 @@ def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(sharp, recorded):
     assert dx_max < 1e-6  # m: 1 um on every predicted capsule position
 
 
-@pytest.mark.parametrize("smoothing", ["default", "sharp"])
-def test_closed_loop_with_hpipm_tracks_as_well_as_before(fast, recorded, smoothing):
-    """With the model of the former solver (friction smoothed over 1 mm/s) and with the default
-    (5 mm/s), the HPIPM loop tracks at least as well as the former solver did."""
-    run = recorded[0] if smoothing == "sharp" else simulate(fast, MPCController(), PATH, seed=3)
+def test_closed_loop_with_hpipm_tracks_as_well_as_before(fast):
+    """With the default settings (HPIPM, friction smoothed over 5 mm/s, SQP recovery) the loop
+    tracks at least as well as the former solver did (measured: cross-track RMS 0.19 mm, tracking
+    RMS 1.88 mm). The lab-plant comparison over paths, speeds and seeds is in the issue's notes."""
+    run = simulate(fast, MPCController(), PATH, seed=3)
     m = run.metrics
     assert m["completed"] and not m["decoupled"] and not m["dropped"]
     assert m["cross_track_rms_mm"] <= 1.05 * BEFORE_CROSS_TRACK_RMS_MM
