@@ -230,6 +230,11 @@ def test_sqp_recovery_repairs_the_failed_steps(sharp, recorded):
         du.append(float(np.abs(ocp.unpack(rec.w)[1][:, 0] - ocp.unpack(ipopt.w)[1][:, 0]).max()))
     assert repaired >= 0.8 * len(failed)
     assert np.median(du) < 1e-3  # m/s
+    # Paced by the wall clock, the iterations stop within their time budget (the first always runs).
+    p, w0, _res = failed[0]
+    assert solver.sqp(p, w0, 6).iterations > 1
+    rushed = solver.sqp(p, w0, 6, budget_ms=1e-3)
+    assert rushed.iterations == 1 and rushed.status.startswith(("time budget", "infeasible after 1"))
     # Iterated to convergence, the SQP reaches IPOPT's solution.
     p, w0, _res = failed[0]
     conv = solver.sqp(p, w0, 30)

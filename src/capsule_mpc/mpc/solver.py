@@ -457,12 +457,19 @@ class MPCSolver:
             success, status = True, "step"
         return SolveResult(success, status, 1, ms, "rti", w, _NO_MULTIPLIERS, _NO_MULTIPLIERS, viol)
 
-    def sqp(self, p: np.ndarray, w0: np.ndarray, max_iter: int | None = None) -> SolveResult:
+    def sqp(
+        self, p: np.ndarray, w0: np.ndarray, max_iter: int | None = None, budget_ms: float | None = None
+    ) -> SolveResult:
         """Gauss-Newton SQP from ``w0`` with a backtracking line search on the l1 merit function
         ``f + sigma |violation|_1`` (``sigma`` above the largest QP multiplier), at most
         ``max_iter`` iterations (default ``max_sqp_iter``). Succeeds when the last point's
         violation is at most :data:`MAX_STEP_VIOLATION`; status 'converged' when the step and
-        the violation are below the convergence tolerances."""
+        the violation are below the convergence tolerances.
+
+        ``budget_ms``: no iteration is started that would, at the pace of the iterations so far,
+        end after this many ms (the first always runs). For a loop paced by the wall clock: it
+        makes the result depend on the machine's speed, so simulations leave it None.
+        """
         iters = self.max_sqp_iter if max_iter is None else max_iter
         t0 = time.perf_counter()
         w = np.asarray(w0, dtype=float)
@@ -472,6 +479,11 @@ class MPCSolver:
         sigma, viol, status, it = 0.0, float("inf"), "iteration cap", 0
         with solver_call():
             for it in range(1, iters + 1):
+                elapsed_ms = 1e3 * (time.perf_counter() - t0)
+                if budget_ms is not None and it > 1 and elapsed_ms * it / (it - 1) > budget_ms:
+                    status = f"time budget {budget_ms:.3g} ms"
+                    it -= 1
+                    break
                 # The QP at w (the first one already solved by the failed RTI step, if so).
                 step = last[2] if last is not None and reuse and it == 1 else self._rti(w, p)
                 w_next, _violation, lam_max, f0, l1_0, slope = step
