@@ -116,6 +116,7 @@ def plot_report(report: dict[str, Any], out: str | Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, ScalarFormatter
 
     from ..mpc.bench import TARGETS
 
@@ -142,11 +143,14 @@ def plot_report(report: dict[str, Any], out: str | Path) -> Path:
                 limit = TARGETS[horizon][key]
                 ax.axhline(limit, color="tab:red", ls=style, lw=0.8, label=f"target {key[:-3]} {limit:g} ms")
         ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(ScalarFormatter())
+        ax.yaxis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
+        ax.yaxis.set_minor_formatter(ScalarFormatter())
         ax.set_xticks(pos[::2] + 0.5, [n for n in names if n], rotation=30, ha="right")
         ax.set_title(f"N = {horizon}")
         ax.grid(axis="y", which="both", alpha=0.3)
+        ax.legend(fontsize=6, loc="upper left")
     axes[0][0].set_ylabel("time per frame, ms (blue: controller step, orange: solve)")
-    axes[0][-1].legend(fontsize=7, loc="upper right")
     mach = report["machine"]
     load = " ".join(f"{x:.1f}" for x in mach.get("load_average") or [])
     fig.suptitle(f"MPC closed loop, {mach['cpu_count']} CPUs, load average {load}", fontsize=9)
