@@ -168,7 +168,7 @@ def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(sharp, recorded):
         xs_p, us_p, _ = ocp.unpack(np.asarray(w_p).ravel())
         du_max = max(du_max, float(np.abs(us_h - us_p).max()))
         dx_max = max(dx_max, float(np.abs(xs_h[0:2] - xs_p[0:2]).max()))
-        assert float(viol_h) == pytest.approx(float(viol_p), abs=1e-3)
+        assert float(viol_h) == pytest.approx(float(viol_p), abs=1e-2)
     # HPIPM stops at its iteration cap (10) on a few frames: 0.06 mm/s measured at most.
     assert du_max < 1e-4  # m/s: 0.1 mm/s on every planned command
     assert dx_max < 1e-6  # m: 1 um on every predicted capsule position
@@ -214,16 +214,18 @@ def test_no_ipopt_after_the_first_frame(recorded):
 
 
 def test_sqp_recovery_repairs_the_failed_steps(sharp, recorded):
-    """On the recorded frames whose RTI step failed, 3 SQP iterations with line search from the
-    same guess give a usable point whose first command is close to IPOPT's converged one."""
+    """On the recorded frames whose RTI step failed, the recovery's SQP iterations with line search
+    (``mpc.recovery_sqp_iter``) from the same guess give a usable point whose first command is
+    close to IPOPT's converged one."""
     _run, frames, _calls = recorded
     solver = build_mpc_stack(sharp).solver
     ocp = solver.ocp
     failed = [(p, w0, res) for p, w0, res in frames if not res.success]
     repaired, du = 0, []
+    iters = sharp.mpc.recovery_sqp_iter
     for p, w0, res in failed:
-        rec = solver.sqp(p, w0, 3)
-        assert rec.iterations <= 3 and rec.violation < res.violation
+        rec = solver.sqp(p, w0, iters)
+        assert rec.iterations <= iters and rec.violation < res.violation
         repaired += rec.success
         ipopt = solver.solve_converged(p, w0)
         assert ipopt.success
@@ -259,9 +261,9 @@ def test_a_failed_step_is_held_in_settle_and_recovered_after(fast, monkeypatch):
         return SolveResult(False, "infeasible step (injected)", 1, res.solve_ms, "rti", res.w,
                            res.lam_x, res.lam_g, 99.0)  # fmt: skip
 
-    def counted_sqp(p, w0, max_iter=None):
+    def counted_sqp(p, w0, max_iter=None, budget_ms=None):
         sqp_calls.append(max_iter)
-        return sqp(solver, p, w0, max_iter)
+        return sqp(solver, p, w0, max_iter, budget_ms)
 
     monkeypatch.setattr(solver, "rti", failing_rti)
     monkeypatch.setattr(solver, "sqp", counted_sqp)

@@ -523,15 +523,16 @@ class MPCConfig(_Strict):
     )
     max_sqp_iter: Integer = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
     recovery_sqp_iter: Integer = Field(
-        6,
+        5,
         ge=0,
         le=50,
         description=(
             "rti: SQP iterations with line search (fewer if converged) that recover a frame whose "
             "step failed (a violation above the step limit), [0, 50]; if they fail too, or with 0, "
             "the shifted previous plan is used. IPOPT runs only on the first frame (and after the "
-            "shifted plan ran out). Over the 30 runs that chose friction_smoothing_eps_mps, 3 "
-            "iterations left 12 frames to the shifted plan (tracking RMS +21 % at 0.045 m/s), 6 none."
+            "shifted plan ran out). Over the 30 runs that chose friction_smoothing_eps_mps, 3/4/5/6 "
+            "iterations left 12/1/0/0 frames to the shifted plan (3: tracking RMS +21 % at 0.045 m/s). "
+            "With mpc.enforce_deadline they stop in time for the frame's deadline."
         ),
     )
     max_ipopt_iter: Integer = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
