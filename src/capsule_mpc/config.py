@@ -523,7 +523,7 @@ class MPCConfig(_Strict):
     )
     max_sqp_iter: Integer = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
     recovery_sqp_iter: Integer = Field(
-        5,
+        4,
         ge=0,
         le=50,
         description=(
@@ -531,8 +531,9 @@ class MPCConfig(_Strict):
             "step failed (a violation above the step limit), [0, 50]; if they fail too, or with 0, "
             "the shifted previous plan is used. IPOPT runs only on the first frame (and after the "
             "shifted plan ran out). Over the 30 runs that chose friction_smoothing_eps_mps, 3/4/5/6 "
-            "iterations left 12/1/0/0 frames to the shifted plan (3: tracking RMS +21 % at 0.045 m/s). "
-            "With mpc.enforce_deadline they stop in time for the frame's deadline."
+            "iterations left 12/1/0/0 frames to the shifted plan (3: tracking RMS +21 % at 0.045 m/s; "
+            "4-6 the same tracking); each costs one QP (0.5-1.2 ms at N = 20). With "
+            "mpc.enforce_deadline they stop in time for the frame's deadline."
         ),
     )
     max_ipopt_iter: Integer = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
