@@ -1,4 +1,4 @@
-"""``capsule-mpc bench``: build, start-up and closed-loop solve times of the MPC (JSON + table).
+"""``capsule-mpc bench``: build, start-up and closed-loop times of the MPC (JSON, table, figure).
 
 The logic is :func:`capsule_mpc.mpc.bench.run_benchmark`; ``benchmarks/mpc_bench.py`` runs the
 same code. Exit status: 0 when the run finished (whether or not the targets were met), 2 on a
@@ -13,17 +13,20 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..atomic import write_text_atomic
 
-__all__ = ["add_bench_arguments", "format_report", "register", "run", "write_report"]
+__all__ = ["add_bench_arguments", "format_report", "plot_report", "register", "run", "write_report"]
 
-#: Default JSON output (a folder gets ``mpc_bench.json`` inside it).
+#: Default JSON output (a folder gets ``mpc_bench.json`` inside it); the figure goes beside it.
 DEFAULT_OUT = "results/benchmarks/mpc_bench.json"
 
 
 def add_bench_arguments(p: argparse.ArgumentParser) -> None:
     """The options ``capsule-mpc bench`` and ``benchmarks/mpc_bench.py`` share."""
-    from ..mpc.bench import DEFAULT_FRAMES, DEFAULT_HORIZONS, DEFAULT_SCHEMES
+    from ..mpc.bench import DEFAULT_FRAMES, DEFAULT_HORIZONS, DEFAULT_QP_SOLVERS, DEFAULT_SCHEMES
+    from ..mpc.solver import QP_SOLVERS
 
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged rectangle.yaml)")
     p.add_argument(
@@ -35,13 +38,18 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
         help=f"per-frame schemes (default: {' '.join(DEFAULT_SCHEMES)})",
     )  # fmt: skip
     p.add_argument(
+        "--qp-solvers", nargs="+", default=list(DEFAULT_QP_SOLVERS), choices=QP_SOLVERS,
+        help=f"QP solvers of the rti and sqp schemes (default: {' '.join(DEFAULT_QP_SOLVERS)})",
+    )  # fmt: skip
+    p.add_argument(
         "--frames", type=int, default=DEFAULT_FRAMES,
         help=f"camera frames of motion per closed-loop run; 0: the whole path (default {DEFAULT_FRAMES})",
     )  # fmt: skip
     p.add_argument("--seed", type=int, default=None, help="random seed (default: sim.seed of the config)")
     p.add_argument(
-        "--out", default=DEFAULT_OUT, help=f"JSON file, or folder for mpc_bench.json ({DEFAULT_OUT})"
-    )
+        "--out", default=DEFAULT_OUT,
+        help=f"JSON file, or folder for mpc_bench.json ({DEFAULT_OUT}); the figure (.png) goes beside it",
+    )  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -49,11 +57,13 @@ def register(sub: Any) -> None:
     """Add the ``bench`` command."""
     p = sub.add_parser(
         "bench",
-        help="benchmark the MPC: build and start-up times, closed-loop solve times",
+        help="benchmark the MPC: build and start-up times, closed-loop controller and solve times",
         description=(
-            "For each horizon N and scheme: build time uncompiled, first start compiled with an empty "
-            "cache (gcc) and with a warm cache (fresh processes); per-frame solve times (median, p99, "
-            "max, failures) of a closed-loop run, compiled and uncompiled. Prints tables and writes JSON."
+            "For each horizon N and each scheme with each QP solver: build time uncompiled, first start "
+            "compiled with an empty cache (gcc) and with a warm cache (fresh processes); per-frame "
+            "controller-step time (Python included) and solve time (median, p95, p99, max), recoveries "
+            "and failures of a closed-loop run. Prints tables, writes JSON and a figure of the time "
+            "distributions."
         ),
     )
     add_bench_arguments(p)
@@ -61,7 +71,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the benchmark, print the tables and write the JSON report."""
+    """Run the benchmark, print the tables and write the JSON report and its figure."""
     from ..mpc.bench import run_benchmark
 
     if args.frames < 0:
@@ -77,11 +87,13 @@ def run(args: argparse.Namespace) -> int:
             print(msg, file=sys.stderr, flush=True)
 
     report = run_benchmark(
-        args.config, args.horizons, args.schemes, args.frames or None, args.seed, progress=say
-    )
+        args.config, args.horizons, args.schemes, args.frames or None, args.seed, progress=say,
+        qp_solvers=args.qp_solvers,
+    )  # fmt: skip
     out = write_report(report, args.out)
+    figure = plot_report(report, out.with_suffix(".png"))
     print(format_report(report))
-    print(f"wrote {out}")
+    print(f"wrote {out}, {figure}")
     return 0
 
 
@@ -93,8 +105,69 @@ def write_report(report: dict[str, Any], out: str | Path) -> Path:
     return write_text_atomic(target, json.dumps(report, indent=2) + "\n")
 
 
+def plot_report(report: dict[str, Any], out: str | Path) -> Path:
+    """The distribution of the controller-step and solve times, per variant and horizon (PNG).
+
+    One panel per horizon; per variant a box (median, quartiles; whiskers at p1 and p99) of the
+    controller step and one of the solve alone, the maximum as a cross, on a log time axis, with
+    the targets of that horizon as dashed lines.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, ScalarFormatter
+
+    from ..mpc.bench import TARGETS
+
+    horizons = report["settings"]["horizons"]
+    labels = report["settings"]["variants"]
+    fig, axes = plt.subplots(1, len(horizons), figsize=(3.2 + 2.4 * len(horizons), 4.2), squeeze=False)
+    for ax, horizon in zip(axes[0], horizons, strict=True):
+        cases = {c["variant"]: c for c in report["cases"] if c["horizon"] == horizon}
+        data, names, colours = [], [], []
+        for label in labels:
+            times = cases[label]["closed_loop"]["frame_times"]
+            for key, colour in (("controller_ms", "tab:blue"), ("solve_ms", "tab:orange")):
+                data.append(np.asarray(times[key], dtype=float))
+                names.append(label if key == "controller_ms" else "")
+                colours.append(colour)
+        pos = np.arange(len(data), dtype=float) + np.repeat(np.arange(len(labels)) * 0.6, 2)
+        boxes = ax.boxplot(data, positions=pos, whis=(1, 99), showfliers=False, patch_artist=True, widths=0.7)
+        for patch, colour in zip(boxes["boxes"], colours, strict=True):
+            patch.set_facecolor(colour)
+            patch.set_alpha(0.6)
+        ax.plot(pos, [float(np.max(d)) for d in data], "kx", ms=5, label="max")
+        for key, style in (("median_ms", "-"), ("p99_ms", "--"), ("max_ms", ":")):
+            if key in TARGETS.get(horizon, {}):
+                limit = TARGETS[horizon][key]
+                ax.axhline(limit, color="tab:red", ls=style, lw=0.8, label=f"target {key[:-3]} {limit:g} ms")
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(ScalarFormatter())
+        ax.yaxis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
+        ax.yaxis.set_minor_formatter(ScalarFormatter())
+        ax.set_xticks(pos[::2] + 0.5, [n for n in names if n], rotation=30, ha="right")
+        ax.set_title(f"N = {horizon}")
+        ax.grid(axis="y", which="both", alpha=0.3)
+        ax.legend(fontsize=6, loc="upper left")
+    axes[0][0].set_ylabel("time per frame, ms (blue: controller step, orange: solve)")
+    mach = report["machine"]
+    load = " ".join(f"{x:.1f}" for x in mach.get("load_average") or [])
+    fig.suptitle(f"MPC closed loop, {mach['cpu_count']} CPUs, load average {load}", fontsize=9)
+    fig.tight_layout()
+    target = Path(out)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(target, dpi=120)
+    plt.close(fig)
+    return target
+
+
+def _build_cell(b: dict[str, Any] | None) -> str:
+    return "-" if b is None else f"{b['build_s']:.2f} ({b['process_s']:.2f})"
+
+
 def format_report(report: dict[str, Any]) -> str:
-    """The report as text tables: build and start-up times, closed-loop solve times, targets."""
+    """The report as text tables: build and start-up times, closed-loop times, targets."""
     mach, st = report["machine"], report["settings"]
     load = " ".join(f"{x:.2f}" for x in mach["load_average"] or [])
     lines = [
@@ -103,60 +176,47 @@ def format_report(report: dict[str, Any]) -> str:
         f" {mach['cpu_count']} CPUs, load average at start {load}; casadi {mach['casadi']}",
         "",
         "Build / first start, fresh process, s (process incl. interpreter and imports in brackets)",
-        f"{'scheme':>7s} {'N':>4s} {'vars':>5s} {'uncompiled':>17s} {'compiled, cold':>17s}"
+        f"{'variant':>11s} {'N':>4s} {'vars':>5s} {'uncompiled':>17s} {'compiled, cold':>17s}"
         f" {'compiled, warm':>17s}",
     ]
-
-    def build_cell(b: dict[str, Any] | None) -> str:
-        return "-" if b is None else f"{b['build_s']:.2f} ({b['process_s']:.2f})"
-
     for c in report["cases"]:
         b = c["build"]
         lines.append(
-            f"{c['scheme']:>7s} {c['horizon']:4d} {c['n_variables']:5d} {build_cell(b['uncompiled']):>17s}"
-            f" {build_cell(b.get('compiled_cold')):>17s} {build_cell(b.get('compiled_warm')):>17s}"
+            f"{c['variant']:>11s} {c['horizon']:4d} {c['n_variables']:5d} {_build_cell(b['uncompiled']):>17s}"
+            f" {_build_cell(b.get('compiled_cold')):>17s} {_build_cell(b.get('compiled_warm')):>17s}"
         )
     lines += [
         "",
-        "Closed loop, solve time per frame, ms (first = the converged IPOPT initialisation, left out of"
-        " the rest; cpu: CPU time of the solver calls; std: steady frames, one warm-started step after"
-        " another)",
-        f"{'scheme':>7s} {'N':>4s} {'variant':>10s} {'frames':>6s} {'first':>7s} {'median':>7s} {'p99':>7s}"
-        f" {'max':>7s} {'cpu med':>7s} {'cpu p99':>7s} {'std med':>7s} {'std p99':>7s}"
-        f" {'>5ms':>5s} {'recov':>5s} {'fail':>4s}"
-        f" {'CT RMS mm':>9s}",
+        "Closed loop, per frame, ms: controller step (Python included; wall, and CPU in brackets) and the"
+        " solve alone; first = the converged IPOPT initialisation, left out of the rest",
+        f"{'variant':>11s} {'N':>4s} {'frames':>6s} {'first':>6s} | {'step med':>8s} {'p95':>6s} {'p99':>6s}"
+        f" {'max':>6s} {'(cpu med':>8s} {'p99)':>6s} | {'solve med':>9s} {'p95':>6s} {'p99':>6s} {'max':>6s}"
+        f" | {'recov':>5s} {'held':>4s} {'fail':>4s} {'ipopt':>5s} {'CT RMS mm':>9s}",
     ]
     for c in report["cases"]:
-        for variant, r in c["closed_loop"].items():
-            s, cpu, std = r["solve"], r["solve_cpu"], r["solve_steady"]
-            lines.append(
-                f"{c['scheme']:>7s} {c['horizon']:4d} {variant:>10s} {r['frames']:6d}"
-                f" {r['first_solve']['solve_ms']:7.1f} {s['median_ms']:7.2f} {s['p99_ms']:7.2f}"
-                f" {s['max_ms']:7.1f} {cpu['median_ms']:7.2f} {cpu['p99_ms']:7.2f}"
-                f" {std['median_ms']:7.2f} {std['p99_ms']:7.2f}"
-                f" {r['frames_over_p99_target']:5d} {r['recoveries']:5d} {r['failures']:4d}"
-                f" {r['metrics']['cross_track_rms_mm']:9.3f}"
-            )
+        r = c["closed_loop"]
+        s, cpu, sol = r["controller_step"], r["controller_step_cpu"], r["solve"]
+        lines.append(
+            f"{c['variant']:>11s} {c['horizon']:4d} {r['frames']:6d} {r['first_solve']['solve_ms']:6.1f} |"
+            f" {s['median_ms']:8.2f} {s['p95_ms']:6.2f} {s['p99_ms']:6.2f} {s['max_ms']:6.1f}"
+            f" {cpu['median_ms']:8.2f} {cpu['p99_ms']:6.2f} | {sol['median_ms']:9.2f} {sol['p95_ms']:6.2f}"
+            f" {sol['p99_ms']:6.2f} {sol['max_ms']:6.1f} | {r['recoveries']:5d} {r['held']:4d}"
+            f" {r['failures']:4d} {r['ipopt_after_first']:5d} {r['metrics']['cross_track_rms_mm']:9.3f}"
+        )
     if report["targets"]:
-        tg = report["settings"]["targets"]
-        lines += [
-            "",
-            f"Targets at N = {tg['horizon']}: median <= {tg['median_ms']} ms, p99 <= {tg['p99_ms']} ms,"
-            f" second start <= {tg['warm_start_s']} s",
-        ]
+        lines += ["", f"Targets (controller step; second start <= {st['warm_start_target_s']} s)"]
         for t in report["targets"]:
-            text = (
-                f"  {t['scheme']} {t['variant']}: median {t['median_ms']:.2f} ms"
-                f" {'met' if t['median_met'] else 'MISSED'}, p99 {t['p99_ms']:.2f} ms"
-                f" {'met' if t['p99_met'] else 'MISSED'}"
-            )
-            text += (
-                f" (CPU {t['cpu_median_ms']:.2f} / {t['cpu_p99_ms']:.2f} ms; steady frames"
-                f" {t['steady_median_ms']:.2f} / {t['steady_p99_ms']:.2f} ms)"
-            )
+            parts = [
+                f"{key[:-3]} {t[key]:.2f} ms {'met' if t[key.replace('_ms', '_met')] else 'MISSED'}"
+                for key in ("median_ms", "p99_ms", "max_ms")
+                if key in t
+            ]
+            text = f"  {t['variant']} N={t['horizon']}: " + ", ".join(parts)
+            text += f" (CPU {t['cpu_median_ms']:.2f} / {t['cpu_p99_ms']:.2f} ms); IPOPT after the first frame"
+            text += f" {t['ipopt_after_first']}"
             if "warm_start_met" in t:
                 text += (
-                    f", second start {t['warm_start_build_s']:.2f} s"
+                    f"; second start {t['warm_start_build_s']:.2f} s"
                     f" {'met' if t['warm_start_met'] else 'MISSED'}"
                 )
             lines.append(text)

@@ -5,10 +5,14 @@ Every frame:
 1. fuse the camera frame in the Kalman filter, predict over the latency;
 2. update the force-disturbance estimate (offset-free MPC): the velocity the
    last plan predicted for now vs the estimate;
-3. solve the NLP warm-started from the shifted previous solution;
-4. take the first command, or -- on a failed, non-finite or late solve -- the
+3. solve the NLP warm-started from the shifted previous solution (the first frame, or one
+   after the plan ran out, is solved to convergence by IPOPT);
+4. if the fast step failed: accept it anyway while the rig holds the EPM (the settle phase:
+   the command is 0 whatever the plan), else recover with a few SQP iterations with line
+   search on the same structure (``mpc.recovery_sqp_iter``);
+5. take the first command, or -- on a failed, non-finite or late solve -- the
    shifted previous plan, or else a braking command;
-5. pass it through the safety layer: speed, acceleration and workspace limits
+6. pass it through the safety layer: speed, acceleration and workspace limits
    are enforced on the command actually sent (and any clipping is counted).
 """
 
@@ -17,7 +21,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
@@ -29,12 +33,15 @@ from ..estimation import CapsuleEstimator
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
 from ..safety import safe_command
-from .problem import N_DIST, OCP, build_ocp, n_slacks
+from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 
-__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "safe_command"]
+__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "model_scenario", "safe_command"]
 
 
+#: Time the controller's step takes besides the solve (estimation, reference, safety layer), ms:
+#: the SQP recovery of a paced loop leaves it free (measured ~0.3 ms at N = 20, 0.5 with margin).
+_REST_OF_STEP_MS = 0.5
 #: Speed above which the velocity innovation is attributed to friction along the motion, m/s.
 _MOVING_MPS = 2e-3
 
@@ -52,6 +59,16 @@ class MPCStack:
 _STACKS: dict[str, MPCStack] = {}
 
 
+def model_scenario(scenario: Scenario) -> Scenario:
+    """The scenario the controller's model is built from: ``scenario`` with the friction smoothing
+    of ``mpc.friction_smoothing_eps_mps`` (when set)."""
+    eps = scenario.mpc.friction_smoothing_eps_mps
+    if eps is None or eps == scenario.friction.smoothing_eps_mps:
+        return scenario
+    friction = scenario.friction.model_copy(update={"smoothing_eps_mps": eps})
+    return scenario.model_copy(update={"friction": friction})
+
+
 def build_mpc_stack(scenario: Scenario) -> MPCStack:
     """Build (or reuse, within the process) the OCP and solver for ``scenario``."""
     key = scenario.model_dump_json(exclude={"sim", "camera", "path", "name"})
@@ -60,7 +77,7 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
     t0 = time.perf_counter()
     cfg = scenario.mpc
     dt = cfg.dt_s if cfg.dt_s is not None else 1.0 / scenario.camera.rate_hz
-    model = capsule_model(scenario)
+    model = capsule_model(model_scenario(scenario))
     force = capsule_force_function(scenario)
     lead_eq = model_equilibrium_lead(scenario)
     ocp = build_ocp(model, dt, lead_eq)
@@ -186,35 +203,39 @@ class MPCController(Controller):
         self.disturbance_n[0:2] = np.clip(-force[0:2], -limit, limit)
 
     def _initial_guess(self, x0: np.ndarray) -> np.ndarray:
+        """Everything standing still at the current state."""
         ocp = self.stack.ocp  # type: ignore[union-attr]
         n = ocp.horizon
-        return ocp.pack_variables(np.tile(x0[:, None], (1, n)), np.zeros((3, n)), np.zeros((n_slacks, n)))
+        held = np.tile(self.u_prev[:, None], (1, n))
+        return ocp.pack_variables(np.tile(x0[:, None], (1, n)), held, np.zeros((2, n)), x0, self.u_prev)
 
-    def _shifted(self) -> np.ndarray:
-        ocp = self.stack.ocp  # type: ignore[union-attr]
-        xs, us, ss = ocp.unpack(self.plan.w)  # type: ignore[union-attr]
-
-        def shift(a: np.ndarray) -> np.ndarray:
-            return np.hstack([a[:, 1:], a[:, -1:]])
-
-        return ocp.pack_variables(shift(xs), shift(us), shift(ss))
-
-    def _solve(self, x0: np.ndarray, ref: np.ndarray) -> SolveResult:
+    def _solve(self, x0: np.ndarray, ref: np.ndarray, held: bool) -> SolveResult:
+        """This frame's solve; ``held``: the rig holds the EPM (settle phase)."""
         stack = self.stack
         assert stack is not None
+        solver = stack.solver
         p = stack.ocp.pack_parameters(x0, ref, self.u_prev, self.disturbance_n)
         if self.plan is None:
-            return stack.solver.solve_converged(p, self._initial_guess(x0))
-        guess = self._shifted()
-        res = stack.solver.solve(p, guess, self.plan.lam_x, self.plan.lam_g)
-        if res.success or stack.solver.scheme == "ipopt":
+            return solver.solve_converged(p, self._initial_guess(x0))
+        guess = stack.ocp.shift(self.plan.w)
+        res = solver.solve(p, guess, self.plan.lam_x, self.plan.lam_g)
+        if res.success or solver.scheme == "ipopt":
             return res
-        # The fast step failed: recover with a converged solve from the same guess (counted
-        # in the time, so in a paced loop it is usually late and the shifted plan is used).
-        rec = stack.solver.solve_converged(p, guess)
+        if held and np.all(np.isfinite(res.w)):
+            # The command is 0 whatever the plan says: the step only warm-starts the next frame,
+            # and the next frames absorb its violation (typically the friction's sign change of a
+            # capsule at rest).
+            return replace(res, success=True, status=f"held ({res.status})")
+        cfg = self.scenario.mpc
+        if cfg.recovery_sqp_iter == 0 or solver.scheme != "rti":
+            return res
+        # The RTI step failed: a few SQP iterations with line search from the same guess (counted
+        # in the time). Paced by the wall clock they stop in time for the frame's deadline.
+        budget = self.deadline_ms - res.solve_ms - _REST_OF_STEP_MS if cfg.enforce_deadline else None
+        rec = solver.sqp(p, guess, cfg.recovery_sqp_iter, budget)
         status = f"recovered ({res.status})" if rec.success else f"{res.status}; {rec.status}"
-        return SolveResult(rec.success, status, res.iterations + rec.iterations,
-                           res.solve_ms + rec.solve_ms, rec.solver, rec.w, rec.lam_x, rec.lam_g)  # fmt: skip
+        return replace(rec, status=status, iterations=res.iterations + rec.iterations,
+                       solve_ms=res.solve_ms + rec.solve_ms)  # fmt: skip
 
     # ------------------------------------------------------------------ step
     def step(self, t_s: float, measurement: Measurement, epm_position_m: np.ndarray) -> Command:
@@ -228,7 +249,7 @@ class MPCController(Controller):
         self._calibrate_rest_offset(t_s, epm, measurement)
         self._update_disturbance(vel)
         x0 = np.concatenate([pos, vel, epm])
-        res = self._solve(x0, self._reference(t_s))
+        res = self._solve(x0, self._reference(t_s), held=t_s < 0)
         late = res.solve_ms > self.deadline_ms and self.plan is not None
         self.deadline_misses += int(late)
         late = late and self.scenario.mpc.enforce_deadline
@@ -240,11 +261,7 @@ class MPCController(Controller):
         )  # fmt: skip
         if res.success:
             xs, us, _ = self.stack.ocp.unpack(res.w)  # type: ignore[union-attr]
-            # IPOPT's interior-point multipliers mislead the active-set QP (an undo of every
-            # inactive bound: 25-400 ms measured); the next RTI step starts without them.
-            sqp_after_ipopt = res.solver.startswith("ipopt") and self.stack.solver.scheme != "ipopt"  # type: ignore[union-attr]
-            lam_x, lam_g = (None, None) if sqp_after_ipopt else (res.lam_x, res.lam_g)
-            new_plan = _Plan(res.w, lam_x, lam_g, xs, us)
+            new_plan = _Plan(res.w, res.lam_x, res.lam_g, xs, us)
             if not late:
                 self.plan = new_plan
                 self.last_prediction = xs[0:2].T.copy()
@@ -274,9 +291,7 @@ class MPCController(Controller):
             plan.age += 1
             plan.xs = np.hstack([plan.xs[:, 1:], plan.xs[:, -1:]])
             plan.us = np.hstack([plan.us[:, 1:], plan.us[:, -1:]])
-            plan.w = self.stack.ocp.pack_variables(  # type: ignore[union-attr]
-                plan.xs, plan.us, np.zeros((n_slacks, plan.us.shape[1]))
-            )
+            plan.w = self.stack.ocp.shift(plan.w)  # type: ignore[union-attr]
             plan.lam_x = plan.lam_g = None
             return np.asarray(plan.us[:, 0], dtype=float)
         self.plan = None

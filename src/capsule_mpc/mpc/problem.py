@@ -1,20 +1,39 @@
-"""The MPC's optimal-control problem, built once as a parametric CasADi NLP.
+"""The MPC's optimal-control problem, built once as a parametric CasADi NLP in a stage-wise layout.
 
-Decision variables ``w = (X_1..X_N, U_0..U_{N-1}, S_0..S_{N-1})``: predicted
-states (7 each), EPM velocities (3 each) and two non-negative slacks per stage
-(coupling, normal force). Parameters ``p = (x_0, ref, u_prev, d)``: the
-estimated current state, the reference window (capsule position and velocity at
-stages 1..N, and the EPM velocity feed-forward for inputs 0..N-1: the path's
-velocity, or an offline plan's EPM velocity), the command being applied, and the estimated force disturbance
-``d = (d_x, d_y, d_fric)``: a constant force (N) plus an extra friction force
-(N) that opposes the capsule's motion -- the model's friction is the part of the
-mismatch that turns with the motion, so it must not be a fixed vector.
+The layout is the one a Riccati-structured QP solver (HPIPM) needs: variables ordered stage by
+stage, ``w = (x_0, u_0, x_1, u_1, ..., x_{N-1}, u_{N-1}, x_N)`` (no input at the last stage);
+constraint rows ordered ``gap_0, path_0, ..., gap_{N-1}, path_{N-1}`` where ``gap_k`` ties
+``x_{k+1}`` (coefficient the identity) to ``(x_k, u_k)``; and every cost term and path row a
+function of one stage's ``(x_k, u_k)`` only, so the Gauss-Newton Hessian is block diagonal.
 
-Dynamics: implicit Euler kept as equality constraints,
-``X_k - X_{k-1} - dt (f(X_k, U_{k-1}) + d/m) = 0`` (the model is stiff; see
-:mod:`capsule_mpc.dynamics`). The objective is a sum of squares ``0.5 |R(w, p)|^2``
-plus a linear slack penalty, so its Gauss-Newton Hessian ``J_R^T J_R`` is
-exact for the objective and cheap; it is passed to the SQP solver as ``hess_lag``.
+* State ``x_k`` (10): capsule position ``p`` (2) and velocity ``v`` (2), EPM position ``e`` (2)
+  and height ``h``, and the EPM velocity command ``c`` (3) applied over the step that ends at
+  stage k. ``x_0`` is fixed by its bounds to the estimated state and the command being applied
+  (``u_prev``): carrying the previous command in the state makes the acceleration limit a bound
+  and the rate cost stage-local.
+* Input ``u_k`` (7): the command change ``dc`` (3), the capsule velocity at stage k+1 (2; the one
+  implicit part of the dynamics) and two non-negative slacks (coupling, normal force).
+* Gap rows (10 per stage, linear): ``c_{k+1} = c_k + dc_k``, ``(e, h)_{k+1} = (e, h)_k + dt
+  c_{k+1}``, ``v_{k+1} = `` the input, ``p_{k+1} = p_k + dt v_{k+1}``: implicit Euler of
+  ``p' = v, e' = c``.
+* Path rows (5 per stage): implicit Euler of the capsule's velocity, ``v_{k+1} - v_k - dt (a(x_{k+1})
+  + d/m) = 0`` (2 rows; ``x_{k+1}`` written through the gap's explicit expressions: the model is
+  stiff, see :mod:`capsule_mpc.dynamics`), coupling ``|lead - lead_eq|^2 <= max_lead^2 (1 + s_0)``
+  and the normal-force band ``F_N,min - s_1 <= F_N <= F_N,max + s_1`` at ``x_{k+1}``.
+* Bounds: EPM speed on ``c_{k+1}``, acceleration on ``dc_k`` (``|dc| <= a dt``), workspace on
+  ``(e, h)_{k+1}``, slacks >= 0.
+
+Parameters ``p = (x_0, ref, u_prev, d)``: the estimated current state (7), the reference window
+(capsule position and velocity at stages 1..N, and the EPM velocity feed-forward for inputs
+0..N-1: the path's velocity, or an offline plan's EPM velocity), the command being applied (3),
+and the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a constant force (N) plus an
+extra friction force (N) that opposes the capsule's motion -- the model's friction is the part
+of the mismatch that turns with the motion, so it must not be a fixed vector.
+
+The objective is a sum of squares ``0.5 |R(w, p)|^2`` plus a linear slack penalty; stage k's
+residuals weigh the state ``x_{k+1}`` against the reference at stage k+1, the command ``c_{k+1}``
+against the feed-forward, ``dc_k`` and the slacks. Its Gauss-Newton Hessian ``J_R^T J_R`` is
+exact for the objective and cheap; the SQP steps use it (:mod:`capsule_mpc.mpc.solver`).
 """
 
 from __future__ import annotations
@@ -27,7 +46,23 @@ import numpy as np
 from ..config import Scenario
 from ..dynamics import CapsuleModel
 
-__all__ = ["N_DIST", "N_REF", "OCP", "TANGENT_EPS_MPS", "build_ocp", "n_slacks"]
+__all__ = [
+    "FN_SCALE",
+    "INPUT_SCALE",
+    "N_DIST",
+    "N_INPUT",
+    "N_PATH",
+    "N_REF",
+    "N_STATE",
+    "OCP",
+    "STATE_SCALE",
+    "S_SCALE",
+    "TANGENT_EPS_MPS",
+    "U_SCALE",
+    "X_SCALE",
+    "build_ocp",
+    "n_slacks",
+]
 
 #: Slacks per stage: coupling (lead), normal force (both bounds).
 n_slacks = 2
@@ -37,36 +72,56 @@ TANGENT_EPS_MPS = 1e-4
 N_REF = 6
 #: Disturbance parameters: constant force (x, y) and extra friction magnitude, N.
 N_DIST = 3
-#: Variable scales: the NLP works in mm, cm/s and unit-order slacks, so the QP (an active-set
-#: method) sees a well-conditioned problem. Physical value = scale * NLP value.
+#: Model state (p, v, e, h) and EPM velocity sizes (see :mod:`capsule_mpc.dynamics`).
+_NX_MODEL, _NU_MODEL = 7, 3
+#: Stage state: the model state and the command applied (10); stage input: dc, v_next, slacks (7).
+N_STATE = _NX_MODEL + _NU_MODEL
+N_INPUT = _NU_MODEL + 2 + n_slacks
+#: Path rows per stage: implicit velocity (2), coupling, normal force (2).
+N_PATH = 5
+#: Variable scales: the NLP works in mm, cm/s and unit-order slacks, so the QP sees a
+#: well-conditioned problem. Physical value = scale * NLP value.
 X_SCALE = np.array([1e-3, 1e-3, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
 U_SCALE = np.array([1e-2, 1e-2, 1e-2])
 #: Slack scales: coupling slack in units of max_lead^2 (dimensionless), normal-force slack in N.
 S_SCALE = np.array([1.0, 0.1])
 #: Normal-force constraint scale, N.
 FN_SCALE = 0.1
+#: Scales of the stage state (model state, command) and input (dc, capsule velocity, slacks).
+STATE_SCALE = np.concatenate([X_SCALE, U_SCALE])
+INPUT_SCALE = np.concatenate([U_SCALE, X_SCALE[2:4], S_SCALE])
+_STAGE = N_STATE + N_INPUT
 
 
 @dataclass(frozen=True)
 class OCP:
-    """A built NLP and everything needed to fill in its bounds and parameters.
+    """A built NLP in the stage-wise layout, and everything needed to fill in its bounds.
 
     Attributes
     ----------
     nlp : dict
         ``{'x', 'p', 'f', 'g'}`` CasADi expressions for ``nlpsol``.
-    hess_lag : casadi.Function
-        Gauss-Newton Hessian of the Lagrangian ``(x, p, lam_f, lam_g) -> H``.
+    residual : casadi.Function
+        ``R(w, p)``: the least-squares residuals (the objective is ``0.5 |R|^2`` plus the linear
+        slack penalty ``slack_gradient . w``).
+    slack_gradient : numpy.ndarray
+        Gradient of the linear slack penalty with respect to ``w``.
     lbw, ubw, lbg, ubg : numpy.ndarray
-        Variable and constraint bounds.
+        Variable and constraint bounds; ``lbw``/``ubw`` of ``x_0`` are placeholders, filled from
+        the parameters by :meth:`variable_bounds`.
     horizon, dt_s : int, float
         N and the step.
     lead_eq_m : numpy.ndarray
         The model's equilibrium lead (coupling constraint centre), m.
+    n_w, n_p : int
+        Number of variables and parameters.
+    n_x, n_u, n_g : int
+        Stage state, input and path-row counts (10, 7, 5).
     """
 
     nlp: dict
-    hess_lag: ca.Function
+    residual: ca.Function
+    slack_gradient: np.ndarray
     lbw: np.ndarray
     ubw: np.ndarray
     lbg: np.ndarray
@@ -76,16 +131,34 @@ class OCP:
     lead_eq_m: np.ndarray
     n_w: int
     n_p: int
-    n_x: int
-    n_u: int
+    n_x: int = N_STATE
+    n_u: int = N_INPUT
+    n_g: int = N_PATH
 
-    def unpack(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Scaled ``w -> `` physical ``(X (7 x N), U (3 x N), S (2 x N))``."""
-        n, nx, nu = self.horizon, self.n_x, self.n_u
+    # ------------------------------------------------------------------ structure
+    @property
+    def structure(self) -> dict[str, int | list[int]]:
+        """``N``, ``nx``, ``nu``, ``ng`` per stage, as CasADi's HPIPM interface takes them."""
+        n = self.horizon
+        return {"N": n, "nx": [self.n_x] * (n + 1), "nu": [self.n_u] * n + [0], "ng": [self.n_g] * n + [0]}
+
+    def _stages(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Scaled ``w`` -> stage states (N+1 x 10) and inputs (N x 7), both scaled."""
+        n = self.horizon
         w = np.asarray(w, dtype=float).ravel()
-        xs = w[: nx * n].reshape(nx, n, order="F") * X_SCALE[:, None]
-        us = w[nx * n : (nx + nu) * n].reshape(nu, n, order="F") * U_SCALE[:, None]
-        ss = w[(nx + nu) * n :].reshape(n_slacks, n, order="F") * S_SCALE[:, None]
+        body = w[: _STAGE * n].reshape(n, _STAGE)
+        states = np.vstack([body[:, :N_STATE], w[_STAGE * n :][None, :]])
+        return states, body[:, N_STATE:]
+
+    # ------------------------------------------------------------------ packing
+    def unpack(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Scaled ``w -> `` physical ``(X (7 x N), U (3 x N), S (2 x N))``: the predicted model
+        states at stages 1..N, the EPM velocity commands of steps 0..N-1 and the slacks."""
+        states, inputs = self._stages(w)
+        phys = states[1:] * STATE_SCALE
+        xs = phys[:, :_NX_MODEL].T
+        us = phys[:, _NX_MODEL:].T
+        ss = (inputs[:, _NU_MODEL + 2 :] * S_SCALE).T
         return xs, us, ss
 
     def pack_parameters(
@@ -96,19 +169,66 @@ class OCP:
             [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), np.ravel(disturbance_n)]
         )
 
-    def pack_variables(self, xs: np.ndarray, us: np.ndarray, ss: np.ndarray) -> np.ndarray:
-        """Decision vector (scaled) from physical X (7 x N), U (3 x N), S (2 x N)."""
-        return np.concatenate(
-            [
-                np.ravel(np.asarray(xs) / X_SCALE[:, None], order="F"),
-                np.ravel(np.asarray(us) / U_SCALE[:, None], order="F"),
-                np.ravel(np.asarray(ss) / S_SCALE[:, None], order="F"),
-            ]
-        )
+    def pack_variables(
+        self,
+        xs: np.ndarray,
+        us: np.ndarray,
+        ss: np.ndarray,
+        x0: np.ndarray | None = None,
+        u_prev: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Scaled ``w`` from physical X (7 x N, stages 1..N), U (3 x N), S (2 x N).
+
+        ``x0`` and ``u_prev`` fill stage 0 (default: the first predicted state and command; the
+        solvers overwrite stage 0 with the parameters anyway). The inputs follow from the states:
+        ``dc_k = U_k - U_{k-1}`` and the capsule velocity of ``X_{k+1}``.
+        """
+        xs, us, ss = np.asarray(xs, dtype=float), np.asarray(us, dtype=float), np.asarray(ss, dtype=float)
+        x_first = xs[:, 0] if x0 is None else np.ravel(x0)
+        c_first = us[:, 0] if u_prev is None else np.ravel(u_prev)
+        states = np.vstack([np.concatenate([x_first, c_first]), np.vstack([xs, us]).T])
+        commands = states[:, _NX_MODEL:]
+        inputs = np.hstack([np.diff(commands, axis=0), xs[2:4].T, ss.T])
+        return self._join(states / STATE_SCALE, inputs / INPUT_SCALE)
+
+    def _join(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        """Scaled stage states (N+1 x 10) and inputs (N x 7) -> ``w``."""
+        return np.concatenate([np.hstack([states[:-1], inputs]).ravel(), states[-1]])
+
+    def shift(self, w: np.ndarray) -> np.ndarray:
+        """``w`` advanced by one stage (the warm start of the next frame): stage k+1 becomes stage
+        k, and the last stage repeats with the command held (``dc = 0``)."""
+        states, inputs = self._stages(w)
+        last = inputs[-1].copy()
+        last[:_NU_MODEL] = 0.0
+        return self._join(np.vstack([states[1:], states[-1:]]), np.vstack([inputs[1:], last]))
+
+    def variable_bounds(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``lbw, ubw`` with ``x_0`` fixed to the parameters' state and command."""
+        x0 = self.initial_state(p)
+        lbw, ubw = self.lbw.copy(), self.ubw.copy()
+        lbw[:N_STATE] = ubw[:N_STATE] = x0
+        return lbw, ubw
+
+    def initial_state(self, p: np.ndarray) -> np.ndarray:
+        """Scaled stage-0 state from the parameters: the estimated state and ``u_prev``."""
+        n = self.horizon
+        i_u = _NX_MODEL + N_REF * n
+        return np.concatenate([p[:_NX_MODEL], p[i_u : i_u + _NU_MODEL]]) / STATE_SCALE
+
+
+def _next_state(xk: ca.MX, uk: ca.MX, dt_s: float) -> ca.MX:
+    """Physical x_{k+1} from physical (x_k, u_k): implicit Euler of p' = v and e' = c."""
+    pos, epm, height, cmd = xk[0:2], xk[4:6], xk[6], xk[7:10]
+    cmd_next = cmd + uk[0:3]
+    v_next = uk[3:5]
+    return ca.vertcat(
+        pos + dt_s * v_next, v_next, epm + dt_s * cmd_next[0:2], height + dt_s * cmd_next[2], cmd_next
+    )
 
 
 def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
-    """Build the MPC's NLP for ``model`` with step ``dt_s``.
+    """Build the MPC's NLP for ``model`` with step ``dt_s`` in the stage-wise layout.
 
     Parameters
     ----------
@@ -118,43 +238,46 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
         Prediction step, s.
     lead_eq_m : numpy.ndarray (2,)
         The model's equilibrium lead, m: the centre of the coupling constraint.
+
+    Returns
+    -------
+    OCP
+        The NLP, its residual function and bounds.
     """
     sc: Scenario = model.scenario
     cfg, lim = sc.mpc, sc.limits
-    n, nx, nu = cfg.horizon, model.n_x, model.n_u
-    # One symbol each for w and p (nlpsol and hess_lag need purely symbolic inputs), sliced.
-    n_w = (nx + nu + n_slacks) * n
-    n_p = nx + N_REF * n + nu + N_DIST
+    n = cfg.horizon
+    n_w = _STAGE * n + N_STATE
+    n_p = _NX_MODEL + N_REF * n + _NU_MODEL + N_DIST
     w = ca.MX.sym("w", n_w)
     p = ca.MX.sym("p", n_p)
-    xs = ca.diag(ca.DM(X_SCALE)) @ ca.reshape(w[0 : nx * n], nx, n)
-    us = ca.diag(ca.DM(U_SCALE)) @ ca.reshape(w[nx * n : (nx + nu) * n], nu, n)
-    ss = ca.diag(ca.DM(S_SCALE)) @ ca.reshape(w[(nx + nu) * n :], n_slacks, n)
-    x0 = p[0:nx]
-    ref = ca.reshape(p[nx : nx + N_REF * n], N_REF, n)
-    u_prev = p[nx + N_REF * n : nx + N_REF * n + nu]
-    dist = p[nx + N_REF * n + nu :]
+    ref = ca.reshape(p[_NX_MODEL : _NX_MODEL + N_REF * n], N_REF, n)
+    dist = p[_NX_MODEL + N_REF * n + _NU_MODEL :]
 
     mass = sc.capsule.mass_kg
     eps = sc.friction.smoothing_eps_mps
     eq_sq = lim.max_lead_m**2
     lead_eq = ca.DM(lead_eq_m)
-    g_dyn, g_path, residuals = [], [], []
-    x_prev, u_last = x0, u_prev
+    x_scale, u_scale = ca.DM(STATE_SCALE), ca.DM(INPUT_SCALE)
+    rows, residuals = [], []
     for k in range(n):
-        xk, uk, sk = xs[:, k], us[:, k], ss[:, k]
-        v_hat = xk[2:4] / ca.sqrt(ca.sumsqr(xk[2:4]) + eps**2)
-        xdot = model.ode(xk, uk) + ca.vertcat(0, 0, (dist[0:2] - dist[2] * v_hat) / mass, 0, 0, 0)
-        g_dyn.append((xk - x_prev - dt_s * xdot) / X_SCALE)
-        lead, _force, f_n, _mu = model.outputs(xk)
-        g_path += [
+        xk = x_scale * w[_STAGE * k : _STAGE * k + N_STATE]
+        uk = u_scale * w[_STAGE * k + N_STATE : _STAGE * (k + 1)]
+        x_next_var = w[_STAGE * (k + 1) : _STAGE * (k + 1) + N_STATE]
+        x1 = _next_state(xk, uk, dt_s)
+        m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL:], uk[0:3], uk[5:7]
+        v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
+        acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
+        lead, _force, f_n, _mu = model.outputs(m1)
+        rows += [
+            x_next_var - x1 / x_scale,  # gap: the coefficient of x_{k+1} is the identity
+            (m1[2:4] - xk[2:4] - dt_s * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
             ca.sumsqr(lead - lead_eq) / eq_sq - 1 - sk[0],  # <= 0: capsule keeps the magnet
             (f_n + sk[1]) / FN_SCALE,  # >= F_N,min: stays on the plate
             (f_n - sk[1]) / FN_SCALE,  # <= F_N,max: tissue-safe
-            (uk - u_last) / U_SCALE,  # |du| <= a dt per axis
         ]
         weight = cfg.terminal_factor if k == n - 1 else 1.0
-        err = xk[0:2] - ref[0:2, k]
+        err = m1[0:2] - ref[0:2, k]
         # Path frame from the reference velocity: tangent t, normal n; where the reference
         # stands still (t = 0) the last term weighs the whole error isotropically.
         tan = ref[2:4, k] / ca.sqrt(ca.sumsqr(ref[2:4, k]) + TANGENT_EPS_MPS**2)
@@ -164,44 +287,36 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
             weight * ca.dot(nrm, err) / cfg.lateral_tol_m,
             weight * ca.dot(tan, err) / cfg.position_tol_m,
             weight * still * err / cfg.position_tol_m,
-            (xk[2:4] - ref[2:4, k]) / cfg.velocity_tol_mps,
-            (uk[0:2] - ref[4:6, k]) / cfg.input_tol_mps,
-            (uk - u_last) / cfg.input_rate_tol_mps,
+            (m1[2:4] - ref[2:4, k]) / cfg.velocity_tol_mps,
+            (c1[0:2] - ref[4:6, k]) / cfg.input_tol_mps,
+            dc / cfg.input_rate_tol_mps,
             np.sqrt(cfg.slack_weight) * sk / S_SCALE,
         ]
-        x_prev, u_last = xk, uk
 
     res = ca.vertcat(*residuals)
-    f = 0.5 * ca.sumsqr(res) + cfg.slack_weight * ca.sum1(ca.vec(ss) / np.tile(S_SCALE, n))
-    g = ca.vertcat(*g_dyn, *g_path)
-
-    jac = ca.jacobian(res, w)
-    lam_f = ca.MX.sym("lam_f")
-    lam_g = ca.MX.sym("lam_g", g.shape[0])
-    # Gauss-Newton Hessian plus a tiny diagonal so the QP stays strictly convex in the
-    # directions the cost does not see (EPM position states); units are scaled residuals.
-    hess = lam_f * ca.mtimes(jac.T, jac)
-    hess_lag = ca.Function(
-        "nlp_hess_l", [w, p, lam_f, lam_g], [hess],
-        ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"],
-    )  # fmt: skip
+    # The linear slack penalty, slack_weight per unit slack (scaled slack = physical / S_SCALE).
+    slack_gradient = np.zeros(n_w)
+    for k in range(n):
+        i0 = _STAGE * k + N_STATE + _NU_MODEL + 2
+        slack_gradient[i0 : i0 + n_slacks] = cfg.slack_weight
+    f = 0.5 * ca.sumsqr(res) + ca.dot(ca.DM(slack_gradient), w)
+    g = ca.vertcat(*rows)
+    residual = ca.Function("mpc_residual", [w, p], [res], ["w", "p"], ["r"])
 
     inf = np.inf
     speed = lim.speed_mps
-    u_lo = np.array([-speed, -speed, -speed if cfg.height_control else 0.0])
-    x_lo = np.array([-inf, -inf, -inf, -inf, *lim.workspace_min_m])
-    x_hi = np.array([inf, inf, inf, inf, *lim.workspace_max_m])
-    lbw = np.concatenate([np.tile(x_lo / X_SCALE, n), np.tile(u_lo / U_SCALE, n), np.zeros(n_slacks * n)])
-    ubw = np.concatenate(
-        [np.tile(x_hi / X_SCALE, n), np.tile(-u_lo / U_SCALE, n), np.full(n_slacks * n, inf)]
-    )
-    da = lim.accel_mps2 * dt_s / U_SCALE
-    stage_lo = np.array([-inf, lim.normal_force_min_n / FN_SCALE, -inf, *(-da)])
-    stage_hi = np.array([0.0, inf, lim.normal_force_max_n / FN_SCALE, *da])
-    lbg = np.concatenate([np.zeros(nx * n), np.tile(stage_lo, n)])
-    ubg = np.concatenate([np.zeros(nx * n), np.tile(stage_hi, n)])
+    c_lo = np.array([-speed, -speed, -speed if cfg.height_control else 0.0])
+    da = np.full(_NU_MODEL, lim.accel_mps2 * dt_s)
+    x_lo = np.concatenate([[-inf, -inf, -inf, -inf], lim.workspace_min_m, c_lo]) / STATE_SCALE
+    x_hi = np.concatenate([[inf, inf, inf, inf], lim.workspace_max_m, -c_lo]) / STATE_SCALE
+    u_lo = np.concatenate([-da, [-inf, -inf], np.zeros(n_slacks)]) / INPUT_SCALE
+    u_hi = np.concatenate([da, [inf, inf], np.full(n_slacks, inf)]) / INPUT_SCALE
+    lbw = np.concatenate([*[np.concatenate([x_lo, u_lo])] * n, x_lo])
+    ubw = np.concatenate([*[np.concatenate([x_hi, u_hi])] * n, x_hi])
+    stage_lo = np.concatenate([np.zeros(N_STATE + 2), [-inf, lim.normal_force_min_n / FN_SCALE, -inf]])
+    stage_hi = np.concatenate([np.zeros(N_STATE + 2), [0.0, inf, lim.normal_force_max_n / FN_SCALE]])
     return OCP(
-        nlp={"x": w, "p": p, "f": f, "g": g},
-        hess_lag=hess_lag, lbw=lbw, ubw=ubw, lbg=lbg, ubg=ubg, horizon=n, dt_s=dt_s,
-        lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p, n_x=nx, n_u=nu,
+        nlp={"x": w, "p": p, "f": f, "g": g}, residual=residual, slack_gradient=slack_gradient,
+        lbw=lbw, ubw=ubw, lbg=np.tile(stage_lo, n), ubg=np.tile(stage_hi, n), horizon=n, dt_s=dt_s,
+        lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p,
     )  # fmt: skip

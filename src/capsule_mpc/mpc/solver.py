@@ -1,19 +1,24 @@
-"""Solvers for the MPC's NLP: real-time iteration (RTI), converged SQP, and IPOPT.
+"""Solvers for the MPC's NLP: real-time iteration (RTI) around a structured QP, SQP, and IPOPT.
 
-* ``rti`` -- one Gauss-Newton SQP step per frame (``sqpmethod`` with
-  ``max_iter=1``, QP solver ``qrqp``, Hessian ``J_R^T J_R`` via ``hess_lag``),
-  warm-started from the shifted previous solution. Its first frame, and any
-  frame after a failure, is solved to convergence by IPOPT so the iteration
-  starts near the solution manifold (from a cold start RTI can diverge).
-* ``sqp`` -- the same Gauss-Newton SQP iterated to convergence.
-* ``ipopt`` -- interior point, primal-dual warm start.
+* ``rti`` -- one Gauss-Newton SQP step per frame, warm-started from the shifted previous
+  solution: ONE CasADi Function (:func:`rti_function`) that linearises the stage-wise NLP
+  (:mod:`capsule_mpc.mpc.problem`; Hessian ``J_R^T J_R``), solves the QP with the chosen
+  ``conic`` plugin (``hpipm`` by default: a Riccati-structured interior point that uses the
+  layout) and returns the new iterate and its constraint violation. Called through CasADi's
+  buffer interface (:class:`FastCall`: NumPy arrays in and out, no DM conversion), without
+  option dicts or ``stats()`` on the frame.
+* ``sqp`` -- the same step iterated with a backtracking line search on the l1 merit function
+  (:meth:`MPCSolver.sqp`), to convergence (``mpc.max_sqp_iter``). The controller also uses a
+  few of these iterations to recover a frame whose RTI step failed.
+* ``ipopt`` -- interior point, primal-dual warm start; also the converged solve of the first
+  frame of the SQP schemes (from a cold start RTI can diverge).
 
-Every solve returns a :class:`SolveResult` with status, iterations and wall
-time; failures are values, never exceptions. The exception is Ctrl-C, which
+The NLP's derivatives (``mpc_qp_data``) and values (``mpc_merit``) can be compiled to C once and
+cached on disk (``compile_dir``). Every solve returns a :class:`SolveResult` with status,
+iterations and wall time; failures are values, never exceptions. The exception is Ctrl-C, which
 CasADi would turn into a failure status: every call runs in
-:func:`capsule_mpc.interrupt.solver_call`, so inside
-:func:`capsule_mpc.interrupt.interruptible` (every ``capsule-mpc`` command) it
-ends in ``KeyboardInterrupt`` when the solve returns.
+:func:`capsule_mpc.interrupt.solver_call`, so inside :func:`capsule_mpc.interrupt.interruptible`
+(every ``capsule-mpc`` command) it ends in ``KeyboardInterrupt`` when the solve returns.
 """
 
 from __future__ import annotations
@@ -30,12 +35,22 @@ import casadi as ca
 import numpy as np
 
 from ..interrupt import raise_if_interrupted, run_interruptibly, solver_call
-from .problem import OCP
+from .problem import N_REF, N_STATE, OCP, STATE_SCALE, U_SCALE, X_SCALE
 
-__all__ = ["QP_SOLVERS", "MPCSolver", "SolveResult", "compiled_sqp"]
+__all__ = [
+    "HPIPM_OPTIONS",
+    "MAX_STEP_VIOLATION",
+    "QP_SOLVERS",
+    "FastCall",
+    "MPCSolver",
+    "SolveResult",
+    "compiled_nlp_functions",
+    "l1_merit_function",
+    "nlp_functions",
+    "qp_options",
+    "rti_function",
+]
 
-#: SQP statuses that mean "a usable step was taken" (RTI stops after one iteration by design).
-_SQP_OK = {"Solve_Succeeded", "Maximum_Iterations_Exceeded"}
 #: Largest constraint violation (scaled NLP units: mm, cm/s, 0.1 N) an SQP step may leave.
 #: One Gauss-Newton step across the smoothed friction's sign change (the capsule starting or
 #: stopping) routinely leaves a few units, which the next frames absorb; tens of units mean the
@@ -43,6 +58,28 @@ _SQP_OK = {"Solve_Succeeded", "Maximum_Iterations_Exceeded"}
 MAX_STEP_VIOLATION = 20.0
 #: IPOPT statuses that give a usable (if not fully converged) point.
 _IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded"}
+#: QP solvers the SQP schemes can use on the stage-wise layout.
+QP_SOLVERS = ("hpipm", "piqp", "qrqp")
+#: HPIPM settings (issue 10, 127 recorded QPs at N = 20): with HPIPM's default absolute
+#: tolerances 24-41 of them hit the iteration cap; 'speed' mode with these residual tolerances
+#: (scaled units) and a cap of 8-15 iterations gave no failure and unchanged commands. Measured
+#: again on 380 frames of the rectangle (N = 20) against piqp solved to 1e-10: first command
+#: within 0.05 mm/s with a cap of 10, 15 or 25 (0.06 with 8, 0.4 with 6); 'speed_abs' is off by
+#: 6 mm/s, 'balance' 0.002 mm/s but 40 % slower.
+HPIPM_OPTIONS = {
+    "mode": "speed",
+    "res_g_max": 1e-4,
+    "res_b_max": 1e-6,
+    "res_d_max": 1e-6,
+    "res_m_max": 1e-6,
+    "iter_max": 10,
+}
+#: Line search of the SQP: Armijo constant, step-length factor and the most trial steps.
+_ARMIJO, _BACKTRACK, _MAX_LINE_SEARCH = 1e-4, 0.5, 6
+#: SQP convergence: largest step (scaled units: um, 0.1 mm/s) and constraint violation.
+_SQP_STEP_TOL, _SQP_VIOLATION_TOL = 1e-3, 1e-4
+#: Margin of the l1 penalty weight over the largest QP multiplier (exact-penalty condition).
+_PENALTY_MARGIN = 1.1
 
 
 @dataclass(frozen=True)
@@ -61,8 +98,12 @@ class SolveResult:
         Wall time of the solve, including the Python call, ms.
     solver : str
         Which solver produced it ('rti', 'sqp' or 'ipopt').
-    w, lam_x, lam_g : numpy.ndarray
-        Primal solution and multipliers (for the next warm start).
+    w : numpy.ndarray
+        Primal solution (scaled, stage-wise).
+    lam_x, lam_g : numpy.ndarray
+        Multipliers (IPOPT's, for its next warm start; empty for the SQP schemes).
+    violation : float
+        Largest constraint violation of ``w`` (scaled units; NaN if not evaluated).
     """
 
     success: bool
@@ -73,68 +114,168 @@ class SolveResult:
     w: np.ndarray
     lam_x: np.ndarray
     lam_g: np.ndarray
+    violation: float = float("nan")
 
 
-#: QP solvers the SQP schemes can use, with their options. qrqp (active set) is CasADi's own;
-#: piqp (interior point) keeps the worst case tight: measured at N = 20 compiled, both give a
-#: 1.4 ms median, but qrqp's p99 is ~25 ms (active-set changes at the start of motion and at
-#: corners) against ~3 ms for piqp.
-QP_SOLVERS: dict[str, dict] = {
-    "piqp": {"error_on_fail": False, "piqp": {"verbose": False}},
-    "qrqp": {"print_iter": False, "print_header": False, "error_on_fail": False, "max_iter": 50},
-}
+#: Multipliers of a solve that has none to hand on.
+_NO_MULTIPLIERS = np.empty(0)
 
 
-def _sqp_options(ocp: OCP, max_iter: int, expand: bool, qpsol: str = "piqp") -> dict:
-    if qpsol not in QP_SOLVERS:
-        raise ValueError(f"mpc.qp_solver: must be one of {sorted(QP_SOLVERS)}, got {qpsol!r}")
-    return {
-        "qpsol": qpsol,
-        "hess_lag": ocp.hess_lag,
-        "max_iter": max_iter,
-        "max_iter_ls": 0,  # RTI takes the full Gauss-Newton step
-        "expand": expand,
-        "print_header": False,
-        "print_iteration": False,
-        "print_time": False,
-        "print_status": False,
-        "error_on_fail": False,
-        "qpsol_options": QP_SOLVERS[qpsol],
-    }
+def qp_options(qpsol: str, ocp: OCP) -> dict:
+    """``conic`` options of QP solver ``qpsol`` on ``ocp``'s layout (``error_on_fail`` off:
+    a failed QP shows as a bad step, which the caller checks)."""
+    if qpsol == "hpipm":
+        return {**ocp.structure, "error_on_fail": False, "hpipm": dict(HPIPM_OPTIONS)}
+    if qpsol == "piqp":
+        return {"error_on_fail": False, "piqp": {"verbose": False}}
+    if qpsol == "qrqp":
+        return {"print_iter": False, "print_header": False, "error_on_fail": False, "max_iter": 50}
+    raise ValueError(f"mpc.qp_solver: must be one of {list(QP_SOLVERS)}, got {qpsol!r}")
 
 
-def _ipopt_options(ocp: OCP, max_iter: int, expand: bool) -> dict:
-    # IPOPT takes the Gauss-Newton Hessian too (upper triangle): measured 20-106 ms per
-    # recovery solve at N = 20 against 87-364 ms with its limited-memory approximation.
+def nlp_functions(ocp: OCP, expand: bool = True) -> tuple[ca.Function, ca.Function]:
+    """The NLP's derivative and value functions, ``(mpc_qp_data, mpc_merit)``.
+
+    ``mpc_qp_data(w, p) -> (H, grad, g, Jg)``: the Gauss-Newton Hessian ``J_R^T J_R`` (block
+    diagonal by stage), the objective's gradient, the constraints and their Jacobian.
+    ``mpc_merit(w, p) -> (f, g)``: objective and constraints. With ``expand`` both are SX
+    (faster; a B-spline force lookup cannot be expanded, then pass False).
+    """
+    w, p = ocp.nlp["x"], ocp.nlp["p"]
+    r = ocp.residual(w, p)
+    jac = ca.jacobian(r, w)
+    g = ocp.nlp["g"]
+    grad = ca.mtimes(jac.T, r) + ca.DM(ocp.slack_gradient)
+    qp_data = ca.Function("mpc_qp_data", [w, p], [ca.mtimes(jac.T, jac), grad, g, ca.jacobian(g, w)],
+                          ["w", "p"], ["H", "grad", "g", "Jg"])  # fmt: skip
+    merit = ca.Function("mpc_merit", [w, p], [ocp.nlp["f"], g], ["w", "p"], ["f", "g"])
+    if expand:
+        return qp_data.expand(), merit.expand()
+    return qp_data, merit
+
+
+def _linearisation_point(ocp: OCP, w: ca.MX, p: ca.MX) -> tuple[ca.MX, ca.MX, ca.MX]:
+    """``w`` with stage 0 set from the parameters, and the variable bounds (``x_0`` fixed)."""
+    nx, nu = len(X_SCALE), len(U_SCALE)  # the model's state and input: p = (x0, ref, u_prev, d)
+    i_u = nx + N_REF * ocp.horizon
+    x0 = ca.vertcat(p[0:nx], p[i_u : i_u + nu]) / ca.DM(STATE_SCALE)
+    w_lin = ca.vertcat(x0, w[N_STATE:])
+    lbw = ca.vertcat(x0, ca.DM(ocp.lbw[N_STATE:]))
+    ubw = ca.vertcat(x0, ca.DM(ocp.ubw[N_STATE:]))
+    return w_lin, lbw, ubw
+
+
+def _qp_step(
+    ocp: OCP, qp_data: ca.Function, qpsol: str, w: ca.MX, p: ca.MX, opts: dict | None = None
+) -> tuple[ca.MX, ...]:
+    """The Gauss-Newton QP at ``w`` (stage 0 from ``p``): ``(w_lin, dw, lam_g, grad, g)``."""
+    w_lin, lbw, ubw = _linearisation_point(ocp, w, p)
+    hess, grad, g, jac_g = qp_data(w_lin, p)
+    opts = qp_options(qpsol, ocp) if opts is None else opts
+    qp = ca.conic("mpc_qp", qpsol, {"h": hess.sparsity(), "a": jac_g.sparsity()}, opts)
+    sol = qp(h=hess, g=grad, a=jac_g, lba=ca.DM(ocp.lbg) - g, uba=ca.DM(ocp.ubg) - g,
+             lbx=lbw - w_lin, ubx=ubw - w_lin)  # fmt: skip
+    return w_lin, sol["x"], sol["lam_a"], grad, g
+
+
+def _violation_expr(ocp: OCP, g: ca.MX) -> ca.MX:
+    """Largest violation of ``lbg <= g <= ubg``."""
+    return ca.mmax(ca.fmax(ca.DM(ocp.lbg) - g, g - ca.DM(ocp.ubg)))
+
+
+def _l1_violation_expr(ocp: OCP, g: ca.MX) -> ca.MX:
+    """Sum of the violations of ``lbg <= g <= ubg`` (the l1 merit's penalty term)."""
+    return ca.sum1(ca.fmax(0, ca.DM(ocp.lbg) - g) + ca.fmax(0, g - ca.DM(ocp.ubg)))
+
+
+def rti_function(
+    ocp: OCP, qp_data: ca.Function, merit: ca.Function, qpsol: str = "hpipm", opts: dict | None = None
+) -> ca.Function:
+    """The RTI step as one CasADi Function
+    ``mpc_rti(w, p) -> (w_next, violation, lam_max, f_lin, l1_lin, slope)``.
+
+    Stage 0 of ``w`` is replaced by the parameters' state and command (``w_lin``), the NLP is
+    linearised there (Gauss-Newton Hessian), the QP is solved by ``qpsol`` and the full step
+    ``dw`` taken: ``w_next = w_lin + dw``, with ``violation`` its largest constraint violation.
+    The other outputs serve the line search of :meth:`MPCSolver.sqp`: the largest QP multiplier,
+    the objective and the l1 constraint violation at ``w_lin`` and the objective's slope along
+    ``dw``. ``opts`` replaces :func:`qp_options`' options of the QP solver. (The multipliers must
+    be used: CasADi 3.8.2's HPIPM interface writes them unconditionally, and crashes when a
+    Function leaves that output unallocated.)
+    """
+    w, p = ca.MX.sym("w", ocp.n_w), ca.MX.sym("p", ocp.n_p)
+    w_lin, dw, lam_g, grad, g = _qp_step(ocp, qp_data, qpsol, w, p, opts)
+    w_next = w_lin + dw
+    f_lin, _g = merit(w_lin, p)
+    _f, g_next = merit(w_next, p)
+    outputs = [w_next, _violation_expr(ocp, g_next), ca.mmax(ca.fabs(lam_g)), f_lin]
+    outputs += [_l1_violation_expr(ocp, g), ca.dot(grad, dw)]
+    names = ["w_next", "violation", "lam_max", "f_lin", "l1_lin", "slope"]
+    return ca.Function("mpc_rti", [w, p], outputs, ["w", "p"], names)
+
+
+def l1_merit_function(ocp: OCP, merit: ca.Function) -> ca.Function:
+    """``mpc_l1_merit(w, p) -> (f, l1, violation)``: the objective, the sum and the largest of the
+    constraint violations."""
+    w, p = ca.MX.sym("w", ocp.n_w), ca.MX.sym("p", ocp.n_p)
+    f, g = merit(w, p)
+    return ca.Function("mpc_l1_merit", [w, p], [f, _l1_violation_expr(ocp, g), _violation_expr(ocp, g)])
+
+
+class FastCall:
+    """A CasADi Function called through its buffer interface: NumPy arrays in and out.
+
+    The arguments and results live in arrays allocated once and bound to the Function's buffer,
+    so a call converts nothing (building DMs from NumPy and ``.full()`` back cost ~0.2 ms per RTI
+    step at N = 20). Every input and output must be dense. Results are returned as copies.
+    """
+
+    def __init__(self, fn: ca.Function) -> None:
+        dense = all(fn.sparsity_in(i).is_dense() for i in range(fn.n_in()))
+        if not dense or not all(fn.sparsity_out(i).is_dense() for i in range(fn.n_out())):
+            raise ValueError(f"FastCall: {fn.name()} has a sparse input or output")
+        self.fn = fn
+        self._args = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
+        self._res = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
+        self._buffer, self._trigger = fn.buffer()
+        # (The size argument of the C++ signature is taken from the memoryview by the binding.)
+        for i, arg in enumerate(self._args):
+            self._buffer.set_arg(i, memoryview(arg))  # type: ignore[call-arg]
+        for i, res in enumerate(self._res):
+            self._buffer.set_res(i, memoryview(res))  # type: ignore[call-arg]
+
+    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
+        """``fn(*args)`` as flat arrays."""
+        for dest, value in zip(self._args, args, strict=True):
+            dest[:] = value
+        self._trigger()
+        return [res.copy() for res in self._res]
+
+
+def _ipopt_options(ocp: OCP, max_iter: int, expand: bool, warm: bool) -> dict:
+    # IPOPT takes the Gauss-Newton Hessian (upper triangle): measured 20-106 ms per solve at
+    # N = 20 against 87-364 ms with its limited-memory approximation.
     w, p = ocp.nlp["x"], ocp.nlp["p"]
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ocp.nlp["g"].shape[0])
-    hess = ca.triu(ocp.hess_lag(w, p, lam_f, lam_g))
+    jac = ca.jacobian(ocp.residual(w, p), w)
+    hess = lam_f * ca.triu(ca.mtimes(jac.T, jac))
     hess_lag = ca.Function("nlp_hess_l", [w, p, lam_f, lam_g], [hess], ["x", "p", "lam_f", "lam_g"],
                            ["triu_hess_gamma_x_x"])  # fmt: skip
+    ipopt = {"print_level": 0, "sb": "yes", "max_iter": max_iter, "tol": 1e-6, "acceptable_tol": 1e-4}
+    if warm:
+        ipopt |= {
+            "warm_start_init_point": "yes",
+            "warm_start_bound_push": 1e-6,
+            "warm_start_mult_bound_push": 1e-6,
+            "mu_init": 1e-4,
+        }
     return {
         "expand": expand,
         "print_time": False,
         "error_on_fail": False,
         "hess_lag": hess_lag,
-        "ipopt": {
-            "print_level": 0,
-            "sb": "yes",
-            "max_iter": max_iter,
-            "tol": 1e-6,
-            "acceptable_tol": 1e-4,
-        },
+        "ipopt": ipopt,
     }
-
-
-def _ipopt_warm_options(ocp: OCP, max_iter: int, expand: bool) -> dict:
-    opts = _ipopt_options(ocp, max_iter, expand)
-    opts["ipopt"] |= {
-        "warm_start_init_point": "yes",
-        "warm_start_bound_push": 1e-6,
-        "warm_start_mult_bound_push": 1e-6,
-        "mu_init": 1e-4,
-    }
-    return opts
 
 
 #: Optimisation level for compiled NLP functions: -O1 compiles ~3x faster than -O2 for these
@@ -142,36 +283,30 @@ def _ipopt_warm_options(ocp: OCP, max_iter: int, expand: bool) -> dict:
 _CFLAGS = ["-O1", "-shared", "-fPIC"]
 
 
-def compiled_sqp(
-    ocp: OCP, name: str, max_iter: int, cache_dir: Path, qpsol: str = "piqp"
-) -> tuple[ca.Function, bool]:
-    """An ``sqpmethod`` solver whose NLP functions are C code compiled once and cached on disk.
+def compiled_nlp_functions(
+    qp_data: ca.Function, merit: ca.Function, cache_dir: Path
+) -> tuple[ca.Function, ca.Function, bool]:
+    """``qp_data`` and ``merit`` as C code compiled once and cached on disk.
 
-    The shared library is keyed by a hash of the expanded NLP (so any change of model,
-    weights or horizon compiles anew) and written atomically. Returns the solver and
-    whether it was loaded from the cache.
+    The shared library is keyed by a hash of both functions (so any change of model, weights
+    or horizon compiles anew) and written atomically. Returns the two functions loaded from it
+    and whether it came from the cache.
     """
-    nlp_fn = ca.Function("nlp", [ocp.nlp["x"], ocp.nlp["p"]], [ocp.nlp["f"], ocp.nlp["g"]],
-                         ["x", "p"], ["f", "g"]).expand()  # fmt: skip
-    blob = nlp_fn.serialize() + ocp.hess_lag.expand().serialize() + ca.CasadiMeta.version() + name
+    blob = qp_data.serialize() + merit.serialize() + ca.CasadiMeta.version()
     key = hashlib.sha256(blob.encode()).hexdigest()[:16]
-    lib = cache_dir / f"mpc_{name}_{key}.so"
+    lib = cache_dir / f"mpc_nlp_{key}.so"
     cached = lib.exists()
     if not cached:
         cache_dir.mkdir(parents=True, exist_ok=True)
-        solver = run_interruptibly(ca.nlpsol, name, "sqpmethod", ocp.nlp, _sqp_options(ocp, max_iter, True))
         with tempfile.TemporaryDirectory(dir=cache_dir) as tmp:
-            gen = ca.CodeGenerator(f"{name}.c")
-            for dep in solver.get_function():
-                gen.add(solver.get_function(dep))
-            gen.add(nlp_fn)
+            gen = ca.CodeGenerator("mpc_nlp.c")
+            gen.add(qp_data)
+            gen.add(merit)
             run_interruptibly(gen.generate, tmp + os.sep)
             out = Path(tmp) / lib.name
-            subprocess.run(["gcc", *_CFLAGS, str(Path(tmp) / f"{name}.c"), "-o", str(out)], check=True)
+            subprocess.run(["gcc", *_CFLAGS, str(Path(tmp) / "mpc_nlp.c"), "-o", str(out)], check=True)
             out.replace(lib)
-    opts = _sqp_options(ocp, max_iter, False, qpsol)
-    opts["hess_lag"] = ca.external("nlp_hess_l", str(lib))
-    return ca.nlpsol(name, "sqpmethod", str(lib), opts), cached
+    return ca.external("mpc_qp_data", str(lib)), ca.external("mpc_merit", str(lib)), cached
 
 
 def _nlpsol(name: str, plugin: str, nlp: dict, make_opts) -> ca.Function:
@@ -187,22 +322,30 @@ def _nlpsol(name: str, plugin: str, nlp: dict, make_opts) -> ca.Function:
         return run_interruptibly(ca.nlpsol, name, plugin, nlp, make_opts(False))
 
 
+def _expanded_nlp_functions(ocp: OCP) -> tuple[ca.Function, ca.Function, bool]:
+    try:
+        return (*nlp_functions(ocp, expand=True), True)
+    except RuntimeError:  # a B-spline lookup cannot be expanded to SX
+        raise_if_interrupted()
+        return (*nlp_functions(ocp, expand=False), False)
+
+
 class MPCSolver:
     """Builds the solvers once; ``solve`` is called every frame.
 
     Parameters
     ----------
     ocp : OCP
-        The problem.
+        The problem (stage-wise layout).
     scheme : {'rti', 'sqp', 'ipopt'}
         The per-frame scheme.
     max_sqp_iter, max_ipopt_iter : int
         Iteration caps.
-    qpsol : {'piqp', 'qrqp'}
-        QP solver of the SQP schemes (see :data:`QP_SOLVERS`).
     compile_dir : Path, optional
-        Compile the SQP's NLP functions to C and cache them here (None: run them in
-        CasADi's virtual machine; about 0.6 ms slower per frame at N = 20).
+        Compile the NLP's derivative and value functions to C and cache them here (None: run
+        them in CasADi's virtual machine).
+    qpsol : {'hpipm', 'piqp', 'qrqp'}
+        QP solver of the SQP schemes (see :func:`qp_options`).
     """
 
     def __init__(
@@ -212,39 +355,47 @@ class MPCSolver:
         max_sqp_iter: int = 30,
         max_ipopt_iter: int = 200,
         compile_dir: Path | None = None,
-        qpsol: str = "piqp",
+        qpsol: str = "hpipm",
     ) -> None:
+        if scheme not in ("rti", "sqp", "ipopt"):
+            raise ValueError(f"mpc.scheme: must be 'rti', 'sqp' or 'ipopt', got {scheme!r}")
+        qp_options(qpsol, ocp)  # validates the name
         self.ocp = ocp
         self.scheme = scheme
+        self.qpsol = qpsol
+        self.max_sqp_iter = max_sqp_iter
         self.loaded_from_cache = False
+        self.compiled = False
         t0 = time.perf_counter()
-        self._ipopt = _nlpsol("mpc_ipopt", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, max_ipopt_iter, e))
-        self._ipopt_warm = _nlpsol(
-            "mpc_ipopt_warm", "ipopt", ocp.nlp, lambda e: _ipopt_warm_options(ocp, max_ipopt_iter, e)
+        self._ipopt = _nlpsol(
+            "mpc_ipopt", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, max_ipopt_iter, e, False)
         )
+        # The primal-dual warm-started IPOPT only where it runs every frame (0.08 s to build).
+        self._ipopt_warm: ca.Function | None = None
+        if scheme == "ipopt":
+            self._ipopt_warm = _nlpsol(
+                "mpc_ipopt_warm", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, max_ipopt_iter, e, True)
+            )
         # Constant bounds converted once (converting NumPy arguments costs ~0.1 ms per call).
-        self._bounds = {
-            "lbx": ca.DM(ocp.lbw), "ubx": ca.DM(ocp.ubw), "lbg": ca.DM(ocp.lbg), "ubg": ca.DM(ocp.ubg)
-        }  # fmt: skip
-        self._n_eq = int(np.count_nonzero(ocp.lbg == ocp.ubg))
-        self._sqp: ca.Function | None = None
-        if scheme in ("rti", "sqp"):
-            iters = 1 if scheme == "rti" else max_sqp_iter
-            if compile_dir is not None:
-                self._sqp, self.loaded_from_cache = compiled_sqp(
-                    ocp, "mpc_" + scheme, iters, compile_dir, qpsol
-                )
-            else:
-                self._sqp = _nlpsol(
-                    "mpc_" + scheme, "sqpmethod", ocp.nlp, lambda e: _sqp_options(ocp, iters, e, qpsol)
-                )
-        elif scheme != "ipopt":
-            raise ValueError(f"mpc.scheme: must be 'rti', 'sqp' or 'ipopt', got {scheme!r}")
+        self._bounds = {"lbg": ca.DM(ocp.lbg), "ubg": ca.DM(ocp.ubg)}
+        qp_data, merit, expanded = _expanded_nlp_functions(ocp)
+        if compile_dir is not None and expanded:
+            qp_data, merit, self.loaded_from_cache = compiled_nlp_functions(qp_data, merit, compile_dir)
+            self.compiled = True
+        self._rti = FastCall(rti_function(ocp, qp_data, merit, qpsol))
+        self._merit = FastCall(l1_merit_function(ocp, merit))
+        #: The last step: its arguments and the RTI function's outputs (a recovery from the same
+        #: guess starts with it instead of solving the same QP again).
+        self._last_step: tuple[np.ndarray, np.ndarray, list[np.ndarray]] | None = None
         self.build_s = time.perf_counter() - t0
 
-    def _call(self, fn: ca.Function, kind: str, p: np.ndarray, w0: np.ndarray, lam_x0, lam_g0) -> SolveResult:
+    # ------------------------------------------------------------------ IPOPT
+    def _call(
+        self, fn: ca.Function, kind: str, p: np.ndarray, w0: np.ndarray, lam_x0, lam_g0, bounds=None
+    ) -> SolveResult:
+        """One IPOPT call (``bounds``: ``lbx``/``ubx`` for this call, with ``x_0`` fixed)."""
         ocp = self.ocp
-        args = {"x0": w0, "p": p, **self._bounds}
+        args = {"x0": w0, "p": p, **self._bounds, **(bounds or {})}
         if lam_x0 is not None and lam_g0 is not None:
             args |= {"lam_x0": lam_x0, "lam_g0": lam_g0}
         t0 = time.perf_counter()
@@ -262,12 +413,13 @@ class MPCSolver:
         ms = 1e3 * (time.perf_counter() - t0)
         w = np.asarray(sol["x"]).ravel()
         status = str(stats.get("return_status", "unknown"))
-        ok_set = _IPOPT_OK if kind.startswith("ipopt") else _SQP_OK
-        success = status in ok_set and bool(np.all(np.isfinite(w)))
+        success = status in _IPOPT_OK and bool(np.all(np.isfinite(w)))
+        viol = float("nan")
         if success:
-            viol = self._violation(w, np.asarray(sol["g"]).ravel())
+            g = np.asarray(sol["g"]).ravel()
+            viol = float(max(np.max(ocp.lbg - g), np.max(g - ocp.ubg)))
             if viol > MAX_STEP_VIOLATION:
-                success, status = False, f"infeasible step (violation {viol:.3g})"
+                success, status = False, f"infeasible point (violation {viol:.3g})"
         return SolveResult(
             success=success,
             status=status,
@@ -277,22 +429,93 @@ class MPCSolver:
             w=w,
             lam_x=np.asarray(sol["lam_x"]).ravel(),
             lam_g=np.asarray(sol["lam_g"]).ravel(),
+            violation=viol,
         )
-
-    def _violation(self, w: np.ndarray, g: np.ndarray) -> float:
-        """Largest bound or constraint violation of ``w`` given ``g(w)`` (scaled NLP units)."""
-        ocp = self.ocp
-        parts = [ocp.lbg - g, g - ocp.ubg, ocp.lbw - w, w - ocp.ubw]
-        return float(max(np.max(np.nan_to_num(v, nan=np.inf, neginf=0.0)) for v in parts))
 
     def solve_converged(self, p: np.ndarray, w0: np.ndarray, lam_x0=None, lam_g0=None) -> SolveResult:
         """A converged IPOPT solve (cold, or primal-dual warm when multipliers are given)."""
-        if lam_x0 is None:
-            return self._call(self._ipopt, "ipopt", p, w0, None, None)
-        return self._call(self._ipopt_warm, "ipopt_warm", p, w0, lam_x0, lam_g0)
+        lbx, ubx = self.ocp.variable_bounds(p)
+        bounds = {"lbx": lbx, "ubx": ubx}
+        if self._ipopt_warm is None or lam_x0 is None or len(lam_x0) != self.ocp.n_w:
+            return self._call(self._ipopt, "ipopt", p, w0, None, None, bounds)
+        return self._call(self._ipopt_warm, "ipopt_warm", p, w0, lam_x0, lam_g0, bounds)
+
+    # ------------------------------------------------------------------ SQP
+    def rti(self, p: np.ndarray, w0: np.ndarray) -> SolveResult:
+        """One RTI step from ``w0`` (its stage 0 is replaced by the parameters')."""
+        t0 = time.perf_counter()
+        with solver_call():
+            out = self._rti(w0, p)
+        self._last_step = (p.copy(), w0.copy(), out)
+        w, viol = out[0], float(out[1][0])
+        ms = 1e3 * (time.perf_counter() - t0)
+        if not np.isfinite(viol) or not np.all(np.isfinite(w)):
+            success, status = False, "non-finite step"
+        elif viol > MAX_STEP_VIOLATION:
+            success, status = False, f"infeasible step (violation {viol:.3g})"
+        else:
+            success, status = True, "step"
+        return SolveResult(success, status, 1, ms, "rti", w, _NO_MULTIPLIERS, _NO_MULTIPLIERS, viol)
+
+    def sqp(
+        self, p: np.ndarray, w0: np.ndarray, max_iter: int | None = None, budget_ms: float | None = None
+    ) -> SolveResult:
+        """Gauss-Newton SQP from ``w0`` with a backtracking line search on the l1 merit function
+        ``f + sigma |violation|_1`` (``sigma`` above the largest QP multiplier), at most
+        ``max_iter`` iterations (default ``max_sqp_iter``). Succeeds when the last point's
+        violation is at most :data:`MAX_STEP_VIOLATION`; status 'converged' when the step and
+        the violation are below the convergence tolerances.
+
+        ``budget_ms``: no iteration is started that would, at the pace of the iterations so far,
+        end after this many ms (the first always runs). For a loop paced by the wall clock: it
+        makes the result depend on the machine's speed, so simulations leave it None.
+        """
+        iters = self.max_sqp_iter if max_iter is None else max_iter
+        t0 = time.perf_counter()
+        w = np.asarray(w0, dtype=float)
+        last = self._last_step
+        reuse = last is not None and np.array_equal(last[0], p) and np.array_equal(last[1], w)
+        x0 = self.ocp.initial_state(p)
+        sigma, viol, status, it = 0.0, float("inf"), "iteration cap", 0
+        with solver_call():
+            for it in range(1, iters + 1):
+                elapsed_ms = 1e3 * (time.perf_counter() - t0)
+                if budget_ms is not None and it > 1 and elapsed_ms * it / (it - 1) > budget_ms:
+                    status = f"time budget {budget_ms:.3g} ms"
+                    it -= 1
+                    break
+                # The QP at w (the first one already solved by the failed RTI step, if so).
+                step = last[2] if last is not None and reuse and it == 1 else self._rti(w, p)
+                w_next, _violation, lam_max, f0, l1_0, slope = step
+                w_lin = np.concatenate([x0, w[N_STATE:]])
+                dw = w_next - w_lin
+                if not (np.all(np.isfinite(dw)) and np.isfinite(lam_max[0])):
+                    status = "non-finite QP step"
+                    break
+                sigma = max(sigma, _PENALTY_MARGIN * float(lam_max[0]))
+                phi0 = float(f0[0]) + sigma * float(l1_0[0])
+                # Directional derivative of the merit along a step that satisfies the linearised
+                # constraints: the objective's slope minus the penalty of the removed violation.
+                decrease = float(slope[0]) - sigma * float(l1_0[0])
+                for trial in range(_MAX_LINE_SEARCH):  # the last trial is taken whatever its merit
+                    alpha = _BACKTRACK**trial
+                    w = w_lin + alpha * dw
+                    f1, l1_1, viol = (float(v[0]) for v in self._merit(w, p))
+                    if f1 + sigma * l1_1 <= phi0 + _ARMIJO * alpha * min(decrease, 0.0):
+                        break
+                if alpha * float(np.max(np.abs(dw))) < _SQP_STEP_TOL and viol < _SQP_VIOLATION_TOL:
+                    status = "converged"
+                    break
+        ms = 1e3 * (time.perf_counter() - t0)
+        success = bool(np.isfinite(viol) and viol <= MAX_STEP_VIOLATION and np.all(np.isfinite(w)))
+        if not success and status != "non-finite QP step":
+            status = f"infeasible after {it} SQP iterations (violation {viol:.3g})"
+        return SolveResult(success, status, it, ms, "sqp", w, _NO_MULTIPLIERS, _NO_MULTIPLIERS, viol)
 
     def solve(self, p: np.ndarray, w0: np.ndarray, lam_x0=None, lam_g0=None) -> SolveResult:
         """One frame's solve with the configured scheme, warm-started at ``w0``."""
-        if self._sqp is None:
-            return self.solve_converged(p, w0, lam_x0, lam_g0)
-        return self._call(self._sqp, self.scheme, p, w0, lam_x0, lam_g0)
+        if self.scheme == "rti":
+            return self.rti(p, w0)
+        if self.scheme == "sqp":
+            return self.sqp(p, w0)
+        return self.solve_converged(p, w0, lam_x0, lam_g0)
