@@ -4,7 +4,9 @@ Every frame:
 
 1. fuse the camera frame in the Kalman filter, predict over the latency;
 2. update the force-disturbance estimate (offset-free MPC): the velocity the
-   last plan predicted for now vs the estimate;
+   last plan predicted for now vs the estimate; with ``mpc.friction_adaptation: rls`` the
+   friction along the motion is the friction-coefficient offset of
+   :mod:`capsule_mpc.mpc.adaptation` instead (the disturbance keeps the constant force);
 3. solve the NLP warm-started from the shifted previous solution (the first frame, or one
    after the plan ran out, is solved to convergence by IPOPT);
 4. if the fast step failed: accept it anyway while the rig holds the EPM (the settle phase:
@@ -28,11 +30,12 @@ import numpy as np
 
 from ..config import Scenario
 from ..control import Command, Controller, Measurement, StepStats, register_controller
-from ..dynamics import capsule_model
+from ..dynamics import CapsuleModel, capsule_model
 from ..estimation import CapsuleEstimator
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
 from ..safety import safe_command
+from .adaptation import FrictionOffsetRLS, friction_regression
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 
@@ -54,6 +57,7 @@ class MPCStack:
     solver: MPCSolver
     build_s: float
     force: ca.Function
+    model: CapsuleModel
 
 
 _STACKS: dict[str, MPCStack] = {}
@@ -89,7 +93,7 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
             raise
         warnings.warn(f"mpc.compile_c: compiling the NLP failed ({exc}); running uncompiled", stacklevel=2)
         solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, None, cfg.qp_solver)
-    stack = MPCStack(ocp, solver, time.perf_counter() - t0, force)
+    stack = MPCStack(ocp, solver, time.perf_counter() - t0, force, model)
     _STACKS[key] = stack
     return stack
 
@@ -124,6 +128,7 @@ class MPCController(Controller):
         self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * self.dt_s
         self.estimator = CapsuleEstimator(scenario.camera.noise_std_m, cfg.estimator_accel_std_mps2)
         self.disturbance_n = np.zeros(N_DIST)
+        self.friction_rls = FrictionOffsetRLS(cfg, self.dt_s) if cfg.friction_adaptation == "rls" else None
         self.u_prev = np.zeros(3)
         self.plan: _Plan | None = None
         self._offline_plan = None
@@ -174,14 +179,30 @@ class MPCController(Controller):
             # sliding friction nor a steady force -- learn nothing from a stuck capsule.
             return
         if speed > _MOVING_MPS:
-            # Along the motion: extra friction (opposes v); across it: a constant force.
+            # Along the motion: extra friction (opposes v), unless the friction adaptation has it;
+            # across it: a constant force.
             v_hat = v_pred / speed
             along = float(innov @ v_hat)
-            d[2] -= along
+            if self.friction_rls is None:
+                d[2] -= along
             d[0:2] += innov - along * v_hat
         else:
             d[0:2] += innov
         self.disturbance_n = np.clip(d, -cfg.disturbance_max_n, cfg.disturbance_max_n)
+
+    def _update_friction(self, t_s: float, state: np.ndarray) -> None:
+        """``mpc.friction_adaptation: rls``: fuse this frame's velocity innovation along the motion
+        if the capsule slides (see :mod:`capsule_mpc.mpc.adaptation`)."""
+        rls = self.friction_rls
+        if rls is None:
+            return
+        vel = state[2:4]
+        ref_speed = float(np.linalg.norm(self.path.velocity(np.array([t_s]))[0])) if t_s >= 0 else 0.0
+        if not rls.sliding(t_s, state[0:2], vel, ref_speed) or self.plan is None:
+            return
+        model = self.stack.model  # type: ignore[union-attr]
+        y_n, phi_n = friction_regression(model, self.plan.xs[:, 0], vel, rls.offset, self.dt_s)
+        rls.update(y_n, phi_n)
 
     def _calibrate_rest_offset(self, t_s: float, epm: np.ndarray, meas: Measurement) -> None:
         """Settle phase: where the capsule rests under the still EPM tells the model's force bias.
@@ -214,7 +235,8 @@ class MPCController(Controller):
         stack = self.stack
         assert stack is not None
         solver = stack.solver
-        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, self.disturbance_n)
+        offset = 0.0 if self.friction_rls is None else self.friction_rls.offset
+        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, self.disturbance_n, offset)
         if self.plan is None:
             return solver.solve_converged(p, self._initial_guess(x0))
         guess = stack.ocp.shift(self.plan.w)
@@ -249,6 +271,7 @@ class MPCController(Controller):
         self._calibrate_rest_offset(t_s, epm, measurement)
         self._update_disturbance(vel)
         x0 = np.concatenate([pos, vel, epm])
+        self._update_friction(t_s, x0)
         res = self._solve(x0, self._reference(t_s), held=t_s < 0)
         late = res.solve_ms > self.deadline_ms and self.plan is not None
         self.deadline_misses += int(late)
@@ -259,6 +282,8 @@ class MPCController(Controller):
                    "disturbance_y_n": float(self.disturbance_n[1]),
                    "disturbance_friction_n": float(self.disturbance_n[2])},
         )  # fmt: skip
+        if self.friction_rls is not None:
+            stats.extra.update(self.friction_rls.as_stats())
         if res.success:
             xs, us, _ = self.stack.ocp.unpack(res.w)  # type: ignore[union-attr]
             new_plan = _Plan(res.w, res.lam_x, res.lam_g, xs, us)

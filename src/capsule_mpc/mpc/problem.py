@@ -28,7 +28,9 @@ Parameters ``p = (x_0, ref, u_prev, d)``: the estimated current state (7), the r
 0..N-1: the path's velocity, or an offline plan's EPM velocity), the command being applied (3),
 and the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a constant force (N) plus an
 extra friction force (N) that opposes the capsule's motion -- the model's friction is the part
-of the mismatch that turns with the motion, so it must not be a fixed vector.
+of the mismatch that turns with the motion, so it must not be a fixed vector -- and last the
+friction-coefficient offset ``dmu`` of :mod:`capsule_mpc.mpc.adaptation` (the model's friction
+force becomes ``(mu(v) + dmu) F_N + f_s``; 0 leaves the model as built).
 
 The objective is a sum of squares ``0.5 |R(w, p)|^2`` plus a linear slack penalty; stage k's
 residuals weigh the state ``x_{k+1}`` against the reference at stage k+1, the command ``c_{k+1}``
@@ -50,6 +52,7 @@ __all__ = [
     "FN_SCALE",
     "INPUT_SCALE",
     "N_DIST",
+    "N_FRICTION",
     "N_INPUT",
     "N_PATH",
     "N_REF",
@@ -72,6 +75,8 @@ TANGENT_EPS_MPS = 1e-4
 N_REF = 6
 #: Disturbance parameters: constant force (x, y) and extra friction magnitude, N.
 N_DIST = 3
+#: Friction parameters after the disturbance: the friction-coefficient offset dmu.
+N_FRICTION = 1
 #: Model state (p, v, e, h) and EPM velocity sizes (see :mod:`capsule_mpc.dynamics`).
 _NX_MODEL, _NU_MODEL = 7, 3
 #: Stage state: the model state and the command applied (10); stage input: dc, v_next, slacks (7).
@@ -162,12 +167,19 @@ class OCP:
         return xs, us, ss
 
     def pack_parameters(
-        self, x0: np.ndarray, ref: np.ndarray, u_prev: np.ndarray, disturbance_n: np.ndarray
+        self,
+        x0: np.ndarray,
+        ref: np.ndarray,
+        u_prev: np.ndarray,
+        disturbance_n: np.ndarray,
+        friction_offset: float = 0.0,
     ) -> np.ndarray:
-        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3)."""
+        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3) and
+        the friction-coefficient offset (dimensionless; 0: the model's friction)."""
         return np.concatenate(
-            [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), np.ravel(disturbance_n)]
-        )
+            [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), np.ravel(disturbance_n),
+             [float(friction_offset)]]
+        )  # fmt: skip
 
     def pack_variables(
         self,
@@ -248,11 +260,12 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
     cfg, lim = sc.mpc, sc.limits
     n = cfg.horizon
     n_w = _STAGE * n + N_STATE
-    n_p = _NX_MODEL + N_REF * n + _NU_MODEL + N_DIST
+    n_p = _NX_MODEL + N_REF * n + _NU_MODEL + N_DIST + N_FRICTION
     w = ca.MX.sym("w", n_w)
     p = ca.MX.sym("p", n_p)
     ref = ca.reshape(p[_NX_MODEL : _NX_MODEL + N_REF * n], N_REF, n)
-    dist = p[_NX_MODEL + N_REF * n + _NU_MODEL :]
+    i_dist = _NX_MODEL + N_REF * n + _NU_MODEL
+    dist, mu_offset = p[i_dist : i_dist + N_DIST], p[i_dist + N_DIST]
 
     mass = sc.capsule.mass_kg
     eps = sc.friction.smoothing_eps_mps
@@ -267,8 +280,11 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
         x1 = _next_state(xk, uk, dt_s)
         m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL:], uk[0:3], uk[5:7]
         v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
-        acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
         lead, _force, f_n, _mu = model.outputs(m1)
+        # Extra friction against the motion: the force d_fric and the offset dmu on mu (times F_N,
+        # which the model's friction also takes as 0 off the plate).
+        extra_friction = dist[2] + mu_offset * ca.fmax(f_n, 0)
+        acc = model.ode(m1, c1)[2:4] + (dist[0:2] - extra_friction * v_hat) / mass
         rows += [
             x_next_var - x1 / x_scale,  # gap: the coefficient of x_{k+1} is the identity
             (m1[2:4] - xk[2:4] - dt_s * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
