@@ -136,6 +136,7 @@ def test_rls_ignores_non_finite_or_non_positive_regressors():
 
 def test_the_ocp_parameter_changes_the_models_friction(scenario):
     """The implicit-Euler velocity rows of the OCP change by exactly dt * dmu * F_N * v_hat / m."""
+    scenario = scenario.model_copy(update={"mpc": RLS_CFG})
     model = capsule_model(scenario)
     ocp = build_ocp(model, DT, model_equilibrium_lead(scenario))
     g = ca.Function("g", [ocp.nlp["x"], ocp.nlp["p"]], [ocp.nlp["g"]])
@@ -162,6 +163,16 @@ def test_the_ocp_parameter_changes_the_models_friction(scenario):
     for k in range(n):
         others[k * (N_STATE + 5) + N_STATE : k * (N_STATE + 5) + N_STATE + 2] = False
     np.testing.assert_array_equal(g1[others], g0[others])
+
+
+@pytest.mark.parametrize("mode", ["off", "rls"])
+def test_the_offset_parameter_is_used_only_with_adaptation(scenario, mode):
+    """Off, the constraints do not depend on dmu (the NLP is the one without adaptation); rls, they do."""
+    sc = scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"friction_adaptation": mode})})
+    ocp = build_ocp(capsule_model(sc), DT, model_equilibrium_lead(sc))
+    per_parameter = np.diff(ca.jacobian_sparsity(ocp.nlp["g"], ocp.nlp["p"]).colind())
+    assert per_parameter[-2] > 0  # d_fric
+    assert (per_parameter[-1] > 0) == (mode == "rls")
 
 
 @pytest.mark.parametrize(

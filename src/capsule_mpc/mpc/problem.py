@@ -30,7 +30,8 @@ and the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a constant force
 extra friction force (N) that opposes the capsule's motion -- the model's friction is the part
 of the mismatch that turns with the motion, so it must not be a fixed vector -- and last the
 friction-coefficient offset ``dmu`` of :mod:`capsule_mpc.mpc.adaptation` (the model's friction
-force becomes ``(mu(v) + dmu) F_N + f_s``; 0 leaves the model as built).
+force becomes ``(mu(v) + dmu) F_N + f_s``; with ``mpc.friction_adaptation: off`` the parameter
+is unused).
 
 The objective is a sum of squares ``0.5 |R(w, p)|^2`` plus a linear slack penalty; stage k's
 residuals weigh the state ``x_{k+1}`` against the reference at stage k+1, the command ``c_{k+1}``
@@ -280,11 +281,14 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
         x1 = _next_state(xk, uk, dt_s)
         m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL:], uk[0:3], uk[5:7]
         v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
+        acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
         lead, _force, f_n, _mu = model.outputs(m1)
-        # Extra friction against the motion: the force d_fric and the offset dmu on mu (times F_N,
-        # which the model's friction also takes as 0 off the plate).
-        extra_friction = dist[2] + mu_offset * ca.fmax(f_n, 0)
-        acc = model.ode(m1, c1)[2:4] + (dist[0:2] - extra_friction * v_hat) / mass
+        if cfg.friction_adaptation != "off":
+            # The offset dmu on mu: friction dmu F_N against the motion (F_N taken as 0 off the
+            # plate, as in the model's own friction). Only built when used: without it the NLP is
+            # operation for operation the one without adaptation (IPOPT's first solve rounds the
+            # same), with dmu an unused parameter.
+            acc = acc - mu_offset * ca.fmax(f_n, 0) * v_hat / mass
         rows += [
             x_next_var - x1 / x_scale,  # gap: the coefficient of x_{k+1} is the identity
             (m1[2:4] - xk[2:4] - dt_s * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
