@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import itertools
+import json
 import math
 from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
+from capsule_mpc.cli import main
 from capsule_mpc.config import CameraConfig, FaultsConfig
 from capsule_mpc.mpc import MPCController
 from capsule_mpc.paths import ReferencePath
@@ -190,12 +192,17 @@ def test_faults_do_not_change_the_plant_draw(lab_scenario):
 
 @pytest.fixture(scope="module")
 def faulty(lab_scenario):
-    """The lab rig, every fault on, the MPC falling back on late solves, a short run."""
+    """The lab rig, every fault on, the MPC falling back on late solves, a short run.
+
+    The deadline (500 ms) is one no real solve here misses and every injected late one (1 s) does,
+    so the run does not depend on this machine's speed.
+    """
+    mpc = {"compile_c": False, "enforce_deadline": True, "deadline_ms": 500.0}
     return lab_scenario.model_copy(
         update={
-            "mpc": lab_scenario.mpc.model_copy(update={"compile_c": False, "enforce_deadline": True}),
+            "mpc": lab_scenario.mpc.model_copy(update=mpc),
             "sim": lab_scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 3.0}),
-            "faults": FaultsConfig(**ALL_ON),
+            "faults": FaultsConfig(**ALL_ON, solver_late_ms=1000.0),
         }
     )
 
@@ -258,3 +265,29 @@ def test_a_stalled_arm_brakes_to_rest_and_then_follows_again(lab_scenario):
         for other in stalls:
             after &= (t < other.start_s) | (t >= other.end_s)
         assert not np.any(after) or np.all(speed[after] > 0)
+
+
+@pytest.mark.parametrize("command", ["compare", "sweep"])
+def test_fault_counts_reach_the_summary_of_compare_and_sweep(tmp_path, command):
+    config = tmp_path / "c.yaml"
+    config.write_text(
+        "base: paper\nsim:\n  settle_s: 0.2\n  tail_s: 1.0\n"
+        "faults:\n  camera_outlier_probability: 0.2\n  latency_spike_probability: 0.1\n"
+    )
+    wp = tmp_path / "wp.csv"
+    wp.write_text("x_m,y_m\n0.0,0.0\n0.02,0.0\n")
+    out = tmp_path / "out"
+    extra = ["--no-progress"] if command == "compare" else ["--workers", "1"]
+    argv = [command, "--config", str(config), "--waypoints", str(wp), "--controllers", "follow",
+            "--runs", "2", "--out", str(out), *extra]  # fmt: skip
+    assert main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    follow = summary["controllers"]["follow"]
+    runs = [r["controllers"]["follow"] for r in summary["runs"]]
+    for key in ("faults_injected_camera_outlier", "faults_injected_latency_spike"):
+        counts = [r[key] for r in runs]
+        assert min(counts) > 0
+        assert follow[key] == pytest.approx(np.mean(counts))
+        assert follow["spread"][key]["max"] == max(counts)
+    assert follow["faults_injected_solver_failure"] == 0  # switched off: counted as 0
+    assert "fault_recovery_max_s" in follow
