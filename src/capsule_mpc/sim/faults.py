@@ -74,6 +74,9 @@ SOLVER_FAULT_KINDS: tuple[str, ...] = FAULT_KINDS[:3]
 RECOVERY_TOL_MM = 1.0
 #: Window before a fault whose mean tracking error is the level to recover to, s.
 PRE_FAULT_WINDOW_S = 0.5
+#: Frames fall on the plant grid, up to half a plant step (0.5 ms at the 1 kHz minimum) from
+#: j / camera rate: a frame this close before a fault's end counts as at its end, s.
+_GRID_TOL_S = 1e-3
 
 
 @dataclass(frozen=True)
@@ -289,7 +292,7 @@ def recovery_times(t_s: np.ndarray, error_mm: np.ndarray, events: list[FaultEven
     for ev in events:
         before = (t_s >= ev.start_s - PRE_FAULT_WINDOW_S) & (t_s < ev.start_s)
         level = max(RECOVERY_TOL_MM, float(np.mean(err[before])) if np.any(before) else 0.0)
-        after = np.flatnonzero((t_s >= ev.end_s - 1e-9) & (err <= level))
+        after = np.flatnonzero((t_s >= ev.end_s - _GRID_TOL_S) & (err <= level))
         if len(after):
             out.times_s.setdefault(ev.kind, []).append(max(float(t_s[after[0]]) - ev.end_s, 0.0))
         elif len(t_s) and ev.end_s <= t_s[-1]:
