@@ -12,6 +12,7 @@ import pytest
 
 from capsule_mpc.cli import main
 from capsule_mpc.config import CameraConfig, FaultsConfig
+from capsule_mpc.control import Measurement
 from capsule_mpc.mpc import MPCController
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import Camera, draw_plant_truth, simulate
@@ -291,3 +292,25 @@ def test_fault_counts_reach_the_summary_of_compare_and_sweep(tmp_path, command):
         assert follow["spread"][key]["max"] == max(counts)
     assert follow["faults_injected_solver_failure"] == 0  # switched off: counted as 0
     assert "fault_recovery_max_s" in follow
+
+
+def test_a_dropped_or_rejected_frame_does_not_move_the_disturbance_estimate(scenario):
+    fast = scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"compile_c": False})})
+    ctrl = MPCController()
+    epm = np.array([-0.017, 0.0, fast.plate.epm_height_m])
+    ctrl.reset(fast, PATH, epm)
+
+    def step(k: int, position: np.ndarray | None) -> None:
+        nonlocal epm
+        t = k * FRAME_S
+        cmd = ctrl.step(t, Measurement(t, t - FRAME_S, position), epm)
+        epm = epm + FRAME_S * cmd.epm_velocity_mps
+
+    for k in range(20):  # the capsule moving at 18 mm/s, seen every frame
+        step(k, PATH.position(max((k - 1) * FRAME_S, 0)) * 0.9)
+    before = ctrl.disturbance_n.copy()
+    assert np.any(before != 0)  # it is being learned
+    step(20, None)  # a dropped frame
+    step(21, PATH.position(20 * FRAME_S) * 0.9 + np.array([0.0, 0.01]))  # a 10 mm outlier
+    assert ctrl.estimator.rejected == 1
+    np.testing.assert_array_equal(ctrl.disturbance_n, before)

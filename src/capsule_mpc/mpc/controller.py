@@ -256,7 +256,8 @@ class MPCController(Controller):
             measurement = replace(measurement, position_m=None)
         pos, vel = self.estimator.estimate(t_s)
         self._calibrate_rest_offset(t_s, epm, measurement)
-        self._update_disturbance(vel)
+        if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
+            self._update_disturbance(vel)
         x0 = np.concatenate([pos, vel, epm])
         res = self._solve(x0, self._reference(t_s), held=t_s < 0)
         if res.success and not np.all(np.isfinite(res.w)):  # a solver that says so is not trusted
