@@ -314,3 +314,14 @@ def test_a_dropped_or_rejected_frame_does_not_move_the_disturbance_estimate(scen
     step(21, PATH.position(20 * FRAME_S) * 0.9 + np.array([0.0, 0.01]))  # a 10 mm outlier
     assert ctrl.estimator.rejected == 1
     np.testing.assert_array_equal(ctrl.disturbance_n, before)
+
+
+def test_recovery_against_the_fault_free_run_leaves_out_the_paths_own_excursions():
+    t = np.arange(0, 5, FRAME_S)
+    clean = np.where((t >= 2.0) & (t < 4.0), 5.0, 0.5)  # a corner: the error rises anyway
+    faulty = clean.copy()
+    faulty[(t >= 2.0) & (t < 2.5)] += 2.0  # the fault adds 2 mm until 2.5 s
+    ev = FaultEvent("solver_nan", 2.0, 2.0 + FRAME_S)
+    assert recovery_times(t, faulty, [ev]).times_s["solver_nan"][0] == pytest.approx(2.0, abs=FRAME_S)
+    twin = recovery_times(t, faulty, [ev], clean)
+    assert twin.times_s["solver_nan"][0] == pytest.approx(0.5 - FRAME_S, abs=FRAME_S)
