@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsule_mpc.estimation import CapsuleEstimator
+from capsule_mpc.estimation import REACQUIRE_AFTER, CapsuleEstimator
 
 
 def test_converges_on_a_noisy_constant_velocity_track():
@@ -63,3 +63,63 @@ def test_dropped_frames_only_predict_and_time_must_not_go_back():
         est.update(0.05, np.zeros(2))
     est.update(1.0, np.array([0.02, 0.0]))
     assert est.position_std_m() <= max(std_before, 3e-4) * 1.5
+
+
+def _tracked(est: CapsuleEstimator, v: np.ndarray, frames: int, rng: np.random.Generator) -> float:
+    """Feed ``frames`` noisy frames of a constant-velocity capsule; returns the last frame's time."""
+    t = 0.0
+    for k in range(frames):
+        t = k / 30
+        assert est.update(t, v * t + rng.normal(0, 3e-4, 2))
+    return t
+
+
+def test_the_gate_rejects_a_10mm_outlier_and_keeps_the_prediction():
+    rng = np.random.default_rng(2)
+    est = CapsuleEstimator(noise_std_m=3e-4, accel_std_mps2=0.3)
+    v = np.array([0.02, 0.0])
+    t = _tracked(est, v, 60, rng)
+    t += 1 / 30
+    assert not est.update(t, v * t + np.array([0.0, 0.01]))
+    assert est.rejected == 1
+    p, _ = est.estimate(t)
+    assert np.linalg.norm(p - v * t) < 1e-3  # the outlier was not fused
+    t += 1 / 30
+    assert est.update(t, v * t)  # the next good frame is accepted
+    assert est.reacquisitions == 0
+
+
+def test_the_gate_accepts_a_real_fast_motion():
+    # A breakaway: from rest to 50 mm/s at 1 m/s^2 (twice the EPM's acceleration limit), noisy.
+    rng = np.random.default_rng(3)
+    est = CapsuleEstimator(noise_std_m=3e-4, accel_std_mps2=0.3)
+    for k in range(120):
+        t = k / 30
+        moving = max(t - 1.0, 0.0)
+        x = 0.5 * min(moving, 0.05) ** 2 + 0.05 * max(moving - 0.05, 0.0)
+        assert est.update(t, np.array([x, 0.0]) + rng.normal(0, 5e-4, 2)), t  # true noise 0.5 mm
+    assert est.rejected == 0
+
+
+def test_the_filter_reacquires_a_capsule_that_really_jumped():
+    rng = np.random.default_rng(4)
+    est = CapsuleEstimator(noise_std_m=3e-4, accel_std_mps2=0.3)
+    t = _tracked(est, np.zeros(2), 30, rng)
+    jumped = np.array([0.01, 0.0])
+    accepted = []
+    for _ in range(REACQUIRE_AFTER):
+        t += 1 / 30
+        accepted.append(est.update(t, jumped))
+    assert accepted == [False] * (REACQUIRE_AFTER - 1) + [True]
+    assert est.reacquisitions == 1
+    assert est.estimate(t)[0] == pytest.approx(jumped, abs=1e-12)
+
+
+def test_after_a_long_drop_the_gate_is_open_again():
+    rng = np.random.default_rng(5)
+    est = CapsuleEstimator(noise_std_m=3e-4, accel_std_mps2=0.3)
+    t = _tracked(est, np.array([0.02, 0.0]), 30, rng)
+    # One second without frames, during which the capsule stopped 10 mm short of the prediction.
+    t_after = t + 1.0
+    assert est.update(t_after, np.array([0.02 * t_after - 0.01, 0.0]))
+    assert est.rejected == 0

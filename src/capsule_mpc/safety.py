@@ -2,6 +2,22 @@
 
 It sits left of the controllers that use it (the MPC and the plan replay), so neither imports
 the other for it.
+
+What it guarantees, per axis, for any input (NaN, inf, huge values included): the command is
+finite, within ``+-limits.speed_mps``, and within ``limits.accel_mps2 * dt_s`` of the previous
+command (no jump) -- a non-finite previous command counts as 0 -- and one step at it does not
+leave the workspace. Toward a workspace face the speed is capped by the braking envelope
+(:func:`braking_speed_mps`): the speed from which braking at the acceleration limit, one command
+per ``dt_s``, stops the EPM on the face. A command inside the envelope leaves the next one inside
+it (braking by ``accel * dt`` exactly keeps pace with the shrinking distance), so the EPM never
+has to stop harder than the acceleration limit. Only an EPM already faster than its envelope
+(e.g. started next to a face at speed) can need more: then the workspace wins, and the command
+is cut to the speed that stops on the face in one step (the one case of a larger change, as the
+arm's own clamp would do). The height command is 0 unless ``mpc.height_control``.
+
+Jerk (``limits.jerk_mps3``) is the arm's limit between commands (the Ruckig arm enforces it);
+it is not enforced here: the MPC's commands change their acceleration faster than 5 m/s^3 on
+about a fifth of the frames of a lab run, and limiting that would change its tracking.
 """
 
 from __future__ import annotations
@@ -10,7 +26,26 @@ import numpy as np
 
 from .config import Scenario
 
-__all__ = ["safe_command"]
+__all__ = ["braking_speed_mps", "safe_command"]
+
+#: A reported EPM position this far from the origin (m) is not a position but a broken reading
+#: (it would overflow the envelope's arithmetic): the command brakes as for a NaN position.
+_FAR_M = 1e6
+
+
+def braking_speed_mps(distance_m: np.ndarray, accel_mps2: float, dt_s: float) -> np.ndarray:
+    """The highest speed toward a face ``distance_m`` away from which braking stops on it.
+
+    Braking lowers the speed by ``da = accel_mps2 * dt_s`` per command of length ``dt_s``: from
+    ``v`` it covers ``D(v) = dt (v + (v - da) + ... )`` over the positive terms, so
+    ``D(n da) = dt da n (n + 1) / 2`` and ``D`` is linear in between. The speed returned solves
+    ``D(v) = distance`` (0 at or past the face). ``D(v) = v dt + D(v - da)`` is what keeps a
+    command inside this envelope inside it at the next step.
+    """
+    d = np.maximum(np.asarray(distance_m, dtype=float), 0.0)
+    da = accel_mps2 * dt_s
+    n = np.floor((np.sqrt(1.0 + 8.0 * d / (dt_s * da)) - 1.0) / 2.0)  # whole braking steps
+    return (d / dt_s + da * n * (n + 1.0) / 2.0) / (n + 1.0)
 
 
 def safe_command(
@@ -22,26 +57,45 @@ def safe_command(
 ) -> tuple[np.ndarray, bool]:
     """Enforce speed, acceleration and workspace limits on a command; returns (command, clipped).
 
-    A non-finite command becomes the braking command. Acceleration is limited relative to
-    ``u_prev`` per axis; near a workspace face the velocity toward it is reduced so the
-    EPM stops on the face (within the acceleration limit when possible).
+    Parameters
+    ----------
+    u : numpy.ndarray (3,)
+        The command wanted, m/s; a non-finite entry makes the whole command a braking one (0).
+    u_prev : numpy.ndarray (3,)
+        The previous command sent, m/s (non-finite entries count as 0, and the height's without
+        ``mpc.height_control``).
+    epm_position_m : numpy.ndarray (3,)
+        The EPM's position, m; with a non-finite entry (or one farther than 1000 km) the
+        workspace is not known, and the command brakes (toward 0 within the acceleration limit).
+    scenario : Scenario
+        ``limits`` and ``mpc.height_control``.
+    dt_s : float
+        Command period, s (> 0).
+
+    Returns
+    -------
+    tuple of numpy.ndarray (3,) and bool
+        The command (see the module docstring for its guarantees) and whether it differs from
+        ``u``.
     """
     lim = scenario.limits
-    u = np.asarray(u, dtype=float).copy()
-    u_prev = np.asarray(u_prev, dtype=float)
-    if not np.all(np.isfinite(u)):
-        u = np.zeros(3)
-    if not scenario.mpc.height_control:
-        u[2] = 0.0
-    target = u.copy()
+    target = np.asarray(u, dtype=float).ravel().copy()
+    u_prev = np.asarray(u_prev, dtype=float).ravel()
+    u_prev = np.clip(np.where(np.isfinite(u_prev), u_prev, 0.0), -lim.speed_mps, lim.speed_mps)
+    pos = np.asarray(epm_position_m, dtype=float).ravel()
+    known = bool(np.all(np.abs(pos) < _FAR_M))  # where the EPM is (False for NaN): else brake
+    finite = bool(np.all(np.isfinite(target))) and known
+    u = target.copy() if finite else np.zeros(3)
+    if not scenario.mpc.height_control:  # the height is held: its command is and was 0
+        u[2] = u_prev[2] = 0.0
+    u = np.clip(u, -lim.speed_mps, lim.speed_mps)
+    lo, hi = np.asarray(lim.workspace_min_m), np.asarray(lim.workspace_max_m)
+    if known:
+        v_up = braking_speed_mps(hi - pos, lim.accel_mps2, dt_s)
+        v_down = braking_speed_mps(pos - lo, lim.accel_mps2, dt_s)
+        u = np.clip(u, -v_down, v_up)
     da = lim.accel_mps2 * dt_s
     u = np.clip(u, u_prev - da, u_prev + da)
-    u = np.clip(u, -lim.speed_mps, lim.speed_mps)
-    if not scenario.mpc.height_control:
-        u[2] = 0.0
-    lo, hi = np.asarray(lim.workspace_min_m), np.asarray(lim.workspace_max_m)
-    pos = np.asarray(epm_position_m, dtype=float)
-    nxt = pos + u * dt_s
-    over = (nxt > hi) & (u > 0) | (nxt < lo) & (u < 0)
-    u[over] = np.clip((np.where(u > 0, hi, lo) - pos)[over] / dt_s, -lim.speed_mps, lim.speed_mps)
-    return u, bool(np.any(np.abs(u - target) > 1e-12))
+    if known:  # outside the envelope already: stop on the face rather than cross it
+        u = np.clip(u, np.minimum((lo - pos) / dt_s, 0.0), np.maximum((hi - pos) / dt_s, 0.0))
+    return u, bool(not finite or np.any(np.abs(u - target) > 1e-12))

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import casadi as ca
@@ -75,7 +76,7 @@ def model_scenario(scenario: Scenario) -> Scenario:
 
 def build_mpc_stack(scenario: Scenario) -> MPCStack:
     """Build (or reuse, within the process) the OCP and solver for ``scenario``."""
-    key = scenario.model_dump_json(exclude={"sim", "camera", "path", "name"})
+    key = scenario.model_dump_json(exclude={"sim", "camera", "path", "name", "faults"})
     if key in _STACKS:
         return _STACKS[key]
     t0 = time.perf_counter()
@@ -117,12 +118,17 @@ class MPCController(Controller):
 
     def __init__(self) -> None:
         self.stack: MPCStack | None = None
+        #: Set before :meth:`reset` to solve through a wrapper of the stack's solver (the
+        #: simulator's fault injection, :mod:`capsule_mpc.sim.faults`); None: the solver itself.
+        self.solver_wrapper: Callable[[MPCSolver], MPCSolver] | None = None
 
     def reset(self, scenario: Scenario, path: ReferencePath, epm_position_m: np.ndarray) -> None:
         """Build (or reuse) the problem for ``scenario`` and forget the previous run."""
         self.scenario = scenario
         self.path = path
         self.stack = build_mpc_stack(scenario)
+        wrap = self.solver_wrapper
+        self.solver = self.stack.solver if wrap is None else wrap(self.stack.solver)
         cfg = scenario.mpc
         self.dt_s = self.stack.ocp.dt_s
         self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * self.dt_s
@@ -234,7 +240,7 @@ class MPCController(Controller):
         """This frame's solve; ``held``: the rig holds the EPM (settle phase)."""
         stack = self.stack
         assert stack is not None
-        solver = stack.solver
+        solver = self.solver
         offset = 0.0 if self.friction_rls is None else self.friction_rls.offset
         p = stack.ocp.pack_parameters(x0, ref, self.u_prev, self.disturbance_n, offset)
         if self.plan is None:
@@ -263,16 +269,22 @@ class MPCController(Controller):
     def step(self, t_s: float, measurement: Measurement, epm_position_m: np.ndarray) -> Command:
         """One frame: estimate, solve, fall back if needed, and enforce the limits."""
         epm = np.asarray(epm_position_m, dtype=float)
+        accepted = True
         if measurement.position_m is not None:
-            self.estimator.update(measurement.capture_t_s, measurement.position_m)
+            accepted = self.estimator.update(measurement.capture_t_s, measurement.position_m)
         if not self.estimator.initialised:  # nothing seen yet: hold still
             return self._emit(np.zeros(3), epm, StepStats(status="no_measurement"))
+        if not accepted:  # an outlier rejected by the filter's gate: the prediction stands in for it
+            measurement = replace(measurement, position_m=None)
         pos, vel = self.estimator.estimate(t_s)
         self._calibrate_rest_offset(t_s, epm, measurement)
-        self._update_disturbance(vel)
         x0 = np.concatenate([pos, vel, epm])
-        self._update_friction(t_s, x0)
+        if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
+            self._update_disturbance(vel)
+            self._update_friction(t_s, x0)
         res = self._solve(x0, self._reference(t_s), held=t_s < 0)
+        if res.success and not np.all(np.isfinite(res.w)):  # a solver that says so is not trusted
+            res = replace(res, success=False, status=f"non-finite solution ({res.status})")
         late = res.solve_ms > self.deadline_ms and self.plan is not None
         self.deadline_misses += int(late)
         late = late and self.scenario.mpc.enforce_deadline
@@ -284,6 +296,8 @@ class MPCController(Controller):
         )  # fmt: skip
         if self.friction_rls is not None:
             stats.extra.update(self.friction_rls.as_stats())
+        if not accepted:
+            stats.extra["measurement_rejected"] = 1.0
         if res.success:
             xs, us, _ = self.stack.ocp.unpack(res.w)  # type: ignore[union-attr]
             new_plan = _Plan(res.w, res.lam_x, res.lam_g, xs, us)

@@ -52,6 +52,17 @@ The controller gets the scenario with ``mpc.enforce_deadline = True`` (a late
 MPC solve then makes it use its shifted plan); that scenario is the one recorded
 in the result.
 
+Faults (``scenario.faults``, :mod:`.faults`): when any is switched on, the run gets a
+:class:`~.faults.FaultInjector` on its own random streams. The camera applies the drop bursts and
+outliers to its captures; a controller with a ``solver_wrapper`` hook (the MPC) gets the
+injector's solver wrapper before its reset; an arm stall holds the arm at zero velocity (it
+brakes within its limits) and keeps the latest command until the stall ends, then applies it; a
+latency spike adds its delay to one frame's command (the later ones queue behind it). The run's
+metrics then carry the fault counts and recovery times (:func:`~.faults.fault_metrics`) and
+:attr:`RunResult.fault_events` lists the faults. In ``solve_time`` mode the delay counts a
+step as lasting at least the solve time the controller reports (an injected late solve delays
+its command).
+
 Predictions: after each step the runner records
 :meth:`~capsule_mpc.control.Controller.predicted_capsule_path` (``None`` for
 controllers that do not predict), one entry per logged frame.
@@ -75,6 +86,7 @@ from ..metrics import run_metrics
 from ..paths import ReferencePath
 from .actuation import Actuator, SimpleArm, make_actuator
 from .columns import INT_COLUMNS, LOG_COLUMNS, STR_COLUMNS
+from .faults import FaultEvent, FaultInjector, fault_metrics
 from .plant import OK, CapsulePlant
 from .sensing import Camera
 from .truth import PlantTruth, draw_plant_truth
@@ -294,6 +306,8 @@ class RunResult:
         Wall-clock pacing figures of a real-time run; None otherwise.
     truth : PlantTruth or None
         The plant's draw (the plant's own truth when a plant was passed in; None only when built by hand).
+    fault_events : list of FaultEvent
+        The faults injected (``scenario.faults``), in the order they began; empty without faults.
     """
 
     scenario: Scenario
@@ -312,6 +326,7 @@ class RunResult:
     predictions: list[np.ndarray | None] = field(default_factory=list)
     realtime: RealtimeStats | None = None
     truth: PlantTruth | None = None
+    fault_events: list[FaultEvent] = field(default_factory=list)
 
     @property
     def failed(self) -> bool:
@@ -468,6 +483,14 @@ def _draw_rest_lead(
     return plant.equilibrium_lead_m.copy()  # fraction ~ 0: the equilibrium itself
 
 
+def _fault_injector(scenario: Scenario, seed: int) -> FaultInjector | None:
+    """The run's fault injector (:mod:`.faults`); None when no fault is switched on."""
+    if not scenario.faults.enabled:
+        return None
+    frame_s = 1.0 / scenario.camera.rate_hz
+    return FaultInjector(scenario.faults, seed, frame_s, scenario.camera.latency_frames)
+
+
 def _make_actuator(scenario: Scenario, truth: PlantTruth) -> Actuator:
     """The scenario's actuator; the simple arm gets the draw's servo lag (the robot arm has its own)."""
     if truth.servo_bandwidth_hz is not None and scenario.sim.actuator == "simple":
@@ -493,6 +516,19 @@ class _Loop:
         self.flags = RunFlags()
         self.rest_s = 0.0
         self.cmd_applied = np.zeros(3)
+        self.stall_end_k = -(2**62)  # plant step at which an arm stall ends
+        self.arm_cmd = np.zeros(3)  # the latest command to reach the arm (kept through a stall)
+
+    def _to_arm(self, k: int, vel: np.ndarray) -> None:
+        """A command reaches the arm at plant step ``k``; a stalled arm keeps it for later."""
+        self.arm_cmd = vel
+        if k >= self.stall_end_k:
+            self.act.set_velocity_command(k * self.dt, vel)
+
+    def stall(self, k: int, end_k: int) -> None:
+        """The arm stops following its commands from plant step ``k`` to ``end_k`` (brakes to rest)."""
+        self.stall_end_k = end_k
+        self.act.set_velocity_command(k * self.dt, np.zeros(3))
 
     def advance(self, k: int, k_to: int) -> tuple[int, int]:
         """Step the plant and the arm from plant step ``k`` to ``k_to``; returns (k, status)."""
@@ -501,7 +537,9 @@ class _Loop:
         while k < k_to:
             while pending and pending[0][0] <= k:
                 _, vel = pending.popleft()
-                self.act.set_velocity_command(k * self.dt, vel)
+                self._to_arm(k, vel)
+            if k == self.stall_end_k:  # the stall is over: the arm takes the latest command
+                self.act.set_velocity_command(k * self.dt, self.arm_cmd)
             ex, ey, ez = step_act(self.dt)
             status = step_plant(self.dt, ex, ey, ez)
             if status != OK:
@@ -509,16 +547,16 @@ class _Loop:
             k += 1
         return k, status
 
-    def command(self, k: int, t: float, vel: np.ndarray, step_s: float) -> None:
+    def command(self, k: int, t: float, vel: np.ndarray, step_s: float, extra_s: float = 0.0) -> None:
         """Send the frame's command (zero at t < 0): applied ``plant.compute_delay_s`` from now, plus
-        the controller's measured ``step_s`` in ``solve_time`` mode, and never before the previous
-        frame's command (a rig's loop handles one frame at a time)."""
+        the controller's ``step_s`` in ``solve_time`` mode, plus ``extra_s`` (a latency spike), and
+        never before the previous frame's command (a rig's loop handles one frame at a time)."""
         self.cmd_applied = vel if t >= 0 else np.zeros(3)
-        delay_s = self.delay_s + (step_s if self.solve_time_delay else 0.0)
+        delay_s = self.delay_s + (step_s if self.solve_time_delay else 0.0) + extra_s
         ready = max(k + round(delay_s / self.dt), self.last_ready)
         self.last_ready = ready
         if ready <= k and not self.pending:
-            self.act.set_velocity_command(t, self.cmd_applied)
+            self._to_arm(k, self.cmd_applied)
         else:
             self.pending.append((ready, self.cmd_applied))
 
@@ -600,13 +638,17 @@ def simulate(
     plant = plant if plant is not None else CapsulePlant(scenario, truth=truth)
     act = actuator if actuator is not None else _make_actuator(scenario, truth)
     bias = (truth.camera_bias_x_m, truth.camera_bias_y_m)
+    faults = _fault_injector(scenario, seed)
     camera = Camera(
-        scenario.camera, np.random.default_rng(seed), bias_m=bias, noise_std_m=truth.camera_noise_std_m
-    )
+        scenario.camera, np.random.default_rng(seed), bias_m=bias, noise_std_m=truth.camera_noise_std_m,
+        faults=faults,
+    )  # fmt: skip
     epm0, capsule0, theta0 = start_pose(scenario, plant, path, np.random.default_rng([seed, 2]))
     plant.reset(capsule0, theta_s=theta0)
     act.reset(epm0)
     plant.evaluate_forces(*epm0.tolist())
+    if hasattr(ctrl, "solver_wrapper"):  # the MPC: solve through the injector when solver faults are on
+        ctrl.solver_wrapper = faults.wrap_solver if faults is not None and faults.solver_faults else None
     ctrl.reset(scenario, path, epm0.copy())
     loop = _Loop(scenario, path, plant, act, truth.compute_delay_s)
 
@@ -638,6 +680,12 @@ def simulate(
             log.add(row)
             predictions.append(None)
             break
+        extra_s = 0.0
+        if faults is not None:
+            faults.begin_frame(t)
+            if faults.stall_starts(t):
+                loop.stall(k, k + round(faults.config.arm_stall_s / loop.dt))
+            extra_s = faults.latency_spike_s(t)
         meas = camera.frame(t, plant.position_m)
         slot_start = wall0 + (j - j0) * loop.frame_s
         if pacing is not None:
@@ -654,7 +702,10 @@ def simulate(
             flags.invalid_commands += 1
             vel = np.zeros(3)
         stats.append(step_stats)
-        loop.command(k, t, vel, c1 - c0)
+        step_s = c1 - c0
+        if math.isfinite(step_stats.solve_ms):  # a step lasts at least the solve it reports
+            step_s = max(step_s, step_stats.solve_ms * 1e-3)
+        loop.command(k, t, vel, step_s, extra_s)
         if meas.position_m is not None:
             row["meas_x_m"], row["meas_y_m"] = float(meas.position_m[0]), float(meas.position_m[1])
         row["meas_capture_t_s"], row["controller_ms"] = meas.capture_t_s, (c1 - c0) * 1e3
@@ -674,11 +725,15 @@ def simulate(
     metrics = _score(arrays, path, scenario, flags, pacing)
     limits = act.limit_counts()
     metrics.update(limits)
+    metrics["measurements_rejected"] = sum(int(st.extra.get("measurement_rejected", 0)) for st in stats)
+    if faults is not None:
+        metrics.update(fault_metrics(faults, arrays))
     return RunResult(
         scenario=scenario, controller=name, seed=seed, path=path, log=arrays, metrics=metrics,
         flags=flags, step_stats=stats, limit_counts=limits, wall_time_s=wall,
         sim_time_s=(k - k_first) * loop.dt, plant_steps=k - k_first, meta=dict(meta or {}),
         predictions=predictions, realtime=pacing, truth=truth,
+        fault_events=[] if faults is None else list(faults.events),
     )  # fmt: skip
 
 

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..config import CameraConfig
 from ..control import Measurement
+
+if TYPE_CHECKING:
+    from .faults import FaultInjector
 
 __all__ = ["Camera"]
 
@@ -41,6 +45,10 @@ class Camera:
     noise_std_m : float, optional
         True noise standard deviation per axis, m, finite and >= 0; None (the default) uses
         ``config.noise_std_m``.
+    faults : FaultInjector, optional
+        Injected camera faults (drop bursts, outliers; :mod:`.faults`), applied to each capture
+        after the noise and bias, from their own random streams (the camera's draws are the
+        same with or without them). None (the default): no injected faults.
 
     Raises
     ------
@@ -55,6 +63,7 @@ class Camera:
         *,
         bias_m: tuple[float, float] = (0.0, 0.0),
         noise_std_m: float | None = None,
+        faults: FaultInjector | None = None,
     ) -> None:
         bias = np.asarray(bias_m, dtype=float)
         if bias.shape != (2,) or not np.all(np.isfinite(bias)):
@@ -66,6 +75,7 @@ class Camera:
         self.rng = rng
         self.bias_m: tuple[float, float] = (float(bias[0]), float(bias[1]))
         self.noise_std_m = sigma
+        self.faults = faults
         # A zero bias is not added at all, so default cameras reproduce earlier runs bit for bit.
         self._bias = bias if np.any(bias != 0) else None
         self._queue: deque[tuple[float, np.ndarray | None]] = deque()
@@ -100,6 +110,8 @@ class Camera:
         capture = None if lost else np.asarray(true_position_m, dtype=float)[:2] + noise
         if capture is not None and self._bias is not None:
             capture += self._bias
+        if self.faults is not None:
+            capture = self.faults.camera_capture(t_s, capture)
         self._queue.append((t_s, capture))
         if len(self._queue) <= self.config.latency_frames:
             return Measurement(t_s=t_s, capture_t_s=math.nan, position_m=None)
