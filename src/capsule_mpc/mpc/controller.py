@@ -33,6 +33,7 @@ from ..estimation import CapsuleEstimator
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
 from ..safety import safe_command
+from .approach import FinalApproach
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 
@@ -145,6 +146,7 @@ class MPCController(Controller):
         self._calibrated = False
         self.fallback_steps = 0
         self.deadline_misses = 0
+        self.approach = FinalApproach(scenario, path, self.stack.force, self.stack.ocp.lead_eq_m, self.dt_s)
 
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
@@ -247,6 +249,10 @@ class MPCController(Controller):
             return self._emit(np.zeros(3), epm, StepStats(status="no_measurement"))
         pos, vel = self.estimator.estimate(t_s)
         self._calibrate_rest_offset(t_s, epm, measurement)
+        self.approach.observe(measurement)
+        u_approach = self.approach.step(t_s, epm, self.u_prev, self.disturbance_n[0:2])
+        if u_approach is not None:
+            return self._approach_command(u_approach, epm)
         self._update_disturbance(vel)
         x0 = np.concatenate([pos, vel, epm])
         res = self._solve(x0, self._reference(t_s), held=t_s < 0)
@@ -279,6 +285,20 @@ class MPCController(Controller):
         stats.status = "failed: " + res.status
         self.fallback_steps += 1
         return self._emit(self._fallback_command(), epm, stats, hold=t_s < 0)
+
+    def _approach_command(self, u: np.ndarray, epm: np.ndarray) -> Command:
+        """The final approach's command (:mod:`.approach`): the MPC's plan is dropped (a new one is
+        solved from scratch should the MPC take over again) and it predicts nothing."""
+        self.plan = None
+        self.last_prediction = None
+        attempts = float(self.approach.attempts)
+        stats = StepStats(status=f"approach: {self.approach.phase}", extra={"approach_attempts": attempts})
+        return self._emit(u, epm, stats)
+
+    @property
+    def finished(self) -> bool:
+        """False while the final approach works on the capsule's position (:mod:`.approach`)."""
+        return self.approach.finished
 
     def _fallback_command(self) -> np.ndarray:
         """The previous plan's next command while the plan lasts, else brake.
