@@ -665,7 +665,7 @@ class MPCConfig(_Strict):
         3, ge=1, le=20, description="Crawls the final approach tries before it holds, [1, 20]."
     )
     approach_attempt_s: Number = Field(
-        6.0, gt=0, le=60, description="Longest crawl of one attempt, s, (0, 60]."
+        4.0, gt=0, le=60, description="Longest crawl of one attempt, s, (0, 60]."
     )
     approach_backoff_m: Number = Field(
         2e-3,

@@ -29,18 +29,20 @@ target, watch the capsule, let go when it arrives. Phases (one :class:`FinalAppr
     model (never the plant's truth): the model force along û (force model plus the estimated
     constant disturbance) stays below ``mpc.approach_force_fraction`` of the model's breakaway
     ``mu0 F_N + f_s``, and ``|lead - lead_eq| <= limits.max_lead_m``. The crawl ends when the
-    capsule is about to reach the target (``d <= v̂ * RELEASE_LEAD_S``), has passed it, or after
-    ``mpc.approach_attempt_s``.
+    capsule is about to reach the target (``d <= v̂ * RELEASE_LEAD_S``), has passed it, after
+    ``mpc.approach_attempt_s``, or after :data:`CAP_HOLD_S` at the cap.
 ``release``
     The EPM backs off along -û to the lead it had when the crawl began minus
-    ``mpc.approach_backoff_m``, taking the force away so the capsule stops where it is.
+    ``mpc.approach_backoff_m``, and at least to the model's equilibrium lead (its component along
+    û), taking the force away so the capsule stops where it is (a capsule that crept under the
+    lead it had before the crawl would creep on past the target).
 ``observe``
     The EPM holds still for ``mpc.approach_observe_s``; the mean of the frames after the first
     :data:`OBSERVE_SETTLE_S` is where the capsule rests. Within the tolerance: ``done``. Otherwise a
     new attempt from the measured rest (a new û; the crawl speed halved if it overshot), up to
-    ``mpc.approach_max_attempts``; then, or when an attempt reached the force cap without moving
-    the capsule (it is stuck and only a breakaway lurch, far larger than the error, would move it),
-    ``gave_up``: the EPM holds.
+    ``mpc.approach_max_attempts``; then, or when an attempt moved the capsule less than the
+    tolerance toward the target (it is stuck below the cap, and only a breakaway lurch, far larger
+    than the error, would move it), ``gave_up``: the EPM holds.
 
 Every command passes a jerk and acceleration limiter here (``limits.jerk_mps3``,
 ``limits.accel_mps2``) and then the controller's safety layer (:func:`capsule_mpc.safety.safe_command`).
@@ -61,6 +63,7 @@ from ..dynamics import normal_force_expr
 from ..paths import ReferencePath
 
 __all__ = [
+    "CAP_HOLD_S",
     "CRAWL_TIME_CONSTANT_S",
     "OBSERVE_SETTLE_S",
     "RELEASE_LEAD_S",
@@ -77,6 +80,8 @@ CRAWL_TIME_CONSTANT_S = 1.0
 RELEASE_LEAD_S = 0.15
 #: Frames of the first part of an observation are skipped (the capsule may still be stopping), s.
 OBSERVE_SETTLE_S = 0.3
+#: A crawl held at the force cap this long without the capsule arriving ends (it is stuck), s.
+CAP_HOLD_S = 1.5
 #: A release ends when the lead along û is within this of its target, m.
 _RELEASE_TOL_M = 2e-4
 #: Crawl speed floor as a fraction of the crawl speed: the last fraction of a millimetre is still
@@ -169,6 +174,7 @@ class FinalApproach:
         self._lead_start = 0.0
         self._progress0 = 0.0
         self._capped = False
+        self._capped_since = math.nan
         self._accel = np.zeros(3)
 
     # ------------------------------------------------------------------ state
@@ -248,6 +254,7 @@ class FinalApproach:
         self.phase, self._phase_t0 = "crawl", t_s
         self.attempts += 1
         self._capped = False
+        self._capped_since = math.nan
         fit = fit_window(self.frames, t_s, self.scenario.mpc.approach_window_s)
         capsule = self.target_m - self._dir if fit is None else fit.position_m
         self._lead_start = float((epm[:2] - capsule) @ self._dir)
@@ -260,7 +267,12 @@ class FinalApproach:
             return 0.0
         remaining = float((self.target_m - fit.position_m) @ self._dir)
         speed = float(fit.velocity_mps @ self._dir)
-        if remaining <= max(speed, 0.0) * RELEASE_LEAD_S or t_s - self._phase_t0 >= cfg.approach_attempt_s:
+        held_at_cap = t_s - self._capped_since >= CAP_HOLD_S
+        if (
+            remaining <= max(speed, 0.0) * RELEASE_LEAD_S
+            or t_s - self._phase_t0 >= cfg.approach_attempt_s
+            or held_at_cap
+        ):
             self.phase, self._phase_t0 = "release", t_s
             return self._release(t_s, epm)
         wanted = float(np.clip(remaining / CRAWL_TIME_CONSTANT_S, _MIN_SPEED_FRACTION * self.speed_mps,
@@ -271,7 +283,11 @@ class FinalApproach:
         lead = epm[:2] - fit.position_m
         if along > 0 and self._at_cap(lead, epm[2], disturbance_xy_n):
             self._capped = True
+            if math.isnan(self._capped_since):
+                self._capped_since = t_s
             along = 0.0
+        elif along > 0:
+            self._capped_since = math.nan
         return along
 
     def _at_cap(self, lead_m: np.ndarray, height_m: float, disturbance_xy_n: np.ndarray) -> bool:
@@ -291,7 +307,8 @@ class FinalApproach:
         cfg = self.scenario.mpc
         fit = fit_window(self.frames, t_s, cfg.approach_window_s)
         capsule = fit.position_m if fit is not None else self.target_m
-        excess = float((epm[:2] - capsule) @ self._dir) - (self._lead_start - cfg.approach_backoff_m)
+        target = min(self._lead_start - cfg.approach_backoff_m, float(self.lead_eq_m @ self._dir))
+        excess = float((epm[:2] - capsule) @ self._dir) - target
         if excess <= _RELEASE_TOL_M:
             self.phase, self._phase_t0 = "observe", t_s
             return 0.0
@@ -310,7 +327,7 @@ class FinalApproach:
             self.phase = "done"
             return
         progress = float(fit.position_m @ self._dir) - self._progress0
-        if progress < 0.5 * self.tolerance_m:
+        if progress < self.tolerance_m:
             self.phase = "gave_up"
             cap = " (it reached the force cap)" if self._capped else ""
             self.gave_up_reason = f"stuck: the crawl did not move the capsule{cap}"
