@@ -33,9 +33,10 @@ target, watch the capsule, let go when it arrives. Phases (one :class:`FinalAppr
     ``mpc.approach_attempt_s``, or after :data:`CAP_HOLD_S` at the cap.
 ``release``
     The EPM backs off along -û to the lead it had when the crawl began minus
-    ``mpc.approach_backoff_m``, and at least to the model's equilibrium lead (its component along
-    û), taking the force away so the capsule stops where it is (a capsule that crept under the
-    lead it had before the crawl would creep on past the target).
+    ``mpc.approach_backoff_m``, and at least to the lead at which the controller believes the
+    lateral force vanishes (its force model plus its estimated constant disturbance; the component
+    along û), taking the force away so the capsule stops where it is (a capsule that crept under
+    the lead it had before the crawl would creep on past the target).
 ``observe``
     The EPM holds still for ``mpc.approach_observe_s``; the mean of the frames after the first
     :data:`OBSERVE_SETTLE_S` is where the capsule rests. Within the tolerance: ``done``. Otherwise a
@@ -87,6 +88,9 @@ _RELEASE_TOL_M = 2e-4
 #: Crawl speed floor as a fraction of the crawl speed: the last fraction of a millimetre is still
 #: crawled at a speed the capsule does not stop at.
 _MIN_SPEED_FRACTION = 0.25
+#: Newton's method for the zero-force lead: iterations and the finite-difference step, m.
+_NEWTON_ITERATIONS = 6
+_NEWTON_STEP_M = 1e-6
 #: Largest EPM speed of the crawl and the release, in units of the crawl speed.
 _EPM_SPEED_FACTOR = 4.0
 #: Fewest frames a line fit uses.
@@ -175,6 +179,7 @@ class FinalApproach:
         self._progress0 = 0.0
         self._capped = False
         self._capped_since = math.nan
+        self._release_lead = 0.0
         self._accel = np.zeros(3)
 
     # ------------------------------------------------------------------ state
@@ -234,12 +239,19 @@ class FinalApproach:
         return self._limit(along * np.array([*self._dir, 0.0]), np.asarray(u_prev, dtype=float))
 
     def _trigger(self, t_s: float) -> bool:
-        """At the path's end: whether a crawl starts (the capsule is as slow as a crawl, by the line
-        fit, and off the target); slow and within the tolerance: ``done``, the MPC keeps the EPM."""
-        fit = fit_window(self.frames, t_s, self.scenario.mpc.approach_window_s)
-        if fit is None or float(np.linalg.norm(fit.velocity_mps)) >= self.speed_mps:
+        """At the path's end: whether a crawl starts.
+
+        Once the capsule is slower than a crawl (a line fit over ``mpc.approach_window_s``): within
+        the tolerance both by the line fit and by the mean of the frames, ``done`` (the MPC keeps
+        the EPM); else a crawl starts toward the target.
+        """
+        cfg = self.scenario.mpc
+        fit = fit_window(self.frames, t_s, cfg.approach_window_s)
+        rest = fit_window(self.frames, t_s, cfg.approach_window_s, static=True)
+        if fit is None or rest is None or float(np.linalg.norm(fit.velocity_mps)) >= self.speed_mps:
             return False
-        if float(np.linalg.norm(self.target_m - fit.position_m)) <= self.tolerance_m:
+        off = max(float(np.linalg.norm(self.target_m - p)) for p in (fit.position_m, rest.position_m))
+        if off <= self.tolerance_m:
             self.phase = "done"
             return False
         self._aim(fit.position_m)
@@ -273,7 +285,7 @@ class FinalApproach:
             or t_s - self._phase_t0 >= cfg.approach_attempt_s
             or held_at_cap
         ):
-            self.phase, self._phase_t0 = "release", t_s
+            self._start_release(t_s, epm[2], disturbance_xy_n)
             return self._release(t_s, epm)
         wanted = float(np.clip(remaining / CRAWL_TIME_CONSTANT_S, _MIN_SPEED_FRACTION * self.speed_mps,
                                self.speed_mps))  # fmt: skip
@@ -302,13 +314,39 @@ class FinalApproach:
         along_n = float((f[:2] + disturbance_xy_n) @ self._dir)
         return along_n > scenario.mpc.approach_force_fraction * breakaway_n
 
+    def _start_release(self, t_s: float, height_m: float, disturbance_xy_n: np.ndarray) -> None:
+        """Enter the release: its target lead along û (see the module docstring)."""
+        self.phase, self._phase_t0 = "release", t_s
+        zero = self.zero_force_lead(height_m, disturbance_xy_n)
+        backoff = self._lead_start - self.scenario.mpc.approach_backoff_m
+        self._release_lead = min(backoff, float(zero @ self._dir))
+
+    def zero_force_lead(self, height_m: float, disturbance_xy_n: np.ndarray) -> np.ndarray:
+        """The lead (2,), m, at which the controller believes the lateral force vanishes: its force
+        model plus the estimated constant disturbance (Newton's method from the model's equilibrium
+        lead); the model's equilibrium lead if that does not converge within the coupling limit."""
+        lead = self.lead_eq_m.copy()
+        step = _NEWTON_STEP_M
+        for _ in range(_NEWTON_ITERATIONS):
+            force = np.asarray(self.force(lead, height_m)).ravel()[:2] + disturbance_xy_n
+            jac = np.column_stack([
+                (np.asarray(self.force(lead + dl, height_m)).ravel()[:2]
+                 - np.asarray(self.force(lead - dl, height_m)).ravel()[:2]) / (2.0 * step)
+                for dl in (np.array([step, 0.0]), np.array([0.0, step]))
+            ])  # fmt: skip
+            try:
+                lead = lead - np.linalg.solve(jac, force)
+            except np.linalg.LinAlgError:
+                return self.lead_eq_m.copy()
+        near = float(np.linalg.norm(lead - self.lead_eq_m)) <= self.scenario.limits.max_lead_m
+        return lead if near and bool(np.all(np.isfinite(lead))) else self.lead_eq_m.copy()
+
     def _release(self, t_s: float, epm: np.ndarray) -> float:
         """EPM speed along û while backing off, m/s (<= 0)."""
         cfg = self.scenario.mpc
         fit = fit_window(self.frames, t_s, cfg.approach_window_s)
         capsule = fit.position_m if fit is not None else self.target_m
-        target = min(self._lead_start - cfg.approach_backoff_m, float(self.lead_eq_m @ self._dir))
-        excess = float((epm[:2] - capsule) @ self._dir) - target
+        excess = float((epm[:2] - capsule) @ self._dir) - self._release_lead
         if excess <= _RELEASE_TOL_M:
             self.phase, self._phase_t0 = "observe", t_s
             return 0.0
