@@ -382,15 +382,16 @@ class FinalApproach:
     def _limit(self, u: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
         """A step from ``u_prev`` toward ``u`` within the jerk and acceleration limits (per axis).
 
-        The acceleration changes by at most ``jerk * dt`` per frame and is at most
-        ``sqrt(2 jerk |u - u_prev|)`` (what can still be ramped down before ``u`` is reached), nor
-        more than reaches ``u`` in one frame, so the command does not overshoot ``u``.
+        The wanted acceleration reaches ``u`` in one frame, at most ``sqrt(2 jerk |u - u_prev|)``
+        (what can still be ramped down before ``u`` is reached); the acceleration then changes by
+        at most ``jerk * dt`` from the previous frame's and stays within ``limits.accel_mps2``.
         """
         lim = self.scenario.limits
         dt = self.dt_s
         gap = u - u_prev
-        accel = np.clip(gap / dt, self._accel - lim.jerk_mps3 * dt, self._accel + lim.jerk_mps3 * dt)
-        reach = np.minimum(np.sqrt(2.0 * lim.jerk_mps3 * np.abs(gap)), np.abs(gap) / dt)
-        accel = np.clip(accel, -np.minimum(reach, lim.accel_mps2), np.minimum(reach, lim.accel_mps2))
+        reach = np.minimum(np.sqrt(2.0 * lim.jerk_mps3 * np.abs(gap)), lim.accel_mps2)
+        wanted = np.clip(gap / dt, -reach, reach)
+        accel = np.clip(wanted, self._accel - lim.jerk_mps3 * dt, self._accel + lim.jerk_mps3 * dt)
+        accel = np.clip(accel, -lim.accel_mps2, lim.accel_mps2)
         self._accel = accel
         return u_prev + accel * dt
