@@ -53,10 +53,17 @@ class FakeCapsule:
             self.position_m = target_m + self.jump * err
 
 
-def drive(scenario: Scenario, approach: FinalApproach, capsule: FakeCapsule, seconds: float,
-          epm0: np.ndarray | None = None) -> dict[str, np.ndarray]:  # fmt: skip
+def drive(
+    scenario: Scenario,
+    approach: FinalApproach,
+    capsule: FakeCapsule,
+    seconds: float,
+    epm0: np.ndarray | None = None,
+    blind_from_s: float = math.inf,
+) -> dict[str, np.ndarray]:
     """Run the approach (through the safety layer, as the MPC sends it) on a fake capsule from the
-    path's end; the EPM integrates the commands. Returns the commands, EPM positions and leads."""
+    path's end (every camera frame dropped from ``blind_from_s`` after it); the EPM integrates the
+    commands. Returns the commands, EPM positions and leads."""
     lead_eq = model_equilibrium_lead(scenario)
     h = scenario.plate.epm_height_m
     epm = np.array([*(capsule.position_m + lead_eq), h]) if epm0 is None else epm0.copy()
@@ -64,7 +71,8 @@ def drive(scenario: Scenario, approach: FinalApproach, capsule: FakeCapsule, sec
     cmds, epms, leads = [], [], []
     t = PATH.duration_s - 1.5
     while t < PATH.duration_s + seconds:
-        approach.observe(Measurement(t, t - DT, capsule.position_m.copy()))
+        blind = t >= PATH.duration_s + blind_from_s
+        approach.observe(Measurement(t, t - DT, None if blind else capsule.position_m.copy()))
         u = approach.step(t, epm, u_prev, np.zeros(2))
         u = np.zeros(3) if u is None else u
         cmd, _ = safe_command(u, u_prev, epm, scenario, DT)
@@ -137,6 +145,29 @@ def test_gives_up_after_the_attempt_cap(scenario):
     assert np.all(out["cmd"][-5:] == 0)  # holding
 
 
+def test_gives_up_when_its_time_is_up(scenario):
+    """The same lurching capsule with attempts to spare: the approach stops at mpc.approach_max_s
+    (releasing and observing the crawl under way) and holds."""
+    scn = with_mpc(scenario, approach_max_attempts=20, approach_max_s=6.0)
+    approach = make_approach(scn)
+    out = drive(scn, approach, FakeCapsule(np.array([0.0, 3e-3]), jump=0.9), 25.0)
+    assert approach.phase == "gave_up" and "out of time" in approach.gave_up_reason
+    assert 1 < approach.attempts < 20
+    assert np.all(out["cmd"][-5:] == 0)
+
+
+def test_camera_lost_during_a_crawl_the_approach_still_ends(scenario):
+    """Every frame dropped from 3 s after the path's end (during the crawl): the crawl holds its
+    lead, is released at mpc.approach_attempt_s and the approach gives up at mpc.approach_max_s;
+    commands stay finite."""
+    scn = with_mpc(scenario, approach_max_s=8.0)
+    approach = make_approach(scn)
+    out = drive(scn, approach, FakeCapsule(np.array([0.0, 3e-3])), 20.0, blind_from_s=3.0)
+    assert approach.attempts == 1 and approach.phase == "gave_up" and approach.finished
+    assert "no camera frames" in approach.gave_up_reason
+    assert np.all(np.isfinite(out["cmd"])) and np.all(out["cmd"][-5:] == 0)
+
+
 def test_disabled_approach_never_acts(scenario):
     approach = make_approach(with_mpc(scenario, final_approach=False))
     out = drive(scenario, approach, FakeCapsule(np.array([0.0, 3e-3])), 3.0)
@@ -202,6 +233,7 @@ def test_stuck_capsule_is_not_lurched(scenario):
         ("approach_force_fraction", 1.0),
         ("approach_max_attempts", 0),
         ("approach_attempt_s", 0.0),
+        ("approach_max_s", 0.0),
         ("approach_backoff_m", -1e-3),
         ("approach_window_s", 0.0),
         ("approach_observe_s", 0.2),

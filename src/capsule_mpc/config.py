@@ -667,6 +667,16 @@ class MPCConfig(_Strict):
     approach_attempt_s: Number = Field(
         4.0, gt=0, le=60, description="Longest crawl of one attempt, s, (0, 60]."
     )
+    approach_max_s: Number = Field(
+        12.0,
+        gt=0,
+        le=300,
+        description=(
+            "Time the final approach may take from its first crawl, s, (0, 300]: then it releases, "
+            "observes and holds (with the default sim.tail_s of 15 s the run's timeout leaves room "
+            "for it after any path)."
+        ),
+    )
     approach_backoff_m: Number = Field(
         2e-3,
         ge=0,

@@ -30,7 +30,8 @@ target, watch the capsule, let go when it arrives. Phases (one :class:`FinalAppr
     constant disturbance) stays below ``mpc.approach_force_fraction`` of the model's breakaway
     ``mu0 F_N + f_s``, and ``|lead - lead_eq| <= limits.max_lead_m``. The crawl ends when the
     capsule is about to reach the target (``d <= v̂ * RELEASE_LEAD_S``), has passed it, after
-    ``mpc.approach_attempt_s``, or after :data:`CAP_HOLD_S` at the cap.
+    ``mpc.approach_attempt_s``, after :data:`CAP_HOLD_S` at the cap, or when the approach's time
+    is up.
 ``release``
     The EPM backs off along -û to the lead it had when the crawl began minus
     ``mpc.approach_backoff_m``, and at least to the lead at which the controller believes the
@@ -41,7 +42,8 @@ target, watch the capsule, let go when it arrives. Phases (one :class:`FinalAppr
     The EPM holds still for ``mpc.approach_observe_s``; the mean of the frames after the first
     :data:`OBSERVE_SETTLE_S` is where the capsule rests. Within the tolerance: ``done``. Otherwise a
     new attempt from the measured rest (a new û; the crawl speed halved if it overshot), up to
-    ``mpc.approach_max_attempts``; then, or when an attempt moved the capsule less than the
+    ``mpc.approach_max_attempts`` and ``mpc.approach_max_s`` (a crawl under way when the time is
+    up is released and observed); then, or when an attempt moved the capsule less than the
     tolerance toward the target (it is stuck below the cap, and only a breakaway lurch, far larger
     than the error, would move it), ``gave_up``: the EPM holds.
 
@@ -180,6 +182,7 @@ class FinalApproach:
         self._capped = False
         self._capped_since = math.nan
         self._release_lead = 0.0
+        self._start_s = math.nan
         self._accel = np.zeros(3)
 
     # ------------------------------------------------------------------ state
@@ -264,6 +267,8 @@ class FinalApproach:
 
     def _start_crawl(self, t_s: float, epm: np.ndarray) -> None:
         self.phase, self._phase_t0 = "crawl", t_s
+        if self.attempts == 0:
+            self._start_s = t_s
         self.attempts += 1
         self._capped = False
         self._capped_since = math.nan
@@ -275,18 +280,18 @@ class FinalApproach:
         """EPM speed along û while crawling, m/s."""
         cfg = self.scenario.mpc
         fit = fit_window(self.frames, t_s, cfg.approach_window_s)
-        if fit is None:  # no frames (drops): hold the lead
-            return 0.0
-        remaining = float((self.target_m - fit.position_m) @ self._dir)
-        speed = float(fit.velocity_mps @ self._dir)
-        held_at_cap = t_s - self._capped_since >= CAP_HOLD_S
+        remaining = math.nan if fit is None else float((self.target_m - fit.position_m) @ self._dir)
+        speed = math.nan if fit is None else float(fit.velocity_mps @ self._dir)
         if (
-            remaining <= max(speed, 0.0) * RELEASE_LEAD_S
+            remaining <= max(speed, 0.0) * RELEASE_LEAD_S  # False without frames
             or t_s - self._phase_t0 >= cfg.approach_attempt_s
-            or held_at_cap
+            or t_s - self._capped_since >= CAP_HOLD_S
+            or self._out_of_time(t_s)
         ):
             self._start_release(t_s, epm[2], disturbance_xy_n)
             return self._release(t_s, epm)
+        if fit is None:  # no frames (drops): hold the lead
+            return 0.0
         wanted = float(np.clip(remaining / CRAWL_TIME_CONSTANT_S, _MIN_SPEED_FRACTION * self.speed_mps,
                                self.speed_mps))  # fmt: skip
         along = wanted + (wanted - speed)
@@ -358,11 +363,18 @@ class FinalApproach:
         if t_s - self._phase_t0 < cfg.approach_observe_s:
             return
         fit = fit_window(self.frames, t_s, cfg.approach_observe_s - OBSERVE_SETTLE_S, static=True)
-        if fit is None:  # every frame dropped: keep watching
+        if fit is None:  # every frame dropped: keep watching while there is time
+            if self._out_of_time(t_s):
+                self.phase = "gave_up"
+                self.gave_up_reason = "out of time, no camera frames (mpc.approach_max_s)"
             return
         err = self.target_m - fit.position_m
         if float(np.linalg.norm(err)) <= self.tolerance_m:
             self.phase = "done"
+            return
+        if self._out_of_time(t_s):
+            self.phase = "gave_up"
+            self.gave_up_reason = f"out of time after {t_s - self._start_s:.1f} s (mpc.approach_max_s)"
             return
         progress = float(fit.position_m @ self._dir) - self._progress0
         if progress < self.tolerance_m:
@@ -378,6 +390,10 @@ class FinalApproach:
             self.speed_mps *= 0.5
         self._aim(fit.position_m)
         self._start_crawl(t_s, epm)
+
+    def _out_of_time(self, t_s: float) -> bool:
+        """Whether the approach has used its time (``mpc.approach_max_s`` from its first crawl)."""
+        return t_s - self._start_s >= self.scenario.mpc.approach_max_s
 
     def _limit(self, u: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
         """A step from ``u_prev`` toward ``u`` within the jerk and acceleration limits (per axis).
