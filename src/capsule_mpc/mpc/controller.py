@@ -14,6 +14,11 @@ Every frame:
    shifted previous plan, or else a braking command;
 6. pass it through the safety layer: speed, acceleration and workspace limits
    are enforced on the command actually sent (and any clipping is counted).
+
+After the path's nominal end the final approach (:mod:`.approach`) may take over from step 2
+on: when the MPC has left the capsule slow and off the final waypoint, it crawls it on below
+breakaway, lets go and checks; its commands pass the same safety layer, and the controller is
+not :attr:`finished` (the run does not end at rest) until the approach is over.
 """
 
 from __future__ import annotations
