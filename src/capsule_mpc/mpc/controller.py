@@ -302,7 +302,8 @@ class MPCController(Controller):
 
     @property
     def finished(self) -> bool:
-        """False while the final approach works on the capsule's position (:mod:`.approach`)."""
+        """Whether the final approach (:mod:`.approach`) is over: done, given up, or switched off
+        (``mpc.final_approach``); until then the run does not end at rest."""
         return self.approach.finished
 
     def _fallback_command(self) -> np.ndarray:
