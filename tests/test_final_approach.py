@@ -60,19 +60,24 @@ def drive(
     seconds: float,
     epm0: np.ndarray | None = None,
     blind_from_s: float = math.inf,
+    u0: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Run the approach (through the safety layer, as the MPC sends it) on a fake capsule from the
     path's end (every camera frame dropped from ``blind_from_s`` after it); the EPM integrates the
-    commands. Returns the commands, EPM positions and leads."""
+    commands. ``u0``: the EPM is moving at this command when the path ends (the MPC braking), the
+    frames before it only observed. Returns the commands, EPM positions and leads."""
     lead_eq = model_equilibrium_lead(scenario)
     h = scenario.plate.epm_height_m
     epm = np.array([*(capsule.position_m + lead_eq), h]) if epm0 is None else epm0.copy()
-    u_prev = np.zeros(3)
+    u_prev = np.zeros(3) if u0 is None else np.asarray(u0, dtype=float)
     cmds, epms, leads = [], [], []
     t = PATH.duration_s - 1.5
     while t < PATH.duration_s + seconds:
         blind = t >= PATH.duration_s + blind_from_s
         approach.observe(Measurement(t, t - DT, None if blind else capsule.position_m.copy()))
+        if u0 is not None and t < PATH.duration_s:
+            t += DT
+            continue
         u = approach.step(t, epm, u_prev, np.zeros(2))
         u = np.zeros(3) if u is None else u
         cmd, _ = safe_command(u, u_prev, epm, scenario, DT)
@@ -100,20 +105,23 @@ def test_fit_window_recovers_a_line_and_needs_frames():
     distance=st.floats(0.5e-3, 4e-3),
     angle=st.floats(-math.pi, math.pi),
     epm_offset=st.tuples(st.floats(-3e-3, 3e-3), st.floats(-3e-3, 3e-3)),
+    u0=st.tuples(st.floats(-0.02, 0.02), st.floats(-0.02, 0.02)),
 )
-def test_approach_commands_stay_within_every_limit(scenario, distance, angle, epm_offset):
-    """A stuck capsule at a random offset: every command within the speed, acceleration and jerk
-    limits, the lead within limits.max_lead_m of the model's equilibrium lead; it gives up."""
+def test_approach_commands_stay_within_every_limit(scenario, distance, angle, epm_offset, u0):
+    """A stuck capsule at a random offset, the EPM moving up to 20 mm/s per axis when the approach
+    takes over: every command within the speed, acceleration and jerk limits, the lead within
+    limits.max_lead_m of the model's equilibrium lead; it gives up."""
     approach = make_approach(scenario)
     capsule = FakeCapsule(distance * np.array([math.cos(angle), math.sin(angle)]))
     lead_eq = model_equilibrium_lead(scenario)
     epm0 = np.array([*(capsule.position_m + lead_eq + np.array(epm_offset)), scenario.plate.epm_height_m])
-    out = drive(scenario, approach, capsule, 12.0, epm0)
+    start = np.array([*u0, 0.0])
+    out = drive(scenario, approach, capsule, 12.0, epm0, u0=start)
     lim = scenario.limits
     cmd = out["cmd"]
     assert np.all(np.isfinite(cmd))
     assert np.max(np.abs(cmd)) <= lim.speed_mps + 1e-12
-    accel = np.diff(np.vstack([np.zeros(3), cmd]), axis=0) / DT
+    accel = np.diff(np.vstack([start, cmd]), axis=0) / DT
     assert np.max(np.abs(accel)) <= lim.accel_mps2 + 1e-9
     jerk = np.diff(accel, axis=0) / DT
     assert np.max(np.abs(jerk)) <= lim.jerk_mps3 * (1 + 1e-6)
