@@ -166,7 +166,8 @@ def test_gives_up_when_its_time_is_up(scenario):
 
 def test_camera_lost_during_a_crawl_the_approach_still_ends(scenario):
     """Every frame dropped from 3 s after the path's end (during the crawl): the crawl holds its
-    lead, is released at mpc.approach_attempt_s and the approach gives up at mpc.approach_max_s;
+    lead, is released mpc.approach_attempt_s after its last progress and the approach gives up at
+    mpc.approach_max_s;
     commands stay finite."""
     scn = with_mpc(scenario, approach_max_s=8.0)
     approach = make_approach(scn)

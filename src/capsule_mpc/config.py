@@ -665,7 +665,13 @@ class MPCConfig(_Strict):
         3, ge=1, le=20, description="Crawls the final approach tries before it holds, [1, 20]."
     )
     approach_attempt_s: Number = Field(
-        4.0, gt=0, le=60, description="Longest crawl of one attempt, s, (0, 60]."
+        4.0,
+        gt=0,
+        le=60,
+        description=(
+            "A crawl ends when the capsule has not come closer to the final waypoint by "
+            "final_tolerance_m for this long, s, (0, 60] (it is stuck below the force cap)."
+        ),
     )
     approach_max_s: Number = Field(
         12.0,

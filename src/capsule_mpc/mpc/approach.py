@@ -29,9 +29,10 @@ target, watch the capsule, let go when it arrives. Phases (one :class:`FinalAppr
     model (never the plant's truth): the model force along û (force model plus the estimated
     constant disturbance) stays below ``mpc.approach_force_fraction`` of the model's breakaway
     ``mu0 F_N + f_s``, and ``|lead - lead_eq| <= limits.max_lead_m``. The crawl ends when the
-    capsule is about to reach the target (``d <= v̂ * RELEASE_LEAD_S``), has passed it, after
-    ``mpc.approach_attempt_s``, after :data:`CAP_HOLD_S` at the cap, or when the approach's time
-    is up.
+    capsule is about to reach the target (``d <= v̂ * RELEASE_LEAD_S``), has passed it, has not
+    come closer by the tolerance for ``mpc.approach_attempt_s`` (it is stuck below the cap), or
+    when the approach's time is up. A capsule still creeping on is never let go short of the
+    target (stopped, it would have to break loose again): out of time, the EPM holds the lead.
 ``release``
     The EPM backs off along -û to the lead it had when the crawl began minus
     ``mpc.approach_backoff_m``, and at least to the lead at which the controller believes the
@@ -66,7 +67,6 @@ from ..dynamics import normal_force_expr
 from ..paths import ReferencePath
 
 __all__ = [
-    "CAP_HOLD_S",
     "CRAWL_TIME_CONSTANT_S",
     "OBSERVE_SETTLE_S",
     "RELEASE_LEAD_S",
@@ -83,8 +83,6 @@ CRAWL_TIME_CONSTANT_S = 1.0
 RELEASE_LEAD_S = 0.15
 #: Frames of the first part of an observation are skipped (the capsule may still be stopping), s.
 OBSERVE_SETTLE_S = 0.3
-#: A crawl held at the force cap this long without the capsule arriving ends (it is stuck), s.
-CAP_HOLD_S = 1.5
 #: A release ends when the lead along û is within this of its target, m.
 _RELEASE_TOL_M = 2e-4
 #: Crawl speed floor as a fraction of the crawl speed: the last fraction of a millimetre is still
@@ -180,7 +178,8 @@ class FinalApproach:
         self._lead_start = 0.0
         self._progress0 = 0.0
         self._capped = False
-        self._capped_since = math.nan
+        self._best_remaining = math.inf
+        self._progress_t = math.nan
         self._release_lead = 0.0
         self._start_s = math.nan
         self._accel = np.zeros(3)
@@ -271,7 +270,8 @@ class FinalApproach:
             self._start_s = t_s
         self.attempts += 1
         self._capped = False
-        self._capped_since = math.nan
+        self._best_remaining = math.inf
+        self._progress_t = t_s
         fit = fit_window(self.frames, t_s, self.scenario.mpc.approach_window_s)
         capsule = self.target_m - self._dir if fit is None else fit.position_m
         self._lead_start = float((epm[:2] - capsule) @ self._dir)
@@ -282,12 +282,15 @@ class FinalApproach:
         fit = fit_window(self.frames, t_s, cfg.approach_window_s)
         remaining = math.nan if fit is None else float((self.target_m - fit.position_m) @ self._dir)
         speed = math.nan if fit is None else float(fit.velocity_mps @ self._dir)
-        if (
-            remaining <= max(speed, 0.0) * RELEASE_LEAD_S  # False without frames
-            or t_s - self._phase_t0 >= cfg.approach_attempt_s
-            or t_s - self._capped_since >= CAP_HOLD_S
-            or self._out_of_time(t_s)
-        ):
+        if remaining < self._best_remaining - self.tolerance_m:  # False without frames
+            self._best_remaining, self._progress_t = remaining, t_s
+        progressing = t_s - self._progress_t < cfg.approach_attempt_s
+        if self._out_of_time(t_s) and progressing and remaining > 0:
+            # Still creeping on toward the target: letting go would stop it short; hold the lead.
+            self.phase = "gave_up"
+            self.gave_up_reason = "out of time while the capsule crept on; holding (mpc.approach_max_s)"
+            return 0.0
+        if remaining <= max(speed, 0.0) * RELEASE_LEAD_S or not progressing or self._out_of_time(t_s):
             self._start_release(t_s, epm[2], disturbance_xy_n)
             return self._release(t_s, epm)
         if fit is None:  # no frames (drops): hold the lead
@@ -300,11 +303,7 @@ class FinalApproach:
         lead = epm[:2] - fit.position_m
         if along > 0 and self._at_cap(lead, epm[2], disturbance_xy_n):
             self._capped = True
-            if math.isnan(self._capped_since):
-                self._capped_since = t_s
             along = 0.0
-        elif along > 0:
-            self._capped_since = math.nan
         return along
 
     def _at_cap(self, lead_m: np.ndarray, height_m: float, disturbance_xy_n: np.ndarray) -> bool:
