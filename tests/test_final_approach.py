@@ -38,13 +38,24 @@ def make_approach(scenario: Scenario) -> FinalApproach:
 class FakeCapsule:
     """A capsule that stays put, or -- ``jump`` -- lurches past the target (its error mirrored and
     scaled by ``jump``) once the lead along its error exceeds the model's equilibrium lead by
-    ``trigger_m`` during a crawl (a lurch from the crawl's push, never from a release)."""
+    ``trigger_m`` during a crawl (a lurch from the crawl's push, never from a release), or --
+    ``creep_mps`` -- creeps toward the target at that speed whatever the EPM does."""
 
-    def __init__(self, position_m: np.ndarray, jump: float | None = None, trigger_m: float = 3e-3) -> None:
+    def __init__(
+        self,
+        position_m: np.ndarray,
+        jump: float | None = None,
+        trigger_m: float = 3e-3,
+        creep_mps: float = 0.0,
+    ) -> None:
         self.position_m = np.asarray(position_m, dtype=float)
-        self.jump, self.trigger_m = jump, trigger_m
+        self.jump, self.trigger_m, self.creep_mps = jump, trigger_m, creep_mps
 
     def update(self, epm_m: np.ndarray, target_m: np.ndarray, lead_eq_m: np.ndarray, crawling: bool) -> None:
+        err = target_m - self.position_m
+        distance = float(np.linalg.norm(err))
+        if self.creep_mps > 0 and distance > 0:
+            self.position_m = self.position_m + min(self.creep_mps * DT, distance) * err / distance
         if self.jump is None or not crawling:
             return
         err = target_m - self.position_m
@@ -162,6 +173,19 @@ def test_gives_up_when_its_time_is_up(scenario):
     assert approach.phase == "gave_up" and "out of time" in approach.gave_up_reason
     assert 1 < approach.attempts < 20
     assert np.all(out["cmd"][-5:] == 0)
+
+
+def test_out_of_time_while_creeping_on_it_holds_the_lead(scenario):
+    """A capsule creeping toward the target at 0.3 mm/s whatever the EPM does: when
+    mpc.approach_max_s is up the crawl is not released (a stopped capsule would have to break loose
+    again) -- the approach gives up and the EPM holds."""
+    scn = with_mpc(scenario, approach_max_s=3.0)
+    approach = make_approach(scn)
+    out = drive(scn, approach, FakeCapsule(np.array([0.0, 4e-3]), creep_mps=3e-4), 8.0)
+    assert approach.attempts == 1 and approach.phase == "gave_up"
+    assert "crept on" in approach.gave_up_reason
+    assert np.all(np.abs(out["cmd"][-5:]) < 1e-12)  # holding
+    assert np.all(out["cmd"][:, 1] <= 1e-12)  # the EPM only ever moved toward the target (-y)
 
 
 def test_camera_lost_during_a_crawl_the_approach_still_ends(scenario):
