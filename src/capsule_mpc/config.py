@@ -678,6 +678,92 @@ class MPCConfig(_Strict):
             "cached on disk by a hash of the problem. Falls back, with a warning, if gcc fails."
         ),
     )
+    # Final approach (capsule_mpc.mpc.approach): after the path's end, crawl the capsule onto the
+    # final waypoint when the MPC left it short of (or past) it.
+    final_approach: StrictBool = Field(
+        True,
+        description=(
+            "After the path's nominal end, when the capsule is slower than approach_speed_mps and "
+            "farther than final_tolerance_m from the final waypoint, drag the EPM slowly toward it "
+            "(a crawl below breakaway), let go on arrival and check (capsule_mpc.mpc.approach)."
+        ),
+    )
+    final_tolerance_m: Number = Field(
+        3e-4,
+        gt=0,
+        le=0.005,
+        description=(
+            "Measured distance to the final waypoint within which the capsule counts as arrived, m, "
+            "(0, 0.005]; judged on the mean of the frames of an observation (approach_observe_s)."
+        ),
+    )
+    approach_speed_mps: Number = Field(
+        1.5e-3,
+        gt=0,
+        le=0.01,
+        description=(
+            "Crawl speed of the final approach, m/s, (0, 0.01]: the desired capsule speed is the "
+            "remaining distance over 1 s, between a quarter of this and this; halved after an "
+            "overshoot. Also the speed below which the approach may start."
+        ),
+    )
+    approach_force_fraction: Number = Field(
+        0.6,
+        gt=0,
+        lt=1,
+        description=(
+            "Cap of the crawl's force: the model's lateral force along the approach (plus the "
+            "estimated disturbance) stays below this fraction of the model's breakaway "
+            "(friction.mu0 F_N + friction.tether_drag_n), (0, 1): a capsule that breaks away from "
+            "rest lurches millimetres, so the crawl never tries to break it loose."
+        ),
+    )
+    approach_max_attempts: Integer = Field(
+        3, ge=1, le=20, description="Crawls the final approach tries before it holds, [1, 20]."
+    )
+    approach_attempt_s: Number = Field(
+        4.0,
+        gt=0,
+        le=60,
+        description=(
+            "A crawl ends when the capsule has not come closer to the final waypoint by "
+            "final_tolerance_m for this long, s, (0, 60] (it is stuck below the force cap)."
+        ),
+    )
+    approach_max_s: Number = Field(
+        12.0,
+        gt=0,
+        le=300,
+        description=(
+            "Time the final approach may take from its first crawl, s, (0, 300]: then it releases, "
+            "observes and holds (with the default sim.tail_s of 15 s the run's timeout leaves room "
+            "for it after any path)."
+        ),
+    )
+    approach_backoff_m: Number = Field(
+        2e-3,
+        ge=0,
+        le=0.01,
+        description=(
+            "After a crawl the EPM backs off to the lead it had when the crawl began, minus this, "
+            "m, [0, 0.01] (takes the creep force away)."
+        ),
+    )
+    approach_window_s: Number = Field(
+        1.0,
+        gt=0,
+        le=5,
+        description="Camera frames a line is fitted to for the capsule's position and speed, s, (0, 5].",
+    )
+    approach_observe_s: Number = Field(
+        1.0,
+        gt=0.3,
+        le=10,
+        description=(
+            "The EPM holds this long after a crawl before the capsule's rest is judged (the mean of "
+            "the frames after the first 0.3 s), s, (0.3, 10]."
+        ),
+    )
 
 
 _Vec3 = tuple[Number, Number, Number]

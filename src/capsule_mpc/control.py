@@ -98,6 +98,16 @@ class Controller(ABC):
         """The capsule positions (N, 2) the controller predicted at its last step, if it predicts."""
         return None
 
+    @property
+    def finished(self) -> bool:
+        """Whether the controller is done moving the capsule (True unless it says otherwise).
+
+        A run may end at rest after the path only when this is True: a controller still working
+        on the final position (the MPC's final approach) holds the end off (the run's timeout
+        still applies).
+        """
+        return True
+
 
 _REGISTRY: dict[str, Callable[..., Controller]] = {}
 #: Modules that register controllers when imported (kept lazy: no heavy imports at start-up).

@@ -16,6 +16,11 @@ Every frame:
    shifted previous plan, or else a braking command;
 6. pass it through the safety layer: speed, acceleration and workspace limits
    are enforced on the command actually sent (and any clipping is counted).
+
+After the path's nominal end the final approach (:mod:`.approach`) may take over from step 2
+on: when the MPC has left the capsule slow and off the final waypoint, it crawls it on below
+breakaway, lets go and checks; its commands pass the same safety layer, and the controller is
+not :attr:`finished` (the run does not end at rest) until the approach is over.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from ..magnetics import cache_directory, capsule_force_function, model_equilibri
 from ..paths import ReferencePath
 from ..safety import safe_command
 from .adaptation import FrictionOffsetRLS, friction_regression
+from .approach import FinalApproach
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 
@@ -156,6 +162,7 @@ class MPCController(Controller):
         self._calibrated = False
         self.fallback_steps = 0
         self.deadline_misses = 0
+        self.approach = FinalApproach(scenario, path, self.stack.force, self.stack.ocp.lead_eq_m, self.dt_s)
 
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
@@ -278,6 +285,10 @@ class MPCController(Controller):
             measurement = replace(measurement, position_m=None)
         pos, vel = self.estimator.estimate(t_s)
         self._calibrate_rest_offset(t_s, epm, measurement)
+        self.approach.observe(measurement)
+        u_approach = self.approach.step(t_s, epm, self.u_prev, self.disturbance_n[0:2])
+        if u_approach is not None:
+            return self._approach_command(u_approach, epm)
         x0 = np.concatenate([pos, vel, epm])
         if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
             self._update_disturbance(vel)
@@ -318,6 +329,21 @@ class MPCController(Controller):
         stats.status = "failed: " + res.status
         self.fallback_steps += 1
         return self._emit(self._fallback_command(), epm, stats, hold=t_s < 0)
+
+    def _approach_command(self, u: np.ndarray, epm: np.ndarray) -> Command:
+        """The final approach's command (:mod:`.approach`): the MPC's plan is dropped (a new one is
+        solved from scratch should the MPC take over again) and it predicts nothing."""
+        self.plan = None
+        self.last_prediction = None
+        attempts = float(self.approach.attempts)
+        stats = StepStats(status=f"approach: {self.approach.phase}", extra={"approach_attempts": attempts})
+        return self._emit(u, epm, stats)
+
+    @property
+    def finished(self) -> bool:
+        """Whether the final approach (:mod:`.approach`) is over: done, given up, or switched off
+        (``mpc.final_approach``); until then the run does not end at rest."""
+        return self.approach.finished
 
     def _fallback_command(self) -> np.ndarray:
         """The previous plan's next command while the plan lasts, else brake.

@@ -27,8 +27,10 @@ frame).
 
 A run ends at the first of:
 
-* *at rest*: t >= the path's nominal duration and the capsule has been at rest
-  (slower than ``sim.rest_speed_mps``) for ``sim.rest_hold_s``; never while it moves;
+* *at rest*: t >= the path's nominal duration, the controller says it is finished
+  (:attr:`~capsule_mpc.control.Controller.finished`: the MPC's final approach is over) and the
+  capsule has been at rest (slower than ``sim.rest_speed_mps``) for ``sim.rest_hold_s``; never
+  while it moves;
 * *decoupled* / *dropped*: the plant failed (see :mod:`.plant`); a last row is
   logged at the failure time;
 * *timed out*: t reaches ``1.25 * nominal duration + sim.tail_s``.
@@ -575,11 +577,11 @@ class _Loop:
         row["progress_m"] = self.tracker.update(plant.position_m)
         return row
 
-    def at_rest_after_end(self, t: float) -> bool:
+    def at_rest_after_end(self, t: float, finished: bool = True) -> bool:
         """Whether the capsule has rested (speed < ``sim.rest_speed_mps``) for ``sim.rest_hold_s``
-        after the path's nominal end."""
+        after the path's nominal end, with the controller ``finished`` (:attr:`Controller.finished`)."""
         slow = math.hypot(self.plant.vx, self.plant.vy) < self.scenario.sim.rest_speed_mps
-        resting = slow and t >= self.path.duration_s
+        resting = slow and t >= self.path.duration_s and finished
         self.rest_s = self.rest_s + self.frame_s if resting else 0.0
         return self.rest_s >= self.scenario.sim.rest_hold_s - 1e-9
 
@@ -714,7 +716,7 @@ def simulate(
         row["solver_failed"] = int(step_stats.failed)
         log.add(row)
         bar.update(loop.frame_s)
-        if loop.at_rest_after_end(t):
+        if loop.at_rest_after_end(t, ctrl.finished):
             flags.at_rest = True
             break
     else:

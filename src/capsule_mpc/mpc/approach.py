@@ -1,0 +1,412 @@
+"""The final approach: bring a capsule that stopped short of (or past) the final waypoint onto it.
+
+After the path's nominal end the MPC has braked the capsule; on a real plate it then either sticks
+(static friction) or creeps on at a fraction of a mm/s under a force its smoothed friction model
+believes moves it briskly, and it comes to rest a millimetre or two off. What the physics offers,
+measured on the ``lab`` plant (a capsule held at rest, the EPM pushed out along one axis and back):
+
+* a *breakaway pulse* from rest does not place the capsule: once the lateral force passes the
+  healed static friction the capsule lurches until the magnetic spring has taken the excess back,
+  2.4-5 mm along x (stiff axis) and ~14 mm along y, whatever the pulse's size beyond breakaway
+  (the slide is ``2 (F_static - F_sliding) / k``, set by the friction, not by the pulse);
+* below breakaway, a capsule that still moves *creeps*, its speed growing steeply with the force
+  (rate-and-state friction is velocity-strengthening), so a slowly dragged EPM makes it crawl at
+  about the EPM's speed and it stops within a few micrometres when the force is taken away.
+
+So the approach does what an operator does with a sticky slide: drag the magnet slowly toward the
+target, watch the capsule, let go when it arrives. Phases (one :class:`FinalApproach` per run):
+
+``tracking``
+    The MPC is in control. From the path's nominal end on, once the capsule's measured speed
+    (a line fit over ``mpc.approach_window_s`` of camera frames) is below ``mpc.approach_speed_mps``:
+    within ``mpc.final_tolerance_m`` of the end it is ``done``; otherwise a *crawl* starts.
+``crawl``
+    The EPM moves along the direction to the target, û, fixed for the attempt, at the desired
+    crawl speed ``v_d = clip(d / τ, v/4, v)`` (d the remaining distance along û, τ
+    :data:`CRAWL_TIME_CONSTANT_S`, v = ``mpc.approach_speed_mps`` halved after each overshoot)
+    plus the speed error ``v_d - v̂`` (v̂ the measured speed along û): a stuck or slow capsule sees
+    the lead, hence the force, grow until it moves. The lead is capped by the controller's own
+    model (never the plant's truth): the model force along û (force model plus the estimated
+    constant disturbance) stays below ``mpc.approach_force_fraction`` of the model's breakaway
+    ``mu0 F_N + f_s``, and ``|lead - lead_eq| <= limits.max_lead_m``. The crawl ends when the
+    capsule is about to reach the target (``d <= v̂ * RELEASE_LEAD_S``), has passed it, has not
+    come closer by the tolerance for ``mpc.approach_attempt_s`` (it is stuck below the cap), or
+    when the approach's time is up. A capsule still creeping on is never let go short of the
+    target (stopped, it would have to break loose again): out of time, the EPM holds the lead.
+``release``
+    The EPM backs off along -û to the lead it had when the crawl began minus
+    ``mpc.approach_backoff_m``, and at least to the lead at which the controller believes the
+    lateral force vanishes (its force model plus its estimated constant disturbance; the component
+    along û), taking the force away so the capsule stops where it is (a capsule that crept under
+    the lead it had before the crawl would creep on past the target).
+``observe``
+    The EPM holds still for ``mpc.approach_observe_s``; the mean of the frames after the first
+    :data:`OBSERVE_SETTLE_S` is where the capsule rests. Within the tolerance: ``done``. Otherwise a
+    new attempt from the measured rest (a new û; the crawl speed halved if it overshot), up to
+    ``mpc.approach_max_attempts`` and ``mpc.approach_max_s`` (a crawl under way when the time is
+    up is released and observed); then, or when an attempt moved the capsule less than the
+    tolerance toward the target (it is stuck below the cap, and only a breakaway lurch, far larger
+    than the error, would move it), ``gave_up``: the EPM holds.
+
+Every command passes a jerk and acceleration limiter here (``limits.jerk_mps3``,
+``limits.accel_mps2``) and then the controller's safety layer (:func:`capsule_mpc.safety.safe_command`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ..config import Scenario
+from ..control import Measurement
+from ..dynamics import normal_force_expr
+from ..paths import ReferencePath
+
+__all__ = [
+    "CRAWL_TIME_CONSTANT_S",
+    "OBSERVE_SETTLE_S",
+    "RELEASE_LEAD_S",
+    "FinalApproach",
+    "RestFit",
+    "fit_window",
+]
+
+#: Time constant of the crawl speed profile, s: the desired speed is the remaining distance over
+#: this (bounded), so a 1 mm error is crawled in about a second.
+CRAWL_TIME_CONSTANT_S = 1.0
+#: The crawl lets go this long before the capsule would reach the target at its measured speed, s:
+#: about the time the EPM needs to back off (a few mm at the acceleration limit) plus a frame.
+RELEASE_LEAD_S = 0.15
+#: Frames of the first part of an observation are skipped (the capsule may still be stopping), s.
+OBSERVE_SETTLE_S = 0.3
+#: A release ends when the lead along û is within this of its target, m.
+_RELEASE_TOL_M = 2e-4
+#: Crawl speed floor as a fraction of the crawl speed: the last fraction of a millimetre is still
+#: crawled at a speed the capsule does not stop at.
+_MIN_SPEED_FRACTION = 0.25
+#: Newton's method for the zero-force lead: iterations and the finite-difference step, m.
+_NEWTON_ITERATIONS = 6
+_NEWTON_STEP_M = 1e-6
+#: Largest EPM speed of the crawl and the release, in units of the crawl speed.
+_EPM_SPEED_FACTOR = 4.0
+#: Fewest frames a line fit uses.
+_MIN_FRAMES = 4
+
+
+@dataclass(frozen=True)
+class RestFit:
+    """A line fitted to recent camera frames: the position now (2,), m, and the velocity (2,), m/s."""
+
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    frames: int
+
+
+def fit_window(
+    frames: deque[tuple[float, np.ndarray]], t_s: float, window_s: float, static: bool = False
+) -> RestFit | None:
+    """Least-squares line through the frames captured in ``[t_s - window_s, t_s]``, evaluated at ``t_s``.
+
+    Parameters
+    ----------
+    frames : deque of (capture time s, position (2,) m)
+        Recent camera frames, oldest first.
+    t_s : float
+        Time the fit is evaluated at, s.
+    window_s : float
+        Length of the window, s.
+    static : bool
+        Fit a constant (the mean; velocity 0) instead of a line: a capsule known to be at rest.
+
+    Returns
+    -------
+    RestFit or None
+        None with fewer than :data:`_MIN_FRAMES` frames in the window.
+    """
+    sel = [(tc, p) for tc, p in frames if t_s - window_s <= tc <= t_s]
+    if len(sel) < _MIN_FRAMES:
+        return None
+    times = np.array([tc for tc, _ in sel]) - t_s
+    pos = np.array([p for _, p in sel])
+    if static:
+        return RestFit(pos.mean(axis=0), np.zeros(2), len(sel))
+    design = np.column_stack([np.ones_like(times), times])
+    coef, *_ = np.linalg.lstsq(design, pos, rcond=None)
+    return RestFit(coef[0], coef[1], len(sel))
+
+
+class FinalApproach:
+    """The final-approach state machine of one run (see the module docstring).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The controller's scenario (its ``mpc`` approach settings, limits and nominal friction).
+    path : ReferencePath
+        The reference; the target is its last point, the approach may start at its nominal end.
+    force : casadi.Function
+        The controller's force model ``(lead (2), height) -> (F_x, F_y, F_att)``, N.
+    lead_eq_m : numpy.ndarray (2,)
+        The model's equilibrium lead (the coupling limit's centre), m.
+    dt_s : float
+        The controller's frame period, s.
+    """
+
+    def __init__(
+        self, scenario: Scenario, path: ReferencePath, force: ca.Function, lead_eq_m: np.ndarray, dt_s: float
+    ) -> None:
+        cfg = scenario.mpc
+        self.scenario = scenario
+        self.enabled = cfg.final_approach
+        self.target_m = np.asarray(path.end_m, dtype=float)
+        self.end_s = path.duration_s
+        self.force = force
+        self.lead_eq_m = np.asarray(lead_eq_m, dtype=float)
+        self.dt_s = dt_s
+        self.tolerance_m = cfg.final_tolerance_m
+        self.speed_mps = cfg.approach_speed_mps
+        self.frames: deque[tuple[float, np.ndarray]] = deque()
+        self.phase = "tracking"
+        self.attempts = 0
+        self.gave_up_reason = ""
+        self._dir = np.zeros(2)
+        self._phase_t0 = math.nan
+        self._lead_start = 0.0
+        self._progress0 = 0.0
+        self._capped = False
+        self._best_remaining = math.inf
+        self._progress_t = math.nan
+        self._release_lead = 0.0
+        self._start_s = math.nan
+        self._accel = np.zeros(3)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def finished(self) -> bool:
+        """Whether the approach has ended (done or given up), or is off: the run may end at rest."""
+        return not self.enabled or self.phase in ("done", "gave_up")
+
+    @property
+    def in_control(self) -> bool:
+        """Whether the approach, not the MPC, commands the EPM: from its first crawl on (after it
+        the EPM holds); never if the capsule was within the tolerance when the path ended."""
+        return self.enabled and self.attempts > 0
+
+    def observe(self, measurement: Measurement) -> None:
+        """Keep the frame (dropped frames carry nothing); frames older than a few windows are forgotten."""
+        if measurement.position_m is None:
+            return
+        self.frames.append((measurement.capture_t_s, np.asarray(measurement.position_m, dtype=float)))
+        cfg = self.scenario.mpc
+        horizon = 2.0 * max(cfg.approach_window_s, cfg.approach_observe_s)
+        while self.frames and self.frames[0][0] < measurement.capture_t_s - horizon:
+            self.frames.popleft()
+
+    # ------------------------------------------------------------------ step
+    def step(
+        self, t_s: float, epm_position_m: np.ndarray, u_prev: np.ndarray, disturbance_xy_n: np.ndarray
+    ) -> np.ndarray | None:
+        """This frame's EPM velocity command (3,), m/s, or None while the MPC keeps control.
+
+        Parameters
+        ----------
+        t_s : float
+            Frame time, s.
+        epm_position_m : numpy.ndarray (3,)
+            EPM position the arm reports (x, y, height), m.
+        u_prev : numpy.ndarray (3,)
+            The command sent at the previous frame, m/s.
+        disturbance_xy_n : numpy.ndarray (2,)
+            The controller's estimated constant force on the capsule, N (part of its belief).
+        """
+        if not self.enabled or t_s < self.end_s:
+            return None
+        epm = np.asarray(epm_position_m, dtype=float)
+        if self.phase == "tracking" and self._trigger(t_s):
+            self._start_crawl(t_s, epm)
+        if not self.in_control:
+            return None
+        if self.phase == "crawl":
+            along = self._crawl(t_s, epm, np.asarray(disturbance_xy_n, dtype=float))
+        elif self.phase == "release":
+            along = self._release(t_s, epm)
+        else:
+            if self.phase == "observe":
+                self._observe_step(t_s, epm)
+            along = 0.0
+        return self._limit(along * np.array([*self._dir, 0.0]), np.asarray(u_prev, dtype=float))
+
+    def _trigger(self, t_s: float) -> bool:
+        """At the path's end: whether a crawl starts.
+
+        Once the capsule is slower than a crawl (a line fit over ``mpc.approach_window_s``): within
+        the tolerance both by the line fit and by the mean of the frames, ``done`` (the MPC keeps
+        the EPM); else a crawl starts toward the target.
+        """
+        cfg = self.scenario.mpc
+        fit = fit_window(self.frames, t_s, cfg.approach_window_s)
+        rest = fit_window(self.frames, t_s, cfg.approach_window_s, static=True)
+        if fit is None or rest is None or float(np.linalg.norm(fit.velocity_mps)) >= self.speed_mps:
+            return False
+        off = max(float(np.linalg.norm(self.target_m - p)) for p in (fit.position_m, rest.position_m))
+        if off <= self.tolerance_m:
+            self.phase = "done"
+            return False
+        self._aim(fit.position_m)
+        return True
+
+    def _aim(self, position_m: np.ndarray) -> None:
+        err = self.target_m - position_m
+        self._dir = err / float(np.linalg.norm(err))
+        self._progress0 = float(position_m @ self._dir)
+
+    def _start_crawl(self, t_s: float, epm: np.ndarray) -> None:
+        self.phase, self._phase_t0 = "crawl", t_s
+        if self.attempts == 0:
+            self._start_s = t_s
+        self.attempts += 1
+        self._capped = False
+        self._best_remaining = math.inf
+        self._progress_t = t_s
+        fit = fit_window(self.frames, t_s, self.scenario.mpc.approach_window_s)
+        capsule = self.target_m - self._dir if fit is None else fit.position_m
+        self._lead_start = float((epm[:2] - capsule) @ self._dir)
+
+    def _crawl(self, t_s: float, epm: np.ndarray, disturbance_xy_n: np.ndarray) -> float:
+        """EPM speed along û while crawling, m/s."""
+        cfg = self.scenario.mpc
+        fit = fit_window(self.frames, t_s, cfg.approach_window_s)
+        remaining = math.nan if fit is None else float((self.target_m - fit.position_m) @ self._dir)
+        speed = math.nan if fit is None else float(fit.velocity_mps @ self._dir)
+        if remaining < self._best_remaining - self.tolerance_m:  # False without frames
+            self._best_remaining, self._progress_t = remaining, t_s
+        progressing = t_s - self._progress_t < cfg.approach_attempt_s
+        if self._out_of_time(t_s) and progressing and remaining > 0:
+            # Still creeping on toward the target: letting go would stop it short; hold the lead.
+            self.phase = "gave_up"
+            self.gave_up_reason = "out of time while the capsule crept on; holding (mpc.approach_max_s)"
+            return 0.0
+        if remaining <= max(speed, 0.0) * RELEASE_LEAD_S or not progressing or self._out_of_time(t_s):
+            self._start_release(t_s, epm[2], disturbance_xy_n)
+            return self._release(t_s, epm)
+        if fit is None:  # no frames (drops): hold the lead
+            return 0.0
+        wanted = float(np.clip(remaining / CRAWL_TIME_CONSTANT_S, _MIN_SPEED_FRACTION * self.speed_mps,
+                               self.speed_mps))  # fmt: skip
+        along = wanted + (wanted - speed)
+        limit = _EPM_SPEED_FACTOR * self.speed_mps
+        along = float(np.clip(along, -limit, limit))
+        lead = epm[:2] - fit.position_m
+        if along > 0 and self._at_cap(lead, epm[2], disturbance_xy_n):
+            self._capped = True
+            along = 0.0
+        return along
+
+    def _at_cap(self, lead_m: np.ndarray, height_m: float, disturbance_xy_n: np.ndarray) -> bool:
+        """Whether more lead along û would pass the model's force cap or the coupling limit."""
+        scenario = self.scenario
+        ahead = lead_m + self._dir * self.dt_s * _EPM_SPEED_FACTOR * self.speed_mps
+        if float(np.linalg.norm(ahead - self.lead_eq_m)) > scenario.limits.max_lead_m:
+            return True
+        f = np.asarray(self.force(ahead, height_m)).ravel()
+        normal_n = float(normal_force_expr(scenario, float(f[2])))
+        breakaway_n = scenario.friction.mu0 * max(normal_n, 0.0) + scenario.friction.tether_drag_n
+        along_n = float((f[:2] + disturbance_xy_n) @ self._dir)
+        return along_n > scenario.mpc.approach_force_fraction * breakaway_n
+
+    def _start_release(self, t_s: float, height_m: float, disturbance_xy_n: np.ndarray) -> None:
+        """Enter the release: its target lead along û (see the module docstring)."""
+        self.phase, self._phase_t0 = "release", t_s
+        zero = self.zero_force_lead(height_m, disturbance_xy_n)
+        backoff = self._lead_start - self.scenario.mpc.approach_backoff_m
+        self._release_lead = min(backoff, float(zero @ self._dir))
+
+    def zero_force_lead(self, height_m: float, disturbance_xy_n: np.ndarray) -> np.ndarray:
+        """The lead (2,), m, at which the controller believes the lateral force vanishes: its force
+        model plus the estimated constant disturbance (Newton's method from the model's equilibrium
+        lead); the model's equilibrium lead if that does not converge within the coupling limit."""
+        lead = self.lead_eq_m.copy()
+        step = _NEWTON_STEP_M
+        for _ in range(_NEWTON_ITERATIONS):
+            force = np.asarray(self.force(lead, height_m)).ravel()[:2] + disturbance_xy_n
+            jac = np.column_stack([
+                (np.asarray(self.force(lead + dl, height_m)).ravel()[:2]
+                 - np.asarray(self.force(lead - dl, height_m)).ravel()[:2]) / (2.0 * step)
+                for dl in (np.array([step, 0.0]), np.array([0.0, step]))
+            ])  # fmt: skip
+            try:
+                lead = lead - np.linalg.solve(jac, force)
+            except np.linalg.LinAlgError:
+                return self.lead_eq_m.copy()
+        near = float(np.linalg.norm(lead - self.lead_eq_m)) <= self.scenario.limits.max_lead_m
+        return lead if near and bool(np.all(np.isfinite(lead))) else self.lead_eq_m.copy()
+
+    def _release(self, t_s: float, epm: np.ndarray) -> float:
+        """EPM speed along û while backing off, m/s (<= 0)."""
+        cfg = self.scenario.mpc
+        fit = fit_window(self.frames, t_s, cfg.approach_window_s)
+        capsule = fit.position_m if fit is not None else self.target_m
+        excess = float((epm[:2] - capsule) @ self._dir) - self._release_lead
+        if excess <= _RELEASE_TOL_M:
+            self.phase, self._phase_t0 = "observe", t_s
+            return 0.0
+        limit = _EPM_SPEED_FACTOR * self.speed_mps
+        return -min(excess / (4.0 * self.dt_s), limit)
+
+    def _observe_step(self, t_s: float, epm: np.ndarray) -> None:
+        cfg = self.scenario.mpc
+        if t_s - self._phase_t0 < cfg.approach_observe_s:
+            return
+        fit = fit_window(self.frames, t_s, cfg.approach_observe_s - OBSERVE_SETTLE_S, static=True)
+        if fit is None:  # every frame dropped: keep watching while there is time
+            if self._out_of_time(t_s):
+                self.phase = "gave_up"
+                self.gave_up_reason = "out of time, no camera frames (mpc.approach_max_s)"
+            return
+        err = self.target_m - fit.position_m
+        if float(np.linalg.norm(err)) <= self.tolerance_m:
+            self.phase = "done"
+            return
+        if self._out_of_time(t_s):
+            self.phase = "gave_up"
+            self.gave_up_reason = f"out of time after {t_s - self._start_s:.1f} s (mpc.approach_max_s)"
+            return
+        progress = float(fit.position_m @ self._dir) - self._progress0
+        if progress < self.tolerance_m:
+            self.phase = "gave_up"
+            cap = " (it reached the force cap)" if self._capped else ""
+            self.gave_up_reason = f"stuck: the crawl did not move the capsule{cap}"
+            return
+        if self.attempts >= cfg.approach_max_attempts:
+            self.phase = "gave_up"
+            self.gave_up_reason = f"{self.attempts} attempts (mpc.approach_max_attempts)"
+            return
+        if float(err @ self._dir) < 0:  # passed the target: crawl slower next time
+            self.speed_mps *= 0.5
+        self._aim(fit.position_m)
+        self._start_crawl(t_s, epm)
+
+    def _out_of_time(self, t_s: float) -> bool:
+        """Whether the approach has used its time (``mpc.approach_max_s`` from its first crawl)."""
+        return t_s - self._start_s >= self.scenario.mpc.approach_max_s
+
+    def _limit(self, u: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
+        """A step from ``u_prev`` toward ``u`` within the jerk and acceleration limits (per axis).
+
+        The wanted acceleration reaches ``u`` in one frame, at most ``sqrt(2 jerk |u - u_prev|)``
+        (what can still be ramped down before ``u`` is reached); the acceleration then changes by
+        at most ``jerk * dt`` from the previous frame's and stays within ``limits.accel_mps2``.
+        """
+        lim = self.scenario.limits
+        dt = self.dt_s
+        gap = u - u_prev
+        reach = np.minimum(np.sqrt(2.0 * lim.jerk_mps3 * np.abs(gap)), lim.accel_mps2)
+        wanted = np.clip(gap / dt, -reach, reach)
+        accel = np.clip(wanted, self._accel - lim.jerk_mps3 * dt, self._accel + lim.jerk_mps3 * dt)
+        accel = np.clip(accel, -lim.accel_mps2, lim.accel_mps2)
+        self._accel = accel
+        return u_prev + accel * dt
