@@ -35,3 +35,17 @@ def scenario(lab_scenario: Scenario) -> Scenario:
 def table(scenario: Scenario) -> ForceMap:
     """The paper scenario's finite-magnet force map (computed once, then cached on disk)."""
     return force_map(scenario)
+
+
+@pytest.fixture(scope="session")
+def fast(scenario: Scenario) -> Scenario:
+    """The paper scenario (ideal plant) for quick MPC runs: uncompiled NLP functions (built in well
+    under a second), short settle and tail."""
+    # The final approach (tests/test_final_approach.py) is not the subject of the tests using this:
+    # its crawl after the path's end needs seconds past these short tails.
+    return scenario.model_copy(
+        update={
+            "mpc": scenario.mpc.model_copy(update={"compile_c": False, "final_approach": False}),
+            "sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
+        }
+    )

@@ -20,19 +20,6 @@ PATH = ReferencePath(np.array([[0.0, 0.0], [0.03, 0.0], [0.03, 0.015]]), closed=
 
 
 @pytest.fixture(scope="module")
-def fast(scenario):
-    """The paper scenario, uncompiled NLP (builds in well under a second), short settle."""
-    # The final approach (tests/test_final_approach.py) is not the subject: its crawl after the
-    # path's end needs seconds past these short tails.
-    return scenario.model_copy(
-        update={
-            "mpc": scenario.mpc.model_copy(update={"compile_c": False, "final_approach": False}),
-            "sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
-        }
-    )
-
-
-@pytest.fixture(scope="module")
 def mpc_run(fast):
     return simulate(fast, MPCController(), PATH, seed=3)
 

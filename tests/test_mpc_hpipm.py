@@ -23,19 +23,6 @@ BEFORE_TRACKING_RMS_MM = 2.031
 
 
 @pytest.fixture(scope="module")
-def fast(scenario):
-    """The paper scenario (ideal plant), uncompiled NLP functions, short settle and tail."""
-    # The final approach (tests/test_final_approach.py) is not the subject: its crawl after the
-    # path's end needs seconds past these short tails.
-    return scenario.model_copy(
-        update={
-            "mpc": scenario.mpc.model_copy(update={"compile_c": False, "final_approach": False}),
-            "sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
-        }
-    )
-
-
-@pytest.fixture(scope="module")
 def sharp(fast):
     """``fast`` with the model's friction smoothed over 1 mm/s only: its RTI steps fail where the
     friction's sign changes (the capsule starting and stopping), so the recovery has work."""
