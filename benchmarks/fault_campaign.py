@@ -39,6 +39,7 @@ from capsule_mpc.cli.arguments import int_at_least
 from capsule_mpc.cli.simulate import prepare_run
 from capsule_mpc.config import FaultsConfig, Scenario, packaged_config_path
 from capsule_mpc.mpc import MPCController
+from capsule_mpc.outputs import output_file_problem
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import RunResult, simulate
 from capsule_mpc.sim.faults import SOLVER_FAULT_KINDS, recovery_times
@@ -54,18 +55,6 @@ def _probability(text: str) -> float:
     if not 0 < value <= 1:
         raise argparse.ArgumentTypeError(f"must be in (0, 1], got {text}")
     return value
-
-
-def _output_problem(out: Path) -> str | None:
-    """Why the report cannot be written to ``out`` (checked before the runs), or None."""
-    if out.is_dir():
-        return f"{out} is a folder; give a file name, e.g. {out / 'fault_campaign.json'}"
-    folder = next(p for p in out.parents if p.exists())
-    if not folder.is_dir():
-        return f"{folder} is not a folder"
-    if not os.access(folder, os.W_OK | os.X_OK):
-        return f"cannot write in {folder.resolve()}"
-    return None
 
 
 def faulty_scenario(scenario: Scenario, probability: float) -> Scenario:
@@ -228,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="results/benchmarks/fault_campaign.json", help="JSON report file")
     args = parser.parse_args(argv)
     out = Path(args.out)
-    problem = _output_problem(out)
+    problem = output_file_problem(out, "fault_campaign.json")
     if problem is not None:
         print(f"fault_campaign: --out: {problem}", file=sys.stderr)
         return 2

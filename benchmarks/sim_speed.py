@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
 import statistics
 import sys
@@ -24,6 +23,7 @@ from capsule_mpc.atomic import write_text_atomic
 from capsule_mpc.cli.arguments import int_at_least
 from capsule_mpc.cli.simulate import prepare_run
 from capsule_mpc.config import packaged_config_path
+from capsule_mpc.outputs import output_file_problem
 from capsule_mpc.sim import CapsulePlant, SimpleArm, simulate
 
 #: Plant steps timed per component in the micro-profile.
@@ -59,18 +59,6 @@ def profile_parts(scenario) -> dict[str, float]:
     return out
 
 
-def _output_problem(out: Path) -> str | None:
-    """Why the report cannot be written to ``out`` (checked before the runs), or None."""
-    if out.is_dir():
-        return f"{out} is a folder; give a file name, e.g. {out / 'sim_speed.json'}"
-    folder = next(p for p in out.parents if p.exists())  # ends at "." or "/", which exist
-    if not folder.is_dir():
-        return f"{folder} is not a folder"
-    if not os.access(folder, os.W_OK | os.X_OK):
-        return f"cannot write in {folder.resolve()}"
-    return None
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and write the report; exit status 2 (and nothing written) for a bad ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -78,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="results/benchmarks/sim_speed.json", help="JSON report file")
     args = parser.parse_args(argv)
     out = Path(args.out)
-    problem = _output_problem(out)
+    problem = output_file_problem(out, "sim_speed.json")
     if problem is not None:
         print(f"sim_speed: --out: {problem}", file=sys.stderr)
         return 2

@@ -34,7 +34,14 @@ from pathlib import Path
 from .atomic import write_text_atomic
 from .config import ConfigError
 
-__all__ = ["LOCK_NAME", "MANIFEST_NAME", "OutputError", "output_folder", "read_manifest"]
+__all__ = [
+    "LOCK_NAME",
+    "MANIFEST_NAME",
+    "OutputError",
+    "output_file_problem",
+    "output_folder",
+    "read_manifest",
+]
 
 #: The manifest a command leaves in its output folder.
 MANIFEST_NAME = "manifest.json"
@@ -46,6 +53,21 @@ _Snapshot = dict[str, tuple[int, int]]
 
 class OutputError(ConfigError):
     """An output folder that cannot be used (a file, not writable, or in use by another command)."""
+
+
+def output_file_problem(out: Path, example_name: str) -> str | None:
+    """Why a report file cannot be written to ``out`` (to check before a long run), or None.
+
+    ``example_name`` is suggested when ``out`` is a folder.
+    """
+    if out.is_dir():
+        return f"{out} is a folder; give a file name, e.g. {out / example_name}"
+    folder = next(p for p in out.parents if p.exists())  # ends at "." or "/", which exist
+    if not folder.is_dir():
+        return f"{folder} is not a folder"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"cannot write in {folder.resolve()}"
+    return None
 
 
 def read_manifest(folder: str | Path) -> dict | None:
