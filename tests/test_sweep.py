@@ -11,6 +11,8 @@ import signal
 import subprocess
 import sys
 import time
+from concurrent.futures import Future
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import redirect_stdout
 from pathlib import Path
 
@@ -21,6 +23,7 @@ import capsule_mpc
 from capsule_mpc.cli import main
 from capsule_mpc.cli.compare import RUNS_FOLDER, _json_value, aggregate_runs
 from capsule_mpc.cli.sweep import SPEC_FILE, WALL_CLOCK_KEYS, SeedTask, run_seed, sweep, worst_runs
+from capsule_mpc.cli.sweep import tasks as sweep_tasks
 from capsule_mpc.cli.sweep.results import spec_difference
 from capsule_mpc.cli.sweep.vary import draw_varied, parse_vary, with_plant_values
 from capsule_mpc.config import load_config
@@ -188,6 +191,38 @@ def test_a_crashed_worker_loses_its_run_only_and_a_resume_reruns_it(tmp_path, id
     assert {s: (out / RUNS_FOLDER / f"seed_{s}.json").stat().st_mtime_ns for s in (0, 2)} == kept  # skipped
     assert "crashed" not in again["runs"][1] and again["controllers"]["follow"]["n_failed"] == 0
     assert again["runs"][0] == first["runs"][0]
+
+
+class _PoolThatBreaksOnSubmit:
+    """A stand-in process pool: tasks finish at once; the ``break_at``-th submit finds the pool
+    broken (a worker died while another task finished, between two waits)."""
+
+    def __init__(self, log: list[str], break_at: int | None) -> None:
+        self.log, self.break_at, self.calls = log, break_at, 0
+
+    def submit(self, fn, task):
+        self.calls += 1
+        if self.calls == self.break_at:
+            self.log.append(f"broken at submit of seed {task.seed}")
+            raise BrokenProcessPool("a child process terminated abruptly")
+        future: Future = Future()
+        future.set_result(fn(task))
+        return future
+
+    def shutdown(self, wait=True, cancel_futures=False):
+        self.log.append("shutdown")
+
+
+def test_a_pool_found_broken_at_submit_is_replaced_and_no_run_is_lost(monkeypatch):
+    """The race behind a flaky crash test: a worker dies while another task finishes, so the next
+    submit raises BrokenProcessPool; the pool is replaced and every task still runs once."""
+    log: list[str] = []
+    pools = iter([_PoolThatBreaksOnSubmit(log, break_at=2), _PoolThatBreaksOnSubmit(log, None)])
+    monkeypatch.setattr(sweep_tasks, "_new_pool", lambda workers: next(pools))
+    tasks = [SeedTask(scenario=None, path=None, seed=s, controllers=("follow",)) for s in range(3)]  # type: ignore[arg-type]
+    outcomes = list(sweep_tasks.run_on_process_pool(lambda task: {"seed": task.seed}, tasks, 2))
+    assert sorted(result["seed"] for _task, result in outcomes) == [0, 1, 2]
+    assert log[0] == "broken at submit of seed 1" and log.count("shutdown") == 2
 
 
 def _worker_pids(parent: int) -> list[int]:

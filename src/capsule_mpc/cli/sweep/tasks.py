@@ -164,18 +164,28 @@ def run_on_process_pool(
     pool = _new_pool(workers)
     try:
         alone = False  # whether the task in flight is a suspect run by itself
+
+        def submit(task: SeedTask, source: deque[SeedTask]) -> bool:
+            """Submit ``task`` (taken from ``source``); if the pool broke since the last wait (a
+            worker died while another task finished), put it back and say so."""
+            try:
+                running[pool.submit(fn, task)] = task
+            except BrokenProcessPool:
+                source.appendleft(task)
+                return False
+            return True
+
         while queue or suspects or running:
+            submitted = True
             if not running and suspects:
                 alone = True
-                task = suspects.popleft()
-                running[pool.submit(fn, task)] = task
+                submitted = submit(suspects.popleft(), suspects)
             elif not running:
                 alone = False
-            while not alone and queue and len(running) < workers:
-                task = queue.popleft()
-                running[pool.submit(fn, task)] = task
-            done, _ = wait(running, return_when=FIRST_COMPLETED)
-            broken = False
+            while submitted and not alone and queue and len(running) < workers:
+                submitted = submit(queue.popleft(), queue)
+            broken = not submitted
+            done, _ = wait(running, return_when=FIRST_COMPLETED) if running else (set(), set())
             for future in done:
                 task = running.pop(future)
                 try:
