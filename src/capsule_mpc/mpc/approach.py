@@ -64,6 +64,7 @@ import numpy as np
 from ..config import Scenario
 from ..control import Measurement
 from ..dynamics import normal_force_expr
+from ..magnetics import equilibrium_lead
 from ..paths import ReferencePath
 
 __all__ = [
@@ -88,9 +89,6 @@ _RELEASE_TOL_M = 2e-4
 #: Crawl speed floor as a fraction of the crawl speed: the last fraction of a millimetre is still
 #: crawled at a speed the capsule does not stop at.
 _MIN_SPEED_FRACTION = 0.25
-#: Newton's method for the zero-force lead: iterations and the finite-difference step, m.
-_NEWTON_ITERATIONS = 6
-_NEWTON_STEP_M = 1e-6
 #: Largest EPM speed of the crawl and the release, in units of the crawl speed.
 _EPM_SPEED_FACTOR = 4.0
 #: Fewest frames a line fit uses.
@@ -327,21 +325,16 @@ class FinalApproach:
 
     def zero_force_lead(self, height_m: float, disturbance_xy_n: np.ndarray) -> np.ndarray:
         """The lead (2,), m, at which the controller believes the lateral force vanishes: its force
-        model plus the estimated constant disturbance (Newton's method from the model's equilibrium
-        lead); the model's equilibrium lead if that does not converge within the coupling limit."""
-        lead = self.lead_eq_m.copy()
-        step = _NEWTON_STEP_M
-        for _ in range(_NEWTON_ITERATIONS):
-            force = np.asarray(self.force(lead, height_m)).ravel()[:2] + disturbance_xy_n
-            jac = np.column_stack([
-                (np.asarray(self.force(lead + dl, height_m)).ravel()[:2]
-                 - np.asarray(self.force(lead - dl, height_m)).ravel()[:2]) / (2.0 * step)
-                for dl in (np.array([step, 0.0]), np.array([0.0, step]))
-            ])  # fmt: skip
-            try:
-                lead = lead - np.linalg.solve(jac, force)
-            except np.linalg.LinAlgError:
-                return self.lead_eq_m.copy()
+        model plus the estimated constant disturbance (:func:`~capsule_mpc.magnetics.equilibrium_lead`
+        from the model's equilibrium lead); the model's equilibrium lead if no root is found within
+        the coupling limit."""
+        d = np.asarray(disturbance_xy_n, dtype=float)
+        try:
+            lead = equilibrium_lead(
+                lambda x: np.asarray(self.force(x, height_m)).ravel()[:2] + d, guess_m=tuple(self.lead_eq_m)
+            )
+        except RuntimeError:
+            return self.lead_eq_m.copy()
         near = float(np.linalg.norm(lead - self.lead_eq_m)) <= self.scenario.limits.max_lead_m
         return lead if near and bool(np.all(np.isfinite(lead))) else self.lead_eq_m.copy()
 
