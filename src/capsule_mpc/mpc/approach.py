@@ -48,7 +48,7 @@ target, watch the capsule, let go when it arrives. Phases (one :class:`FinalAppr
     tolerance toward the target (it is stuck below the cap, and only a breakaway lurch, far larger
     than the error, would move it), ``gave_up``: the EPM holds.
 
-Every command passes a jerk and acceleration limiter here (``limits.jerk_mps3``,
+Every command passes Ruckig's velocity control here (``limits.jerk_mps3``,
 ``limits.accel_mps2``) and then the controller's safety layer (:func:`capsule_mpc.safety.safe_command`).
 """
 
@@ -60,6 +60,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+import ruckig
 
 from ..config import Scenario
 from ..control import Measurement
@@ -181,6 +182,14 @@ class FinalApproach:
         self._release_lead = 0.0
         self._start_s = math.nan
         self._accel = np.zeros(3)
+        lim = scenario.limits
+        self._ruckig = ruckig.Ruckig(3, dt_s)
+        self._ruckig_in, self._ruckig_out = ruckig.InputParameter(3), ruckig.OutputParameter(3)
+        self._ruckig_in.control_interface = ruckig.ControlInterface.Velocity
+        self._ruckig_in.synchronization = ruckig.Synchronization.No
+        self._ruckig_in.max_velocity = [lim.speed_mps] * 3
+        self._ruckig_in.max_acceleration = [lim.accel_mps2] * 3
+        self._ruckig_in.max_jerk = [lim.jerk_mps3] * 3
 
     # ------------------------------------------------------------------ state
     @property
@@ -388,18 +397,15 @@ class FinalApproach:
         return t_s - self._start_s >= self.scenario.mpc.approach_max_s
 
     def _limit(self, u: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
-        """A step from ``u_prev`` toward ``u`` within the jerk and acceleration limits (per axis).
-
-        The wanted acceleration reaches ``u`` in one frame, at most ``sqrt(2 jerk |u - u_prev|)``
-        (what can still be ramped down before ``u`` is reached); the acceleration then changes by
-        at most ``jerk * dt`` from the previous frame's and stays within ``limits.accel_mps2``.
-        """
-        lim = self.scenario.limits
-        dt = self.dt_s
-        gap = u - u_prev
-        reach = np.minimum(np.sqrt(2.0 * lim.jerk_mps3 * np.abs(gap)), lim.accel_mps2)
-        wanted = np.clip(gap / dt, -reach, reach)
-        accel = np.clip(wanted, self._accel - lim.jerk_mps3 * dt, self._accel + lim.jerk_mps3 * dt)
-        accel = np.clip(accel, -lim.accel_mps2, lim.accel_mps2)
-        self._accel = accel
-        return u_prev + accel * dt
+        """One frame of Ruckig's velocity control from ``u_prev`` (and the acceleration it left)
+        toward ``u``, within ``limits.jerk_mps3`` and ``limits.accel_mps2`` per axis; ``u_prev`` held
+        if Ruckig reports an error."""
+        inp, out = self._ruckig_in, self._ruckig_out
+        inp.current_velocity = list(u_prev)
+        inp.current_acceleration = list(self._accel)
+        inp.target_velocity = list(u)
+        if self._ruckig.update(inp, out) not in (ruckig.Result.Working, ruckig.Result.Finished):
+            self._accel = np.zeros(3)
+            return np.asarray(u_prev, dtype=float).copy()
+        self._accel = np.asarray(out.new_acceleration, dtype=float)
+        return np.asarray(out.new_velocity, dtype=float)
