@@ -14,16 +14,29 @@ variance grows, so after a long drop the gate is wide again. A capsule that
 really jumped (a slip faster than the filter's acceleration model) gives
 consistent rejections: after :data:`REACQUIRE_AFTER` in a row the filter
 re-acquires, its position reset to the measurement.
+
+:func:`fit_window` fits a line (or a constant) to the positions of a window of recent frames: the
+speed and rest position the MPC's final approach and its friction adaptation judge by.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
 
-__all__ = ["GATE_CHI2", "NOISE_FLOOR_M", "REACQUIRE_AFTER", "CapsuleEstimator"]
+__all__ = [
+    "GATE_CHI2",
+    "MIN_FIT_FRAMES",
+    "NOISE_FLOOR_M",
+    "REACQUIRE_AFTER",
+    "CapsuleEstimator",
+    "RestFit",
+    "fit_window",
+]
 
 #: Smallest measurement noise the filter assumes, m (about a camera pixel's quantisation at
 #: this field of view). With r -> 0 the constant-velocity filter's velocity gain tends to
@@ -129,3 +142,49 @@ class CapsuleEstimator:
     def position_std_m(self) -> float:
         """Current position standard deviation per axis, m."""
         return float(math.sqrt(self.p[0, 0]))
+
+
+#: Fewest frames a line fit (:func:`fit_window`) uses.
+MIN_FIT_FRAMES = 4
+
+
+@dataclass(frozen=True)
+class RestFit:
+    """A line fitted to recent camera frames: the position now (2,), m, and the velocity (2,), m/s."""
+
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    frames: int
+
+
+def fit_window(
+    frames: deque[tuple[float, np.ndarray]], t_s: float, window_s: float, static: bool = False
+) -> RestFit | None:
+    """Least-squares line through the frames captured in ``[t_s - window_s, t_s]``, evaluated at ``t_s``.
+
+    Parameters
+    ----------
+    frames : deque of (capture time s, position (2,) m)
+        Recent camera frames, oldest first.
+    t_s : float
+        Time the fit is evaluated at, s.
+    window_s : float
+        Length of the window, s.
+    static : bool
+        Fit a constant (the mean; velocity 0) instead of a line: a capsule known to be at rest.
+
+    Returns
+    -------
+    RestFit or None
+        None with fewer than :data:`MIN_FIT_FRAMES` frames in the window.
+    """
+    sel = [(tc, p) for tc, p in frames if t_s - window_s <= tc <= t_s]
+    if len(sel) < MIN_FIT_FRAMES:
+        return None
+    times = np.array([tc for tc, _ in sel]) - t_s
+    pos = np.array([p for _, p in sel])
+    if static:
+        return RestFit(pos.mean(axis=0), np.zeros(2), len(sel))
+    design = np.column_stack([np.ones_like(times), times])
+    coef, *_ = np.linalg.lstsq(design, pos, rcond=None)
+    return RestFit(coef[0], coef[1], len(sel))

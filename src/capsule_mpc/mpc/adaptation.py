@@ -61,6 +61,7 @@ import numpy as np
 
 from ..config import MPCConfig
 from ..dynamics import CapsuleModel
+from ..estimation import fit_window
 
 __all__ = ["FORCE_NOISE_STD_N", "SPEED_WINDOW_S", "FrictionOffsetRLS", "friction_regression"]
 
@@ -193,11 +194,8 @@ class FrictionOffsetRLS:
             history.popleft()
         if not (ref_speed_mps >= v_min and speeds_ok and t_s - history[0][0] >= SPEED_WINDOW_S):
             return False
-        times = np.array([t for t, _ in history])
-        points = np.array([p for _, p in history])
-        dt = times - times.mean()
-        slope = dt @ (points - points.mean(axis=0)) / (dt @ dt)
-        return bool(np.linalg.norm(slope) >= v_min)
+        fit = fit_window(history, t_s, t_s - history[0][0])
+        return fit is not None and bool(np.linalg.norm(fit.velocity_mps) >= v_min)
 
     def update(self, y_n: float, phi_n: float) -> None:
         """Fuse one frame's regression ``y = offset * phi`` (``y``, ``phi`` in N; finite).

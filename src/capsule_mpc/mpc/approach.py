@@ -56,7 +56,6 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -65,6 +64,7 @@ import ruckig
 from ..config import Scenario
 from ..control import Measurement
 from ..dynamics import normal_force_expr
+from ..estimation import fit_window
 from ..magnetics import equilibrium_lead
 from ..paths import ReferencePath
 
@@ -73,8 +73,6 @@ __all__ = [
     "OBSERVE_SETTLE_S",
     "RELEASE_LEAD_S",
     "FinalApproach",
-    "RestFit",
-    "fit_window",
 ]
 
 #: Time constant of the crawl speed profile, s: the desired speed is the remaining distance over
@@ -92,50 +90,6 @@ _RELEASE_TOL_M = 2e-4
 _MIN_SPEED_FRACTION = 0.25
 #: Largest EPM speed of the crawl and the release, in units of the crawl speed.
 _EPM_SPEED_FACTOR = 4.0
-#: Fewest frames a line fit uses.
-_MIN_FRAMES = 4
-
-
-@dataclass(frozen=True)
-class RestFit:
-    """A line fitted to recent camera frames: the position now (2,), m, and the velocity (2,), m/s."""
-
-    position_m: np.ndarray
-    velocity_mps: np.ndarray
-    frames: int
-
-
-def fit_window(
-    frames: deque[tuple[float, np.ndarray]], t_s: float, window_s: float, static: bool = False
-) -> RestFit | None:
-    """Least-squares line through the frames captured in ``[t_s - window_s, t_s]``, evaluated at ``t_s``.
-
-    Parameters
-    ----------
-    frames : deque of (capture time s, position (2,) m)
-        Recent camera frames, oldest first.
-    t_s : float
-        Time the fit is evaluated at, s.
-    window_s : float
-        Length of the window, s.
-    static : bool
-        Fit a constant (the mean; velocity 0) instead of a line: a capsule known to be at rest.
-
-    Returns
-    -------
-    RestFit or None
-        None with fewer than :data:`_MIN_FRAMES` frames in the window.
-    """
-    sel = [(tc, p) for tc, p in frames if t_s - window_s <= tc <= t_s]
-    if len(sel) < _MIN_FRAMES:
-        return None
-    times = np.array([tc for tc, _ in sel]) - t_s
-    pos = np.array([p for _, p in sel])
-    if static:
-        return RestFit(pos.mean(axis=0), np.zeros(2), len(sel))
-    design = np.column_stack([np.ones_like(times), times])
-    coef, *_ = np.linalg.lstsq(design, pos, rcond=None)
-    return RestFit(coef[0], coef[1], len(sel))
 
 
 class FinalApproach:
