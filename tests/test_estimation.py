@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
-from capsule_mpc.estimation import REACQUIRE_AFTER, CapsuleEstimator
+from capsule_mpc.estimation import GATE_CHI2, REACQUIRE_AFTER, CapsuleEstimator
 
 
 def test_converges_on_a_noisy_constant_velocity_track():
@@ -123,3 +124,8 @@ def test_after_a_long_drop_the_gate_is_open_again():
     t_after = t + 1.0
     assert est.update(t_after, np.array([0.02 * t_after - 0.01, 0.0]))
     assert est.rejected == 0
+
+
+def test_the_gate_is_the_chi_square_quantile_scipy_gives():
+    """The closed form -2 ln(p) of the 2-dof quantile equals scipy's chi2.ppf (an independent source)."""
+    assert GATE_CHI2 == pytest.approx(float(chi2.ppf(1.0 - 1e-6, 2)), rel=1e-9)
