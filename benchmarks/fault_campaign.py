@@ -38,6 +38,7 @@ from capsule_mpc.atomic import write_text_atomic
 from capsule_mpc.cli.arguments import int_at_least
 from capsule_mpc.cli.simulate import prepare_run
 from capsule_mpc.config import FaultsConfig, Scenario, packaged_config_path
+from capsule_mpc.metrics import tracking_errors
 from capsule_mpc.mpc import MPCController
 from capsule_mpc.outputs import output_file_problem
 from capsule_mpc.paths import ReferencePath
@@ -86,11 +87,6 @@ def check_commands(result: RunResult) -> dict[str, int]:
     }
 
 
-def _tracking_error_mm(result: RunResult) -> np.ndarray:
-    log = result.log
-    return 1e3 * np.hypot(log["capsule_x_m"] - log["ref_x_m"], log["capsule_y_m"] - log["ref_y_m"])
-
-
 def _distribution(values: list[float]) -> dict[str, float]:
     if not values:
         return {"n": 0}
@@ -130,9 +126,10 @@ def run_campaign(
         for key in totals:
             totals[key] += checks[key]
         events = [e for e in res.fault_events if e.kind in SOLVER_FAULT_KINDS]
-        t, err = res.log["t_s"], _tracking_error_mm(res)
+        t, err = res.log["t_s"], 1e3 * tracking_errors(res.log)
         rec = recovery_times(t, err, events)
-        twin = recovery_times(t, err, events, np.interp(t, clean.log["t_s"], _tracking_error_mm(clean)))
+        clean_err = np.interp(t, clean.log["t_s"], 1e3 * tracking_errors(clean.log))
+        twin = recovery_times(t, err, events, clean_err)
         for kind in SOLVER_FAULT_KINDS:
             injected[kind] += int(res.metrics[f"faults_injected_{kind}"])
             recovery[kind] += rec.times_s.get(kind, [])

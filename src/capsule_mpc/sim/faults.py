@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from ..config import FaultsConfig
+from ..metrics import tracking_errors
 
 __all__ = [
     "FAULT_KINDS",
@@ -333,7 +334,7 @@ def fault_metrics(injector: FaultInjector, log: dict[str, np.ndarray]) -> dict[s
     metrics: dict[str, float | int] = {f"faults_injected_{k}": n for k, n in injector.counts.items()}
     metrics["faults_dropped_frames"] = injector.dropped_frames
     t = log["t_s"]
-    err = 1e3 * np.hypot(log["capsule_x_m"] - log["ref_x_m"], log["capsule_y_m"] - log["ref_y_m"])
+    err = 1e3 * tracking_errors(log)
     rec = recovery_times(t, err, injector.events)
     every = [x for times in rec.times_s.values() for x in times]
     metrics["fault_recovery_max_s"] = max(every) if every else math.nan
