@@ -85,6 +85,9 @@ class Controller(ABC):
 
     #: Registry name (e.g. 'follow', 'paper_0.8v', 'mpc').
     name: str = ""
+    #: Set by the runner before :meth:`reset`: wraps the controller's solver (fault injection,
+    #: :mod:`capsule_mpc.sim.faults`); controllers that solve nothing ignore it.
+    solver_wrapper: Callable[[Any], Any] | None = None
 
     @abstractmethod
     def reset(self, scenario: Scenario, path: ReferencePath, epm_position_m: np.ndarray) -> None:

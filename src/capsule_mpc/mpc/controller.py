@@ -28,7 +28,6 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import casadi as ca
@@ -124,9 +123,6 @@ class MPCController(Controller):
 
     def __init__(self) -> None:
         self.stack: MPCStack | None = None
-        #: Set before :meth:`reset` to solve through a wrapper of the stack's solver (the
-        #: simulator's fault injection, :mod:`capsule_mpc.sim.faults`); None: the solver itself.
-        self.solver_wrapper: Callable[[MPCSolver], MPCSolver] | None = None
 
     def reset(self, scenario: Scenario, path: ReferencePath, epm_position_m: np.ndarray) -> None:
         """Build (or reuse) the problem for ``scenario`` and forget the previous run."""

@@ -56,7 +56,7 @@ in the result.
 
 Faults (``scenario.faults``, :mod:`.faults`): when any is switched on, the run gets a
 :class:`~.faults.FaultInjector` on its own random streams. The camera applies the drop bursts and
-outliers to its captures; a controller with a ``solver_wrapper`` hook (the MPC) gets the
+outliers to its captures; the controller's ``solver_wrapper`` (used by the MPC) is set to the
 injector's solver wrapper before its reset; an arm stall holds the arm at zero velocity (it
 brakes within its limits) and keeps the latest command until the stall ends, then applies it; a
 latency spike adds its delay to one frame's command (the later ones queue behind it). The run's
@@ -649,8 +649,7 @@ def simulate(
     plant.reset(capsule0, theta_s=theta0)
     act.reset(epm0)
     plant.evaluate_forces(*epm0.tolist())
-    if hasattr(ctrl, "solver_wrapper"):  # the MPC: solve through the injector when solver faults are on
-        ctrl.solver_wrapper = faults.wrap_solver if faults is not None and faults.solver_faults else None
+    ctrl.solver_wrapper = faults.wrap_solver if faults is not None and faults.solver_faults else None
     ctrl.reset(scenario, path, epm0.copy())
     loop = _Loop(scenario, path, plant, act, truth.compute_delay_s)
 
