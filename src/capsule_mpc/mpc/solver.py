@@ -65,9 +65,16 @@ QP_SOLVERS = ("hpipm", "piqp", "qrqp")
 #: (scaled units) and a cap of 8-15 iterations gave no failure and unchanged commands. Measured
 #: again on 380 frames of the rectangle (N = 20) against piqp solved to 1e-10: first command
 #: within 0.05 mm/s with a cap of 10, 15 or 25 (0.06 with 8, 0.4 with 6); 'speed_abs' is off by
-#: 6 mm/s, 'balance' 0.002 mm/s but 40 % slower.
+#: 6 mm/s, 'balance' 0.002 mm/s but 40 % slower. The initial barrier parameter ``mu0`` is 3
+#: instead of the mode's 10 (the QP is scaled to unit order): on 5,976 recorded QPs (the rectangle
+#: and the pipe at three speeds, N = 20 and 40, and the 100 Hz rectangle; seed 0) 4.1-5.0
+#: interior-point iterations per QP instead of 5.2-6.4, 126 QPs not solved (mostly at the cap)
+#: instead of 587, and the first command within 0.033 mm/s of a tightly solved HPIPM (0.42 with
+#: mu0 10). mu0 2: 94 not solved but one command 0.89 mm/s off; mu0 5: 226 not solved.
+#: Measured by ``benchmarks/hpipm_mu0.py``.
 HPIPM_OPTIONS = {
     "mode": "speed",
+    "mu0": 3.0,
     "res_g_max": 1e-4,
     "res_b_max": 1e-6,
     "res_d_max": 1e-6,
