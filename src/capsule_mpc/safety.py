@@ -22,6 +22,8 @@ about a fifth of the frames of a lab run, and limiting that would change its tra
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .config import Scenario
@@ -78,24 +80,28 @@ def safe_command(
         The command (see the module docstring for its guarantees) and whether it differs from
         ``u``.
     """
+    # np.minimum/np.maximum instead of np.clip and math.isfinite on the three floats instead of
+    # np.isfinite: the same arithmetic, at a fraction of the call overhead on 3-vectors (this runs
+    # every frame; it was a tenth of the MPC's step time).
     lim = scenario.limits
-    target = np.asarray(u, dtype=float).ravel().copy()
-    u_prev = np.asarray(u_prev, dtype=float).ravel()
-    u_prev = np.clip(np.where(np.isfinite(u_prev), u_prev, 0.0), -lim.speed_mps, lim.speed_mps)
+    speed = lim.speed_mps
+    target = np.array(u, dtype=float).ravel()
+    prev = np.array(u_prev, dtype=float).ravel()
+    prev[~np.isfinite(prev)] = 0.0
+    prev = np.minimum(np.maximum(prev, -speed), speed)
     pos = np.asarray(epm_position_m, dtype=float).ravel()
-    known = bool(np.all(np.abs(pos) < _FAR_M))  # where the EPM is (False for NaN): else brake
-    finite = bool(np.all(np.isfinite(target))) and known
+    known = all(abs(p) < _FAR_M for p in pos.tolist())  # where the EPM is (False for NaN): else brake
+    finite = known and all(math.isfinite(v) for v in target.tolist())
     u = target.copy() if finite else np.zeros(3)
     if not scenario.mpc.height_control:  # the height is held: its command is and was 0
-        u[2] = u_prev[2] = 0.0
-    u = np.clip(u, -lim.speed_mps, lim.speed_mps)
-    lo, hi = np.asarray(lim.workspace_min_m), np.asarray(lim.workspace_max_m)
+        u[2] = prev[2] = 0.0
+    u = np.minimum(np.maximum(u, -speed), speed)
+    lo, hi = np.asarray(lim.workspace_min_m, dtype=float), np.asarray(lim.workspace_max_m, dtype=float)
     if known:
-        v_up = braking_speed_mps(hi - pos, lim.accel_mps2, dt_s)
-        v_down = braking_speed_mps(pos - lo, lim.accel_mps2, dt_s)
-        u = np.clip(u, -v_down, v_up)
+        envelope = braking_speed_mps(np.concatenate([hi - pos, pos - lo]), lim.accel_mps2, dt_s)
+        u = np.minimum(np.maximum(u, -envelope[3:]), envelope[:3])
     da = lim.accel_mps2 * dt_s
-    u = np.clip(u, u_prev - da, u_prev + da)
+    u = np.minimum(np.maximum(u, prev - da), prev + da)
     if known:  # outside the envelope already: stop on the face rather than cross it
-        u = np.clip(u, np.minimum((lo - pos) / dt_s, 0.0), np.maximum((hi - pos) / dt_s, 0.0))
-    return u, bool(not finite or np.any(np.abs(u - target) > 1e-12))
+        u = np.minimum(np.maximum(u, np.minimum((lo - pos) / dt_s, 0.0)), np.maximum((hi - pos) / dt_s, 0.0))
+    return u, bool(not finite or float(np.max(np.abs(u - target))) > 1e-12)
