@@ -5,6 +5,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from capsule_mpc.control import Measurement
 from capsule_mpc.dynamics import capsule_model, discrete_step
@@ -86,6 +88,30 @@ def test_layout_is_what_hpipm_needs(fast):
         assert used.min() >= 17 * k and used.max() < 17 * (k + 1) + 10
         assert np.array_equal(block[:10, 17 * (k + 1) : 17 * (k + 1) + 10] != 0, np.eye(10, dtype=bool))
         assert not block[10:, 17 * (k + 1) :].any()
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_unpack_and_shift_are_the_packings_inverse_and_a_stage_step(fast, seed):
+    """``unpack`` returns what ``pack_variables`` packed; ``shift`` moves every stage down by one,
+    repeats the last state and holds the last command (its change 0)."""
+    ocp = build_mpc_stack(fast).ocp
+    n = ocp.horizon
+    rng = np.random.default_rng(seed)
+    xs, us, ss = rng.normal(size=(7, n)) * 1e-2, rng.normal(size=(3, n)) * 1e-2, rng.random((2, n))
+    w = ocp.pack_variables(xs, us, ss, rng.normal(size=7) * 1e-2, rng.normal(size=3) * 1e-2)
+    xs_back, us_back, ss_back = ocp.unpack(w)
+    assert xs_back == pytest.approx(xs, rel=1e-12, abs=1e-15)
+    assert us_back == pytest.approx(us, rel=1e-12, abs=1e-15)
+    assert ss_back == pytest.approx(ss, rel=1e-12, abs=1e-15)
+    shifted = ocp.shift(w)
+    xs_s, us_s, ss_s = ocp.unpack(shifted)
+    assert np.array_equal(xs_s[:, :-1], xs_back[:, 1:]) and np.array_equal(xs_s[:, -1], xs_back[:, -1])
+    assert np.array_equal(us_s[:, :-1], us_back[:, 1:]) and np.array_equal(us_s[:, -1], us_back[:, -1])
+    assert np.array_equal(ss_s[:, :-1], ss_back[:, 1:]) and np.array_equal(ss_s[:, -1], ss_back[:, -1])
+    assert np.array_equal(shifted[: 17 * (n - 1)], w[17 : 17 * n])  # stage k+1 -> k, inputs included
+    assert not shifted[17 * (n - 1) + 10 : 17 * (n - 1) + 13].any()  # the last command change: 0
+    assert np.array_equal(shifted[-10:], w[-10:])
 
 
 @pytest.mark.parametrize("eps_mps", [None, 0.003])

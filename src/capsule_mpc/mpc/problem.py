@@ -42,6 +42,7 @@ exact for the objective and cheap; the SQP steps use it (:mod:`capsule_mpc.mpc.s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -160,12 +161,22 @@ class OCP:
     def unpack(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Scaled ``w -> `` physical ``(X (7 x N), U (3 x N), S (2 x N))``: the predicted model
         states at stages 1..N, the EPM velocity commands of steps 0..N-1 and the slacks."""
-        states, inputs = self._stages(w)
-        phys = states[1:] * STATE_SCALE
-        xs = phys[:, :_NX_MODEL].T
-        us = phys[:, _NX_MODEL:].T
-        ss = (inputs[:, _NU_MODEL + 2 :] * S_SCALE).T
-        return xs, us, ss
+        w = np.asarray(w, dtype=float).ravel()
+        phys = w[self._later_states] * STATE_SCALE  # stages 1..N: one gather (this runs every frame)
+        ss = (w[self._slacks] * S_SCALE).T
+        return phys[:, :_NX_MODEL].T, phys[:, _NX_MODEL:].T, ss
+
+    @cached_property
+    def _later_states(self) -> np.ndarray:
+        """Indices of ``w``'s stage states 1..N (N x 10)."""
+        first = _STAGE * np.arange(1, self.horizon + 1)
+        return first[:, None] + np.arange(N_STATE)[None, :]
+
+    @cached_property
+    def _slacks(self) -> np.ndarray:
+        """Indices of ``w``'s slacks, stages 0..N-1 (N x 2)."""
+        first = _STAGE * np.arange(self.horizon) + N_STATE + _NU_MODEL + 2
+        return first[:, None] + np.arange(n_slacks)[None, :]
 
     def pack_parameters(
         self,
@@ -211,10 +222,12 @@ class OCP:
     def shift(self, w: np.ndarray) -> np.ndarray:
         """``w`` advanced by one stage (the warm start of the next frame): stage k+1 becomes stage
         k, and the last stage repeats with the command held (``dc = 0``)."""
-        states, inputs = self._stages(w)
-        last = inputs[-1].copy()
-        last[:_NU_MODEL] = 0.0
-        return self._join(np.vstack([states[1:], states[-1:]]), np.vstack([inputs[1:], last]))
+        w = np.asarray(w, dtype=float).ravel()
+        # Slices, not per-stage arrays (this runs every frame): stages 1..N move down one stage,
+        # then the last input (dc zeroed) and x_N again.
+        out = np.concatenate([w[_STAGE:], w[-_STAGE:]])
+        out[-_STAGE : -_STAGE + _NU_MODEL] = 0.0
+        return out
 
     def variable_bounds(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``lbw, ubw`` with ``x_0`` fixed to the parameters' state and command."""
