@@ -11,7 +11,7 @@ import pytest
 from capsule_mpc.cli import main
 from capsule_mpc.cli.bench import format_report
 from capsule_mpc.config import load_config, packaged_config_path
-from capsule_mpc.mpc.bench import TARGETS, bench_scenario, path_first_frames, variants
+from capsule_mpc.mpc.bench import TARGETS, bench_scenario, median_run, path_first_frames, variants
 from capsule_mpc.paths import path_from_scenario
 
 #: Tiny horizon and run: the whole smoke test (5 fresh processes, one gcc compile, 2 short
@@ -139,8 +139,43 @@ def test_variants_pair_each_sqp_scheme_with_each_qp_solver():
         variants(["fast"], ["hpipm"])
 
 
+def test_median_run_reports_the_middle_run_and_every_runs_spread():
+    def run(median_ms: float, recoveries: int = 0) -> dict:
+        stats = {"median_ms": median_ms, "p99_ms": 2 * median_ms, "max_ms": 3 * median_ms}
+        return {"controller_step": stats, "controller_step_cpu": stats, "solve": stats,
+                "recoveries": recoveries, "frame_times": [median_ms]}  # fmt: skip
+
+    runs = [run(1.3, 1), run(0.9, 2), run(1.1, 3)]
+    chosen, summaries = median_run(runs)
+    assert chosen is runs[2]  # neither the fastest nor the slowest
+    assert [s["controller_step"]["median_ms"] for s in summaries] == [1.3, 0.9, 1.1]  # in run order
+    assert [s["recoveries"] for s in summaries] == [1, 2, 3]
+    assert all("frame_times" not in s for s in summaries)
+    assert median_run(runs[:2])[0] is runs[1]  # an even count: the lower of the middle two
+    assert median_run(runs[:1])[0] is runs[0]
+    with pytest.raises(ValueError, match="runs"):
+        median_run([])
+
+
+def test_report_with_repeats_prints_the_spread(report):
+    many = json.loads(json.dumps(report))
+    many["settings"]["repeats"] = 2
+    for case in many["cases"]:
+        fast = {k: {**case["closed_loop"][k]} for k in ("controller_step", "controller_step_cpu", "solve")}
+        fast["controller_step"]["median_ms"] = 0.5
+        case["closed_loop_repeats"] = [{**fast, "recoveries": 0}, {**fast, "recoveries": 0}]
+        case["closed_loop_repeats"][1]["controller_step"] = {**fast["controller_step"], "median_ms": 7.25}
+    text = format_report(many)
+    assert "Spread over the 2 closed-loop runs" in text
+    assert " 0.50 -  7.25" in text
+    assert "Spread over" not in format_report(report)  # one run: no spread table
+    assert report["settings"]["repeats"] == 1 and len(report["cases"][0]["closed_loop_repeats"]) == 1
+
+
 def test_bad_options_exit_2(capsys):
     assert main(["bench", "--horizons", "1", "--quiet"]) == 2
     assert "--horizons must each be in [2, 200]" in capsys.readouterr().err
     assert main(["bench", "--frames", "-1", "--quiet"]) == 2
     assert "--frames must be >= 0" in capsys.readouterr().err
+    assert main(["bench", "--repeats", "0", "--quiet"]) == 2
+    assert "--repeats must be >= 1" in capsys.readouterr().err

@@ -45,6 +45,11 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
         "--frames", type=int, default=DEFAULT_FRAMES,
         help=f"camera frames of motion per closed-loop run; 0: the whole path (default {DEFAULT_FRAMES})",
     )  # fmt: skip
+    p.add_argument(
+        "--repeats", type=int, default=1,
+        help="closed-loop runs per variant and N; the run with the median step time is reported, the "
+        "spread over the runs beside it (default 1)",
+    )  # fmt: skip
     p.add_argument("--seed", type=int, default=None, help="random seed (default: sim.seed of the config)")
     p.add_argument(
         "--out", default=DEFAULT_OUT,
@@ -77,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
     if args.frames < 0:
         print(f"capsule-mpc bench: --frames must be >= 0, got {args.frames}", file=sys.stderr)
         return 2
+    if args.repeats < 1:
+        print(f"capsule-mpc bench: --repeats must be >= 1, got {args.repeats}", file=sys.stderr)
+        return 2
     bad = [n for n in args.horizons if not 2 <= n <= 200]
     if bad:
         print(f"capsule-mpc bench: --horizons must each be in [2, 200], got {bad}", file=sys.stderr)
@@ -88,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
 
     report = run_benchmark(
         args.config, args.horizons, args.schemes, args.frames or None, args.seed, progress=say,
-        qp_solvers=args.qp_solvers,
+        qp_solvers=args.qp_solvers, repeats=args.repeats,
     )  # fmt: skip
     out = write_report(report, args.out)
     figure = plot_report(report, out.with_suffix(".png"))
@@ -166,6 +174,12 @@ def _build_cell(b: dict[str, Any] | None) -> str:
     return "-" if b is None else f"{b['build_s']:.2f} ({b['process_s']:.2f})"
 
 
+def _spread(repeats: list[dict[str, Any]], part: str, key: str) -> str:
+    """``min - max`` of ``part[key]`` over the closed-loop repeats, ms."""
+    values = [r[part][key] for r in repeats]
+    return f"{min(values):5.2f} - {max(values):5.2f}"
+
+
 def format_report(report: dict[str, Any]) -> str:
     """The report as text tables: build and start-up times, closed-loop times, targets."""
     mach, st = report["machine"], report["settings"]
@@ -203,6 +217,20 @@ def format_report(report: dict[str, Any]) -> str:
             f" {sol['p99_ms']:6.2f} {sol['max_ms']:6.1f} | {r['recoveries']:5d} {r['held']:4d}"
             f" {r['failures']:4d} {r['ipopt_after_first']:5d} {r['metrics']['cross_track_rms_mm']:9.3f}"
         )
+    if st.get("repeats", 1) > 1:
+        lines += [
+            "",
+            f"Spread over the {st['repeats']} closed-loop runs of each case (the table above shows the run"
+            " with the median step median), ms: min - max",
+            f"{'variant':>11s} {'N':>4s} | {'step med':>13s} {'p99':>13s} {'max':>13s} | {'solve med':>13s}",
+        ]
+        for c in report["cases"]:
+            reps = c["closed_loop_repeats"]
+            cells = [_spread(reps, "controller_step", key) for key in ("median_ms", "p99_ms", "max_ms")]
+            lines.append(
+                f"{c['variant']:>11s} {c['horizon']:4d} | {' '.join(f'{x:>13s}' for x in cells)}"
+                f" | {_spread(reps, 'solve', 'median_ms'):>13s}"
+            )
     if report["targets"]:
         lines += ["", f"Targets (controller step; second start <= {st['warm_start_target_s']} s)"]
         for t in report["targets"]:

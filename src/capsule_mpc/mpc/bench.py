@@ -8,14 +8,18 @@ For each horizon N (``mpc.horizon`` overridden) and each variant -- a scheme wit
   cache directory (code generation + gcc; once per horizon, as the variants of a horizon share the
   compiled NLP functions); compiled again on the now warm cache (the "second start"). The cache
   directory is a temporary one holding copies of the force maps only.
-* **closed-loop times** (compiled, as configured by default) over a run of
+* **closed-loop times** (compiled, as configured by default) over ``repeats`` runs of
   :func:`capsule_mpc.sim.simulate` (finite-magnet plant, camera noise and latency) on the first
   ``frames`` camera frames of the path: the **controller step** (the whole ``step`` call, Python
   included: wall time, and CPU time of the process, which a loaded machine does not inflate) and
   the **solve** alone (the solver calls of the frame, as the controller reports them): median,
   p95, p99, max and mean over every frame but the first (the converged IPOPT initialisation,
   reported on its own); recoveries, frames held in the settle phase, failures (shifted plan) and
-  the tracking metrics; the per-frame times themselves (for the figure).
+  the tracking metrics; the per-frame times themselves (for the figure). With ``repeats`` > 1
+  the same run is repeated and the one whose controller-step median is the median of the
+  repeats is reported in full (a real run, neither the fastest nor the slowest); every repeat's
+  time statistics are listed beside it, so a machine whose speed drifts shows as a spread
+  instead of being averaged away.
 
 :func:`run_benchmark` returns a JSON-ready report (``capsule-mpc bench`` prints it as tables,
 writes it as JSON and draws the distribution of the times per variant).
@@ -60,6 +64,7 @@ __all__ = [
     "closed_loop_timing",
     "fresh_process_build",
     "machine_info",
+    "median_run",
     "path_first_frames",
     "run_benchmark",
     "variants",
@@ -407,8 +412,10 @@ def _bench_case(
     cache: Path,
     cold: bool,
     say: Callable[[str], None],
+    repeats: int = 1,
 ) -> dict[str, Any]:
-    """One variant at one horizon; ``cold``: the cache is empty (the horizon's first variant)."""
+    """One variant at one horizon; ``cold``: the cache is empty (the horizon's first variant);
+    ``repeats`` closed-loop runs (see :func:`median_run`)."""
     scheme, qp_solver = variant
     label = f"[{_label(scheme, qp_solver)} N={horizon}]"
     compiled = bench_scenario(
@@ -428,9 +435,34 @@ def _bench_case(
         say(f"{label} second start, compiled, warm cache (fresh process)")
         case["build"]["compiled_warm"] = fresh_process_build(compiled)
     case["n_variables"] = case["build"]["uncompiled"]["n_variables"]
-    say(f"{label} closed loop")
-    case["closed_loop"] = closed_loop_timing(compiled if scheme != "ipopt" else uncompiled, path, seed)
+    runs = []
+    for i in range(repeats):
+        say(f"{label} closed loop" + (f", run {i + 1} of {repeats}" if repeats > 1 else ""))
+        runs.append(closed_loop_timing(compiled if scheme != "ipopt" else uncompiled, path, seed))
+    case["closed_loop"], case["closed_loop_repeats"] = median_run(runs)
     return case
+
+
+#: Statistics of each repeat listed in ``closed_loop_repeats``.
+_REPEAT_KEYS = ("controller_step", "controller_step_cpu", "solve")
+
+
+def median_run(runs: list[dict[str, Any]]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The run whose controller-step median is the median of ``runs`` (the lower one of the middle
+    two for an even count), and each run's time statistics (``controller_step``,
+    ``controller_step_cpu``, ``solve``, ``recoveries``), in the order run.
+
+    Raises
+    ------
+    ValueError
+        If ``runs`` is empty.
+    """
+    if not runs:
+        raise ValueError("runs: need at least one closed-loop run")
+    order = sorted(range(len(runs)), key=lambda i: runs[i]["controller_step"]["median_ms"])
+    chosen = runs[order[(len(runs) - 1) // 2]]
+    summaries = [{**{k: r[k] for k in _REPEAT_KEYS}, "recoveries": r["recoveries"]} for r in runs]
+    return chosen, summaries
 
 
 def _targets(cases: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -464,6 +496,7 @@ def run_benchmark(
     seed: int | None = None,
     progress: Callable[[str], None] | None = None,
     qp_solvers: Sequence[str] = DEFAULT_QP_SOLVERS,
+    repeats: int = 1,
 ) -> dict[str, Any]:
     """Run the benchmark (see the module docstring) and return the report.
 
@@ -484,16 +517,21 @@ def run_benchmark(
         Called with a line of text before each measurement.
     qp_solvers : sequence of {'hpipm', 'piqp', 'qrqp'}
         QP solvers of the SQP schemes (each scheme is measured with each).
+    repeats : int
+        Closed-loop runs per variant and horizon, >= 1 (see :func:`median_run`).
 
     Returns
     -------
     dict
         JSON-ready: ``machine`` (with the load average at the start and ``load_average_end``),
-        ``settings``, ``config`` (path and full scenario), ``cases`` (per variant and N: ``build``
-        and ``closed_loop``), ``targets`` (at the target horizons) and ``total_s``.
+        ``settings``, ``config`` (path and full scenario), ``cases`` (per variant and N: ``build``,
+        ``closed_loop`` (the median run) and ``closed_loop_repeats``), ``targets`` (at the target
+        horizons) and ``total_s``.
     """
     if not horizons:
         raise ValueError("horizons: give at least one horizon N")
+    if repeats < 1:
+        raise ValueError(f"repeats: must be >= 1, got {repeats}")
     pairs = variants(schemes, qp_solvers)
     say = progress if progress is not None else (lambda _msg: None)
     t_start = time.perf_counter()
@@ -511,7 +549,7 @@ def run_benchmark(
             compiled_yet = False
             for variant in pairs:
                 cold = not compiled_yet and variant[0] != "ipopt"
-                cases.append(_bench_case(base, variant, int(horizon), path, seed, cache, cold, say))
+                cases.append(_bench_case(base, variant, int(horizon), path, seed, cache, cold, say, repeats))
                 compiled_yet = compiled_yet or cold
     machine["load_average_end"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
     return {
@@ -524,6 +562,7 @@ def run_benchmark(
             "qp_solvers": list(qp_solvers),
             "variants": [_label(*v) for v in pairs],
             "frames": frames,
+            "repeats": repeats,
             "seed": seed,
             "path_length_m": path.length_m,
             "path_duration_s": path.duration_s,
