@@ -202,6 +202,22 @@ def test_camera_lost_during_a_crawl_the_approach_still_ends(scenario):
     assert np.all(np.isfinite(out["cmd"])) and np.all(out["cmd"][-5:] == 0)
 
 
+def test_warm_up_leaves_the_approach_as_it_was(scenario):
+    """The warm-up (its numerics run once before the loop) changes nothing the approach does: the
+    same commands, phases and attempts on the same capsule as without it."""
+    runs = []
+    for warm in (False, True):
+        approach = make_approach(scenario)
+        if warm:
+            approach.warm_up(scenario.plate.epm_height_m)
+            assert approach.phase == "tracking" and approach.attempts == 0 and not approach.frames
+            assert np.array_equal(approach._accel, np.zeros(3))
+        out = drive(scenario, approach, FakeCapsule(np.array([0.0, 3e-3]), creep_mps=2e-4), 6.0)
+        runs.append((out["cmd"], approach.phase, approach.attempts))
+    assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1:] == runs[1][1:]
+    assert runs[0][2] >= 1  # the approach did act
+
+
 def test_disabled_approach_never_acts(scenario):
     approach = make_approach(with_mpc(scenario, final_approach=False))
     out = drive(scenario, approach, FakeCapsule(np.array([0.0, 3e-3])), 3.0)

@@ -159,6 +159,8 @@ class MPCController(Controller):
         self.fallback_steps = 0
         self.deadline_misses = 0
         self.approach = FinalApproach(scenario, path, self.stack.force, self.stack.ocp.lead_eq_m, self.dt_s)
+        if self.approach.enabled:
+            self.approach.warm_up(scenario.plate.epm_height_m)
 
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
