@@ -34,13 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from capsule_mpc.atomic import write_text_atomic
 from capsule_mpc.cli.arguments import int_at_least
 from capsule_mpc.cli.simulate import prepare_run
 from capsule_mpc.config import FaultsConfig, Scenario, packaged_config_path
 from capsule_mpc.metrics import tracking_errors
 from capsule_mpc.mpc import MPCController
-from capsule_mpc.outputs import output_file_problem
+from capsule_mpc.outputs import output_file_problem, write_report_file
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import RunResult, simulate
 from capsule_mpc.sim.faults import SOLVER_FAULT_KINDS, recovery_times
@@ -222,12 +221,8 @@ def main(argv: list[str] | None = None) -> int:
     report = run_campaign(scenario, path, args.runs, args.target, args.probability)
     text = json.dumps(_finite(report), indent=2)
     print(text)
-    try:
-        write_text_atomic(out, text + "\n")
-    except OSError as exc:
-        print(f"fault_campaign: --out: cannot write {out}: {exc}", file=sys.stderr)
+    if write_report_file(out, text + "\n", "fault_campaign") != 0:
         return 2
-    print(f"wrote {out}")
     bad = sum(v for k, v in report["command_checks"].items() if k != "commands")
     return 0 if bad == 0 and report["solver_faults_injected"] >= args.target else 1
 

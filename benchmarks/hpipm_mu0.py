@@ -28,13 +28,12 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from capsule_mpc.atomic import write_text_atomic
 from capsule_mpc.config import Scenario, load_config, packaged_config_path
 from capsule_mpc.mpc import MPCController
 from capsule_mpc.mpc.controller import build_mpc_stack
 from capsule_mpc.mpc.problem import N_STATE, OCP
 from capsule_mpc.mpc.solver import HPIPM_OPTIONS, nlp_functions, qp_options
-from capsule_mpc.outputs import output_file_problem
+from capsule_mpc.outputs import output_file_problem, write_report_file
 from capsule_mpc.paths import path_from_scenario
 from capsule_mpc.sim import simulate
 
@@ -178,13 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         worst = total["first_command_error_max_mmps"]
         print(f"mu0 {float(mu0):5.3g}: {total['not_solved']} of {total['frames']} QPs not solved, first "
               f"command at most {worst:.2g} mm/s from the reference")  # fmt: skip
-    try:
-        write_text_atomic(out, json.dumps(report, indent=2) + "\n")
-    except OSError as exc:
-        print(f"hpipm_mu0: --out: cannot write {out}: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {out}")
-    return 0
+    return write_report_file(out, json.dumps(report, indent=2) + "\n", "hpipm_mu0")
 
 
 if __name__ == "__main__":

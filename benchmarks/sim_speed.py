@@ -19,11 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from capsule_mpc.atomic import write_text_atomic
 from capsule_mpc.cli.arguments import int_at_least
 from capsule_mpc.cli.simulate import prepare_run
 from capsule_mpc.config import packaged_config_path
-from capsule_mpc.outputs import output_file_problem
+from capsule_mpc.outputs import output_file_problem, write_report_file
 from capsule_mpc.sim import CapsulePlant, SimpleArm, simulate
 
 #: Plant steps timed per component in the micro-profile.
@@ -92,13 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     text = json.dumps(report, indent=2) + "\n"
     print(text, end="")
-    try:
-        write_text_atomic(out, text)
-    except OSError as exc:
-        print(f"sim_speed: --out: cannot write {out}: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {out}")
-    return 0
+    return write_report_file(out, text, "sim_speed")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,14 @@ import sys
 import pytest
 
 from capsule_mpc.config import ConfigError
-from capsule_mpc.outputs import LOCK_NAME, MANIFEST_NAME, OutputError, output_folder, read_manifest
+from capsule_mpc.outputs import (
+    LOCK_NAME,
+    MANIFEST_NAME,
+    OutputError,
+    output_folder,
+    read_manifest,
+    write_report_file,
+)
 
 
 def test_manifest_lists_what_the_command_wrote_and_its_status(tmp_path):
@@ -133,3 +140,14 @@ def test_a_command_interrupted_before_writing_leaves_nothing(tmp_path):
     with pytest.raises(KeyboardInterrupt), output_folder(out, "plan"):
         raise KeyboardInterrupt
     assert not out.exists()
+
+
+def test_a_report_file_is_written_or_refused_naming_the_program(tmp_path, capsys):
+    out = tmp_path / "report.json"
+    assert write_report_file(out, '{"a": 1}\n', "bench_x") == 0
+    assert out.read_text() == '{"a": 1}\n' and f"wrote {out}" in capsys.readouterr().out
+    blocked = tmp_path / "a_file" / "report.json"  # its folder is a file
+    (tmp_path / "a_file").write_text("")
+    assert write_report_file(blocked, "{}\n", "bench_x") == 2
+    assert f"bench_x: --out: cannot write {blocked}" in capsys.readouterr().err
+    assert not blocked.exists()

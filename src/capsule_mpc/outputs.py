@@ -41,6 +41,7 @@ __all__ = [
     "output_file_problem",
     "output_folder",
     "read_manifest",
+    "write_report_file",
 ]
 
 #: The manifest a command leaves in its output folder.
@@ -68,6 +69,18 @@ def output_file_problem(out: Path, example_name: str) -> str | None:
     if not os.access(folder, os.W_OK | os.X_OK):
         return f"cannot write in {folder.resolve()}"
     return None
+
+
+def write_report_file(out: Path, text: str, prog: str) -> int:
+    """Write a report ``text`` to ``out`` atomically and say so; the exit status: 0, or 2 with the
+    reason on stderr (``prog: --out: cannot write ...``) when it cannot be written."""
+    try:
+        write_text_atomic(out, text)
+    except OSError as exc:
+        print(f"{prog}: --out: cannot write {out}: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {out}")
+    return 0
 
 
 def read_manifest(folder: str | Path) -> dict | None:
