@@ -32,7 +32,7 @@ from capsule_mpc.config import Scenario, load_config, packaged_config_path
 from capsule_mpc.mpc import MPCController
 from capsule_mpc.mpc.controller import build_mpc_stack
 from capsule_mpc.mpc.problem import N_STATE, OCP
-from capsule_mpc.mpc.solver import HPIPM_OPTIONS, nlp_functions, qp_options
+from capsule_mpc.mpc.solver import HPIPM_OPTIONS, nlp_functions, qp_function, qp_options
 from capsule_mpc.outputs import output_file_problem, write_report_file
 from capsule_mpc.paths import path_from_scenario
 from capsule_mpc.sim import simulate
@@ -82,19 +82,18 @@ def record_qps(scenario: Scenario, seed: int) -> list[tuple[np.ndarray, np.ndarr
 def solve_all(ocp: OCP, frames: list[tuple[np.ndarray, np.ndarray]], options: dict) -> dict[str, np.ndarray]:
     """Each recorded QP solved by HPIPM with ``options``: iterations, status and first command."""
     derivatives, _ = nlp_functions(ocp)
+    qp_args = qp_function(ocp, derivatives)
     opts = qp_options("hpipm", ocp)
     opts["hpipm"] = dict(options)
     qp: ca.Function | None = None
     iters, status, first, ms = [], [], [], []
     for p, w in frames:
-        w_lin = np.concatenate([ocp.initial_state(p), w[N_STATE:]])
-        lbw, ubw = ocp.variable_bounds(p)
-        hess, grad, g, jac = derivatives(w_lin, p)
+        args = qp_args(w=w, p=p)
+        w_lin = np.asarray(args.pop("w_lin")).ravel()
         if qp is None:
-            qp = ca.conic("mpc_qp", "hpipm", {"h": hess.sparsity(), "a": jac.sparsity()}, opts)
-        g = np.asarray(g).ravel()
+            qp = ca.conic("mpc_qp", "hpipm", {"h": args["h"].sparsity(), "a": args["a"].sparsity()}, opts)
         t0 = time.perf_counter()
-        sol = qp(h=hess, g=grad, a=jac, lba=ocp.lbg - g, uba=ocp.ubg - g, lbx=lbw - w_lin, ubx=ubw - w_lin)
+        sol = qp(**args)
         ms.append(1e3 * (time.perf_counter() - t0))
         stats = qp.stats()
         iters.append(int(stats["iter_count"]))

@@ -13,7 +13,14 @@ from capsule_mpc.dynamics import capsule_model, discrete_step
 from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack
 from capsule_mpc.mpc.controller import model_scenario
 from capsule_mpc.mpc.problem import N_PATH, N_STATE, X_SCALE
-from capsule_mpc.mpc.solver import HPIPM_OPTIONS, FastCall, nlp_functions, qp_options, rti_function
+from capsule_mpc.mpc.solver import (
+    HPIPM_OPTIONS,
+    FastCall,
+    nlp_functions,
+    qp_function,
+    qp_options,
+    rti_function,
+)
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import simulate
 
@@ -198,19 +205,36 @@ def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(sharp, recorded):
 def _hpipm_iterations(ocp, frames, options: dict) -> tuple[np.ndarray, np.ndarray]:
     """Interior-point iterations and return status of HPIPM (``options``) on each recorded QP."""
     derivatives, _ = nlp_functions(ocp)
+    qp_args = qp_function(ocp, derivatives)
     opts = {**qp_options("hpipm", ocp), "hpipm": dict(options)}
     qp, iters, status = None, [], []
     for p, w0, _res in frames:
-        w_lin = np.concatenate([ocp.initial_state(p), w0[N_STATE:]])
-        lbw, ubw = ocp.variable_bounds(p)
-        hess, grad, g, jac = derivatives(w_lin, p)
+        args = qp_args(w=w0, p=p)
+        del args["w_lin"]
         if qp is None:
-            qp = ca.conic("qp", "hpipm", {"h": hess.sparsity(), "a": jac.sparsity()}, opts)
-        g = np.asarray(g).ravel()
-        qp(h=hess, g=grad, a=jac, lba=ocp.lbg - g, uba=ocp.ubg - g, lbx=lbw - w_lin, ubx=ubw - w_lin)
+            qp = ca.conic("qp", "hpipm", {"h": args["h"].sparsity(), "a": args["a"].sparsity()}, opts)
+        qp(**args)
         iters.append(qp.stats()["iter_count"])
         status.append(qp.stats()["return_status"])
     return np.array(iters), np.array(status)
+
+
+def test_qp_function_is_the_qp_the_rti_step_solves(sharp, recorded):
+    """Solved with the step's own settings, ``qp_function``'s QP gives the RTI step's next iterate."""
+    _run, frames, _calls = recorded
+    ocp = build_mpc_stack(sharp).ocp
+    derivatives, merit = nlp_functions(ocp)
+    qp_args, rti = qp_function(ocp, derivatives), rti_function(ocp, derivatives, merit)
+    qp = None
+    for p, w0, _res in frames[:: max(1, len(frames) // 10)]:
+        args = qp_args(w=w0, p=p)
+        w_lin = np.asarray(args.pop("w_lin")).ravel()
+        assert np.array_equal(w_lin[N_STATE:], w0[N_STATE:])  # stage 0 from the parameters only
+        if qp is None:
+            opts = qp_options("hpipm", ocp)
+            qp = ca.conic("qp", "hpipm", {"h": args["h"].sparsity(), "a": args["a"].sparsity()}, opts)
+        dw = np.asarray(qp(**args)["x"]).ravel()
+        assert w_lin + dw == pytest.approx(np.asarray(rti(w0, p)[0]).ravel(), abs=1e-12)
 
 
 def test_hpipm_initial_barrier_needs_fewer_iterations_than_the_modes_default(sharp, recorded):

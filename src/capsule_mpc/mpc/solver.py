@@ -49,6 +49,7 @@ __all__ = [
     "l1_merit_function",
     "nlp_cache_key",
     "nlp_functions",
+    "qp_function",
     "qp_options",
     "rti_function",
 ]
@@ -174,16 +175,33 @@ def _linearisation_point(ocp: OCP, w: ca.MX, p: ca.MX) -> tuple[ca.MX, ca.MX, ca
     return w_lin, lbw, ubw
 
 
+def _qp_arguments(ocp: OCP, qp_data: ca.Function, w: ca.MX, p: ca.MX) -> tuple[ca.MX, ca.MX, ca.MX, dict]:
+    """The Gauss-Newton QP in the step ``dw`` at ``w`` (stage 0 from ``p``): ``(w_lin, grad, g,
+    args)``, ``args`` as ``conic`` takes them (``h, g, a, lba, uba, lbx, ubx``)."""
+    w_lin, lbw, ubw = _linearisation_point(ocp, w, p)
+    hess, grad, g, jac_g = qp_data(w_lin, p)
+    args = {"h": hess, "g": grad, "a": jac_g, "lba": ca.DM(ocp.lbg) - g, "uba": ca.DM(ocp.ubg) - g,
+            "lbx": lbw - w_lin, "ubx": ubw - w_lin}  # fmt: skip
+    return w_lin, grad, g, args
+
+
+def qp_function(ocp: OCP, qp_data: ca.Function) -> ca.Function:
+    """``mpc_qp(w, p) -> (h, g, a, lba, uba, lbx, ubx, w_lin)``: the QP an RTI step from ``w``
+    solves (in the step ``dw``; ``w_lin``: ``w`` with stage 0 from ``p``), as ``conic`` takes it --
+    to solve a recorded frame's QP again with other QP settings."""
+    w, p = ca.MX.sym("w", ocp.n_w), ca.MX.sym("p", ocp.n_p)
+    w_lin, _grad, _g, args = _qp_arguments(ocp, qp_data, w, p)
+    return ca.Function("mpc_qp", [w, p], [*args.values(), w_lin], ["w", "p"], [*args, "w_lin"])
+
+
 def _qp_step(
     ocp: OCP, qp_data: ca.Function, qpsol: str, w: ca.MX, p: ca.MX, opts: dict | None = None
 ) -> tuple[ca.MX, ...]:
-    """The Gauss-Newton QP at ``w`` (stage 0 from ``p``): ``(w_lin, dw, lam_g, grad, g)``."""
-    w_lin, lbw, ubw = _linearisation_point(ocp, w, p)
-    hess, grad, g, jac_g = qp_data(w_lin, p)
+    """The Gauss-Newton QP at ``w`` (stage 0 from ``p``) solved: ``(w_lin, dw, lam_g, grad, g)``."""
+    w_lin, grad, g, args = _qp_arguments(ocp, qp_data, w, p)
     opts = qp_options(qpsol, ocp) if opts is None else opts
-    qp = ca.conic("mpc_qp", qpsol, {"h": hess.sparsity(), "a": jac_g.sparsity()}, opts)
-    sol = qp(h=hess, g=grad, a=jac_g, lba=ca.DM(ocp.lbg) - g, uba=ca.DM(ocp.ubg) - g,
-             lbx=lbw - w_lin, ubx=ubw - w_lin)  # fmt: skip
+    qp = ca.conic("mpc_qp", qpsol, {"h": args["h"].sparsity(), "a": args["a"].sparsity()}, opts)
+    sol = qp(**args)
     return w_lin, sol["x"], sol["lam_a"], grad, g
 
 
