@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from capsule_mpc import ConfigError, dump_config, load_config
-from capsule_mpc.cli.info import check_epm_height, scenario_figures
+from capsule_mpc.cli.info import _mm, check_epm_height, scenario_figures
 from capsule_mpc.config import config_from_dict, packaged_config_path
 
 PAPER = yaml.safe_load(packaged_config_path("paper").read_text())
@@ -236,6 +236,13 @@ def test_epm_height_within_what_the_models_cover(tmp_path, changes, message):
     data["plant"] = {"preset": "ideal"}
     data.pop("limits", None)
     assert load_config(_write(tmp_path, data)).force_map.height_offsets_m == [-0.005, 0.0, 0.005]
+
+
+@pytest.mark.parametrize(("lead_m", "text"), [(-1e-15, "+0.0"), (1e-15, "+0.0"), (-0.0, "+0.0"),
+                                              (-0.04914, "-49.1"), (0.00006, "+0.1")])  # fmt: skip
+def test_leads_print_without_a_negative_zero(lead_m, text):
+    # The rest lead's y of a symmetric rig is 0 up to the root finder's noise of either sign.
+    assert _mm(lead_m) == text
 
 
 def test_check_epm_height_refuses_what_the_force_map_cannot_hold(scenario):

@@ -30,6 +30,11 @@ _LEADS_M = (0.0, 0.010)
 _HEIGHT_RESOLUTION_M = 5e-4
 
 
+def _mm(x_m: float) -> str:
+    """``x_m`` in mm to 0.1 mm with its sign; a root finder's -1e-12 prints +0.0, not -0.0."""
+    return f"{round(x_m * 1e3, 1) + 0.0:+.1f}"
+
+
 def _height_problem(scenario: Scenario, height_m: float) -> tuple[str | None, np.ndarray | None]:
     """Why the code cannot model the rig at ``height_m`` (None if it can), and the rest lead there."""
     try:
@@ -41,7 +46,7 @@ def _height_problem(scenario: Scenario, height_m: float) -> tuple[str | None, np
     reach = float(np.max(np.abs(rest))) + max_lead
     if reach > half_range:
         return (
-            f"the capsule's rest lead there is ({rest[0] * 1e3:+.1f}, {rest[1] * 1e3:+.1f}) mm "
+            f"the capsule's rest lead there is ({_mm(rest[0])}, {_mm(rest[1])}) mm "
             f"(finite-magnet model) and the controller may command leads up to limits.max_lead_m = "
             f"{max_lead * 1e3:g} mm from it, {reach * 1e3:.1f} mm from the EPM axis, beyond the force "
             f"map's |lead| <= force_map.lead_half_range_m = {half_range * 1e3:g} mm"
