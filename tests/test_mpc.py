@@ -204,6 +204,43 @@ def test_fallback_sends_the_previous_plans_next_commands(fast, monkeypatch):
     assert np.array(sent) == pytest.approx(planned[:, 1:4].T, abs=1e-12)
 
 
+def test_a_recovery_cut_short_warm_starts_the_next_frame(fast, monkeypatch):
+    """When the frame's step and its SQP recovery fail, the shifted plan's command is sent, and the
+    recovery's last iterate (not the old plan again) is where the next frame's step starts."""
+    ctrl = MPCController()
+    epm = np.array([-0.017, 0.0, fast.plate.epm_height_m])
+    ctrl.reset(fast, PATH, epm)
+    dt = 1 / fast.camera.rate_hz
+    for k in range(15):
+        t = k * dt
+        cmd = ctrl.step(t, Measurement(t, t - dt, PATH.position(max(t - dt, 0)) * 0.9), epm)
+        epm = epm + dt * cmd.epm_velocity_mps
+    planned = ctrl.plan.us.copy()
+    solver = ctrl.stack.solver
+    ocp = ctrl.stack.ocp
+    solve, sqp = type(solver).solve, type(solver).sqp
+    iterate = {}
+
+    def cut_short(p, w0, *args, **kwargs):
+        res = sqp(solver, p, w0, *args, **kwargs)
+        iterate["w"] = res.w + 1e-3  # a finite point the recovery left infeasible
+        return SolveResult(False, "iteration cap", 2, res.solve_ms, "sqp", iterate["w"], res.lam_x, res.lam_g)
+
+    monkeypatch.setattr(solver, "solve", lambda *a, **k: _failing(solve(solver, *a, **k)))
+    monkeypatch.setattr(solver, "sqp", cut_short)
+    t = 15 * dt
+    cmd = ctrl.step(t, Measurement(t, t - dt, PATH.position(t - dt) * 0.9), epm)
+    assert cmd.stats.status.startswith("failed") and "iteration cap" in cmd.stats.status
+    assert cmd.epm_velocity_mps == pytest.approx(planned[:, 1], abs=1e-12)  # the shifted plan's
+    epm = epm + dt * cmd.epm_velocity_mps
+    guesses = []
+    monkeypatch.setattr(solver, "solve", lambda p, w0, *a: guesses.append(w0) or solve(solver, p, w0, *a))
+    t = 16 * dt
+    cmd = ctrl.step(t, Measurement(t, t - dt, PATH.position(t - dt) * 0.9), epm)
+    assert guesses[0] == pytest.approx(ocp.shift(iterate["w"]), abs=1e-15)
+    assert np.all(np.isfinite(cmd.epm_velocity_mps))
+
+
 def test_offline_plan_as_feedforward(fast):
     planned = fast.model_copy(update={"mpc": fast.mpc.model_copy(update={"feedforward": "plan"})})
     ctrl = MPCController()

@@ -530,7 +530,8 @@ class MPCConfig(_Strict):
         description=(
             "rti: SQP iterations with line search (fewer if converged) that recover a frame whose "
             "step failed (a violation above the step limit), [0, 50]; if they fail too, or with 0, "
-            "the shifted previous plan is used. IPOPT runs only on the first frame (and after the "
+            "the shifted previous plan is used (the recovery's last iterate is the next frame's "
+            "starting point). IPOPT runs only on the first frame (and after the "
             "shifted plan ran out). Over the 30 runs that chose friction_smoothing_eps_mps, 3/4/5/6 "
             "iterations left 12/1/0/0 frames to the shifted plan (3: tracking RMS +21 % at 0.045 m/s; "
             "4-6 the same tracking); each costs one QP (0.5-1.2 ms at N = 20). With "

@@ -13,7 +13,8 @@ Every frame:
    the command is 0 whatever the plan), else recover with a few SQP iterations with line
    search on the same structure (``mpc.recovery_sqp_iter``);
 5. take the first command, or -- on a failed, non-finite or late solve -- the
-   shifted previous plan, or else a braking command;
+   shifted previous plan, or else a braking command (a recovery that ran out of iterations
+   leaves its last iterate as the next frame's warm start);
 6. pass it through the safety layer: speed, acceleration and workspace limits
    are enforced on the command actually sent (and any clipping is counted).
 
@@ -326,7 +327,13 @@ class MPCController(Controller):
         stats.failed = True
         stats.status = "failed: " + res.status
         self.fallback_steps += 1
-        return self._emit(self._fallback_command(), epm, stats, hold=t_s < 0)
+        u = self._fallback_command()
+        if res.solver == "sqp" and self.plan is not None and np.all(np.isfinite(res.w)):
+            # A recovery that ran out of iterations: its iterate (each line search lowered the
+            # merit from the shifted plan's) warm-starts the next frame, whose step goes on with
+            # the repair; restarting from the shifted plan would repeat the same failed step.
+            self.plan.w = res.w
+        return self._emit(u, epm, stats, hold=t_s < 0)
 
     def _approach_command(self, u: np.ndarray, epm: np.ndarray) -> Command:
         """The final approach's command (:mod:`.approach`): the MPC's plan is dropped (a new one is
