@@ -504,7 +504,13 @@ class MPCConfig(_Strict):
 
     horizon: Integer = Field(20, ge=2, le=200, description="Prediction horizon N, steps, [2, 200].")
     dt_s: Number | None = Field(
-        None, gt=0, le=0.5, description="Step of the prediction, s; None = one camera frame."
+        None,
+        gt=0,
+        le=0.5,
+        description=(
+            "Step of the prediction, s; None = one camera frame. The MPC shifts its plan by one "
+            "stage per frame, so another step misaligns its warm start and fallback (warned)."
+        ),
     )
     scheme: Literal["rti", "sqp", "ipopt"] = Field(
         "rti",

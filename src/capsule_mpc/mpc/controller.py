@@ -134,7 +134,15 @@ class MPCController(Controller):
         self.solver = self.stack.solver if wrap is None else wrap(self.stack.solver)
         cfg = scenario.mpc
         self.dt_s = self.stack.ocp.dt_s
-        self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * self.dt_s
+        frame_s = 1.0 / scenario.camera.rate_hz
+        self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * frame_s
+        if not math.isclose(self.dt_s, frame_s, rel_tol=1e-9):
+            warnings.warn(
+                f"mpc.dt_s: {self.dt_s:g} s is not the frame period {frame_s:g} s; the controller "
+                "shifts its plan by one stage per frame, so its warm start, shifted-plan fallback "
+                "and disturbance estimate assume one stage per frame (None = one frame)",
+                stacklevel=2,
+            )
         self.estimator = CapsuleEstimator(scenario.camera.noise_std_m, cfg.estimator_accel_std_mps2)
         self.disturbance_n = np.zeros(N_DIST)
         self.friction_rls = FrictionOffsetRLS(cfg, self.dt_s) if cfg.friction_adaptation == "rls" else None
