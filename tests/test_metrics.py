@@ -123,6 +123,12 @@ def test_prediction_errors_hand_computed():
     assert np.all(np.isnan(none[1])) and np.all(np.isnan(none[2]))
     with pytest.raises(ValueError, match="dt_s"):
         prediction_errors(log, pred, 0.0)
+    # A first stage of one frame, then 2 s stages (the MPC's multi-rate grid): look-ahead 1, 3 s.
+    look, rms, _ = prediction_errors(log, pred, 2.0, only_first, first_s=1.0)
+    np.testing.assert_allclose(look, [1.0, 3.0])
+    np.testing.assert_allclose(rms * 1e3, [0.0, 1.0])  # at t = 3 the capsule is at 3 mm, not 2
+    with pytest.raises(ValueError, match="first_s"):
+        prediction_errors(log, pred, 1.0, first_s=-1.0)
     with pytest.raises(ValueError, match="predictions"):
         prediction_errors(log, pred[:3], 1.0)
 

@@ -73,16 +73,17 @@ def test_the_100hz_loop_tracks_at_least_as_well_as_the_30hz_loop(loops):
 
 
 def test_the_deadline_is_one_frame_whatever_the_prediction_step():
-    """At 100 Hz with 20 ms prediction stages the deadline is the frame (10 ms), not the stage, and
-    the controller warns that its shift assumes one stage per frame."""
+    """At 100 Hz with 20 ms prediction stages the deadline is the frame (10 ms), not the stage; the
+    plan's first stage is the frame, the others the configured step, without a warning."""
     sc = _fast(load_config(REPO / "configs" / "rectangle_100hz.yaml"))
     coarse = sc.model_copy(update={"mpc": sc.mpc.model_copy(update={"horizon": 20, "dt_s": 0.02})})
     epm = np.array([-0.067, -0.03, sc.plate.epm_height_m])
     ctrl = MPCController()
-    with pytest.warns(UserWarning, match=r"mpc.dt_s: 0.02 s is not the frame period 0.01 s"):
-        ctrl.reset(coarse, PATH, epm)
-    assert ctrl.dt_s == pytest.approx(0.02) and ctrl.deadline_ms == pytest.approx(10.0)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # one stage per frame: no warning
-        ctrl.reset(sc, PATH, epm)
+        warnings.simplefilter("error")
+        ctrl.reset(coarse, PATH, epm)
+    assert ctrl.dt_s == pytest.approx(0.01) and ctrl.deadline_ms == pytest.approx(10.0)
+    assert ctrl.stack.ocp.steps_s == pytest.approx([0.01] + [0.02] * 19)
+    assert coarse.prediction_times_s()[-1] == pytest.approx(0.39)
+    ctrl.reset(sc, PATH, epm)
     assert ctrl.deadline_ms == pytest.approx(10.0)

@@ -23,6 +23,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import yaml
 from pydantic import (
     BaseModel,
@@ -508,8 +509,9 @@ class MPCConfig(_Strict):
         gt=0,
         le=0.5,
         description=(
-            "Step of the prediction, s; None = one camera frame. The MPC shifts its plan by one "
-            "stage per frame, so another step misaligns its warm start and fallback (warned)."
+            "Step of the prediction's stages 2..N, s; None = one camera frame. The first stage is "
+            "always one frame (the command is sent for a frame); a longer step stretches the "
+            "horizon (frame + (N - 1) dt_s) at the same N, e.g. 20 ms stages in a 100 Hz loop."
         ),
     )
     scheme: Literal["rti", "sqp", "ipopt"] = Field(
@@ -1388,6 +1390,20 @@ class Scenario(_Strict):
                 f"EPM height), got {offsets}"
             )
         return self
+
+    def prediction_steps_s(self) -> np.ndarray:
+        """Durations of the MPC's N prediction stages, s: one camera frame, then ``mpc.dt_s``
+        (one frame when None)."""
+        frame = 1.0 / self.camera.rate_hz
+        step = frame if self.mpc.dt_s is None else float(self.mpc.dt_s)
+        return np.concatenate([[frame], np.full(self.mpc.horizon - 1, step)])
+
+    def prediction_times_s(self) -> np.ndarray:
+        """Look-ahead times of the MPC's stages 1..N from the frame it plans at, s."""
+        steps = self.prediction_steps_s()
+        if np.all(steps == steps[0]):  # as a product: the times a uniform grid always had
+            return steps[0] * np.arange(1, len(steps) + 1)
+        return steps[0] + steps[1] * np.arange(len(steps))
 
     def controller_friction(self) -> LearnedFrictionModel:
         """The steady-state friction law the controller uses: ``friction.learned`` or the paper's."""

@@ -267,11 +267,12 @@ def prediction_errors(
     predictions: np.ndarray,
     dt_s: float,
     frames: np.ndarray | None = None,
+    first_s: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """How far a controller's predicted capsule paths were from where the capsule really went.
 
     The prediction made at frame time ``t`` is taken to hold the capsule positions at
-    ``t + dt_s * (1..N)`` (the MPC's stages); each is compared with the true capsule position
+    ``t + first_s + dt_s * (0..N-1)`` (the MPC's stages); each is compared with the true capsule position
     at that time (linear interpolation in the log). Stages beyond the end of the log and
     frames without a prediction (NaN) are left out.
 
@@ -285,6 +286,9 @@ def prediction_errors(
         Time between prediction stages, s, > 0.
     frames : numpy.ndarray of bool (F,), optional
         Which frames to score (default: every frame with a prediction).
+    first_s : float, optional
+        Look-ahead of the first stage, s, > 0 (default ``dt_s``; the MPC's first stage is one
+        frame, its others ``mpc.dt_s``).
 
     Returns
     -------
@@ -292,14 +296,16 @@ def prediction_errors(
         Look-ahead times (N,), s; RMS (N,) and max (N,) prediction error at each, m (NaN where
         nothing was scored).
     """
-    if not dt_s > 0:
-        raise ValueError(f"dt_s: must be > 0, got {dt_s}")
+    first_s = dt_s if first_s is None else first_s
+    for name, value in (("dt_s", dt_s), ("first_s", first_s)):
+        if not value > 0:
+            raise ValueError(f"{name}: must be > 0, got {value}")
     pred = np.asarray(predictions, dtype=float)
     t = np.asarray(log["t_s"], dtype=float)
     if pred.ndim != 3 or pred.shape[0] != len(t) or pred.shape[2] != 2:
         raise ValueError(f"predictions: must have shape ({len(t)}, N, 2), got {pred.shape}")
     n = pred.shape[1]
-    lookahead = dt_s * np.arange(1, n + 1)
+    lookahead = first_s + dt_s * np.arange(n)
     use = np.all(np.isfinite(pred), axis=(1, 2)) if frames is None else np.asarray(frames, dtype=bool)
     when = t[use, None] + lookahead[None, :]  # (F', N)
     inside = when <= t[-1] + 1e-9

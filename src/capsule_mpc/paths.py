@@ -384,10 +384,10 @@ def max_path_speed(scenario: Scenario, path: ReferencePath) -> float:
     the reference runs away along every segment. At ``u = V`` it still cannot make up any lag:
     starting from rest, and on the new axis after every corner, an EPM limited to the acceleration
     ``a`` falls ``u^2 / (2 a)`` behind a point moving at ``u``, and only speed to spare wins that
-    back. The controller plans over its horizon ``T`` (``mpc.horizon`` steps of ``mpc.dt_s`` or
-    one camera frame), so it needs ``V - u >= u^2 / (2 a T)`` to catch up within what it plans,
-    i.e. ``u <= a T (sqrt(1 + 2 V / (a T)) - 1)``: 0.072 m/s with the defaults (V = 0.08 m/s,
-    a = 0.5 m/s^2, T = 0.67 s) on an axis-aligned segment.
+    back. The controller plans over its horizon ``T`` (one camera frame, then ``mpc.horizon - 1``
+    steps of ``mpc.dt_s`` or one frame), so it needs ``V - u >= u^2 / (2 a T)`` to catch up
+    within what it plans, i.e. ``u <= a T (sqrt(1 + 2 V / (a T)) - 1)``: 0.072 m/s with the
+    defaults (V = 0.08 m/s, a = 0.5 m/s^2, T = 0.67 s) on an axis-aligned segment.
 
     Measured on the rectangle (``simulate --controller mpc``, ideal and lab plants, seed 0), the
     largest lag behind the reference in the middle of a side: <= 1.6 mm up to 0.06 m/s, 4-6 mm at
@@ -396,8 +396,7 @@ def max_path_speed(scenario: Scenario, path: ReferencePath) -> float:
     start-up lag can no longer be made up within the horizon.
     """
     vel, acc, _ = scenario.arm.cartesian_limits(scenario.limits)
-    step_s = scenario.mpc.dt_s if scenario.mpc.dt_s is not None else 1.0 / scenario.camera.rate_hz
-    horizon_s = scenario.mpc.horizon * step_s
+    horizon_s = float(scenario.prediction_times_s()[-1])
     seg = np.diff(path.vertices_m, axis=0)
     share = np.max(np.abs(seg) / np.hypot(seg[:, 0], seg[:, 1])[:, None], axis=0)  # max |d_k| per axis
     a_t = np.asarray(acc[:2]) * horizon_s

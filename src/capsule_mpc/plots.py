@@ -369,6 +369,7 @@ def plot_prediction(
     out: str | Path,
     dt_s: float,
     title: str = "mpc",
+    first_s: float | None = None,
 ) -> Path:
     """The controller's predicted capsule paths vs the actual path at the first corner.
 
@@ -395,6 +396,8 @@ def plot_prediction(
         Time between prediction stages, s.
     title : str
         Controller name for the title.
+    first_s : float, optional
+        Look-ahead of the first stage, s (default ``dt_s``).
     """
     plt = _pyplot()
     stacked = predictions if isinstance(predictions, np.ndarray) else stack_predictions(list(predictions))
@@ -467,7 +470,7 @@ def plot_prediction(
     for frames, label, style in ((usable, "whole motion", "-"), (near, "corner frames", "--")):
         if not np.any(frames):
             continue
-        look, rms, worst = prediction_errors(log, pred, dt_s, frames)
+        look, rms, worst = prediction_errors(log, pred, dt_s, frames, first_s)
         (line,) = ax_err.plot(look, rms * 1e3, style, lw=1.5, label=f"RMS, {label}")
         ax_err.plot(
             look, worst * 1e3, style, lw=0.8, color=line.get_color(), alpha=0.6, label=f"max, {label}"

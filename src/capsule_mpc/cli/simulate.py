@@ -179,7 +179,8 @@ def prepare_run(
 
 
 def prediction_step_s(scenario: Scenario) -> float:
-    """Time between the MPC's prediction stages, s (``mpc.dt_s``, else one camera frame)."""
+    """Time between the MPC's prediction stages 1..N, s (``mpc.dt_s``, else one camera frame;
+    the first stage is one frame)."""
     dt = scenario.mpc.dt_s
     return float(dt) if dt is not None else 1.0 / scenario.camera.rate_hz
 
@@ -195,8 +196,10 @@ def write_prediction_figure(result: RunResult, out: str | Path) -> Path | None:
     stacked = stack_predictions(result.predictions)
     if stacked is None:
         return None
+    scn = result.scenario
+    first_s = 1.0 / scn.camera.rate_hz
     return plot_prediction(
-        result.log, stacked, result.path, Path(out), prediction_step_s(result.scenario), result.controller
+        result.log, stacked, result.path, Path(out), prediction_step_s(scn), result.controller, first_s
     )
 
 

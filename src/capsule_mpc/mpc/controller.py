@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
@@ -82,16 +82,19 @@ def model_scenario(scenario: Scenario) -> Scenario:
 
 def build_mpc_stack(scenario: Scenario) -> MPCStack:
     """Build (or reuse, within the process) the OCP and solver for ``scenario``."""
+    # The camera's rate sets the first stage; its noise and latency leave the problem alone.
     key = scenario.model_dump_json(exclude={"sim", "camera", "path", "name", "faults"})
+    key += f"|frame {1.0 / scenario.camera.rate_hz!r}"
     if key in _STACKS:
         return _STACKS[key]
     t0 = time.perf_counter()
     cfg = scenario.mpc
-    dt = cfg.dt_s if cfg.dt_s is not None else 1.0 / scenario.camera.rate_hz
+    frame_s = 1.0 / scenario.camera.rate_hz
+    dt = cfg.dt_s if cfg.dt_s is not None else frame_s
     model = capsule_model(model_scenario(scenario))
     force = capsule_force_function(scenario)
     lead_eq = model_equilibrium_lead(scenario)
-    ocp = build_ocp(model, dt, lead_eq)
+    ocp = build_ocp(model, dt, lead_eq, frame_s)
     compile_dir = cache_directory(scenario) / "mpc" if cfg.compile_c else None
     try:
         solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, compile_dir, cfg.qp_solver)
@@ -107,13 +110,33 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
 
 @dataclass
 class _Plan:
+    """A solved plan and how many frames ago it was solved.
+
+    ``xs`` (7 x N, stages 1..N) and ``us`` (3 x N) stay as solved, on the OCP's stage times
+    ``times`` (0..N, s); ``w`` is the warm start, shifted frame by frame (:meth:`OCP.shift`).
+    """
+
     w: np.ndarray
     lam_x: np.ndarray | None
     lam_g: np.ndarray | None
     xs: np.ndarray
     us: np.ndarray
+    times: np.ndarray
     age: int = 0
-    history: list[float] = field(default_factory=list)
+
+    def command(self, t_s: float) -> np.ndarray:
+        """The command the plan applies ``t_s`` after it was solved (stage k: ``[t_k, t_k+1)``)."""
+        k = int(np.searchsorted(self.times, t_s + 1e-9, side="right")) - 1
+        return np.asarray(self.us[:, min(k, self.us.shape[1] - 1)], dtype=float)
+
+    def state(self, t_s: float) -> np.ndarray:
+        """The model state the plan predicts ``t_s`` (>= the first stage's end) after it was
+        solved: a stage's own where ``t_s`` is one (within 1 ns), else interpolated linearly."""
+        times = self.times[1:]
+        k = int(np.searchsorted(times, t_s - 1e-9))
+        if k < len(times) and abs(times[k] - t_s) <= 1e-9:
+            return self.xs[:, k]
+        return np.array([np.interp(t_s, times, row) for row in self.xs])
 
 
 @register_controller("mpc")
@@ -133,16 +156,11 @@ class MPCController(Controller):
         wrap = self.solver_wrapper
         self.solver = self.stack.solver if wrap is None else wrap(self.stack.solver)
         cfg = scenario.mpc
-        self.dt_s = self.stack.ocp.dt_s
-        frame_s = 1.0 / scenario.camera.rate_hz
-        self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * frame_s
-        if not math.isclose(self.dt_s, frame_s, rel_tol=1e-9):
-            warnings.warn(
-                f"mpc.dt_s: {self.dt_s:g} s is not the frame period {frame_s:g} s; the controller "
-                "shifts its plan by one stage per frame, so its warm start, shifted-plan fallback "
-                "and disturbance estimate assume one stage per frame (None = one frame)",
-                stacklevel=2,
-            )
+        # The frame period: the first stage of the plan, the time between commands.
+        self.dt_s = self.stack.ocp.frame_s
+        self._stage_times = scenario.prediction_times_s()
+        self._stage_steps = scenario.prediction_steps_s()
+        self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * self.dt_s
         self.estimator = CapsuleEstimator(scenario.camera.noise_std_m, cfg.estimator_accel_std_mps2)
         self.disturbance_n = np.zeros(N_DIST)
         self.friction_rls = FrictionOffsetRLS(cfg, self.dt_s) if cfg.friction_adaptation == "rls" else None
@@ -174,21 +192,22 @@ class MPCController(Controller):
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
         """Capsule position and velocity at stages 1..N and the EPM feed-forward of inputs 0..N-1."""
-        dt, n = self.dt_s, self.stack.ocp.horizon  # type: ignore[union-attr]
-        times = t_s + dt * np.arange(1, n + 1)
+        n = self.stack.ocp.horizon  # type: ignore[union-attr]
+        times = t_s + self._stage_times
         if t_s < 0:  # settle phase: the rig holds the EPM, so plan to stay at the start
             return np.vstack([self.path.position(np.zeros(n)).T, np.zeros((4, n))])
         pos, vel = self.path.position(times).T, self.path.velocity(times).T
         if self._offline_plan is None:
             return np.vstack([pos, vel, vel])
-        ff = np.array([self._offline_plan.epm_velocity_at(t)[:2] for t in times - dt]).T
+        starts = times - self._stage_steps  # input k applies from stage k's time on
+        ff = np.array([self._offline_plan.epm_velocity_at(t)[:2] for t in starts]).T
         return np.vstack([pos, vel, ff])
 
     def _update_disturbance(self, v_est: np.ndarray) -> None:
         cfg = self.scenario.mpc
         if self.plan is None or cfg.disturbance_gain == 0:
             return
-        v_pred = self.plan.xs[2:4, 0]
+        v_pred = self.plan.state((self.plan.age + 1) * self.dt_s)[2:4]
         mass = self.scenario.capsule.mass_kg
         # Force that would explain the velocity innovation over one frame.
         innov = cfg.disturbance_gain * mass * (v_est - v_pred) / self.dt_s
@@ -221,7 +240,8 @@ class MPCController(Controller):
         if not rls.sliding(t_s, state[0:2], vel, ref_speed) or self.plan is None:
             return
         model = self.stack.model  # type: ignore[union-attr]
-        y_n, phi_n = friction_regression(model, self.plan.xs[:, 0], vel, rls.offset, self.dt_s)
+        x_pred = self.plan.state((self.plan.age + 1) * self.dt_s)
+        y_n, phi_n = friction_regression(model, x_pred, vel, rls.offset, self.dt_s)
         rls.update(y_n, phi_n)
 
     def _calibrate_rest_offset(self, t_s: float, epm: np.ndarray, meas: Measurement) -> None:
@@ -318,7 +338,7 @@ class MPCController(Controller):
             stats.extra["measurement_rejected"] = 1.0
         if res.success:
             xs, us, _ = self.stack.ocp.unpack(res.w)  # type: ignore[union-attr]
-            new_plan = _Plan(res.w, res.lam_x, res.lam_g, xs, us)
+            new_plan = _Plan(res.w, res.lam_x, res.lam_g, xs, us, self.stack.ocp.node_times_s)  # type: ignore[union-attr]
             if not late:
                 self.plan = new_plan
                 self.last_prediction = xs[0:2].T.copy()
@@ -359,19 +379,18 @@ class MPCController(Controller):
         return self.approach.finished
 
     def _fallback_command(self) -> np.ndarray:
-        """The previous plan's next command while the plan lasts, else brake.
+        """The previous plan's command for now while the plan lasts (it predicts the next frame),
+        else brake.
 
-        The plan is shifted by the frame that passed (its first command was applied last
-        frame), so it stays aligned with time as the next solve's warm start.
+        The warm start is shifted by the frame that passed (the plan's command for it was
+        applied), so it stays aligned with time for the next solve.
         """
         plan = self.plan
-        if plan is not None and plan.age + 1 < plan.us.shape[1]:
+        if plan is not None and (plan.age + 2) * self.dt_s < plan.times[-1] + 1e-9:
             plan.age += 1
-            plan.xs = np.hstack([plan.xs[:, 1:], plan.xs[:, -1:]])
-            plan.us = np.hstack([plan.us[:, 1:], plan.us[:, -1:]])
             plan.w = self.stack.ocp.shift(plan.w)  # type: ignore[union-attr]
             plan.lam_x = plan.lam_g = None
-            return np.asarray(plan.us[:, 0], dtype=float)
+            return plan.command(plan.age * self.dt_s)
         self.plan = None
         return np.zeros(3)  # braking target; the safety layer limits the deceleration
 

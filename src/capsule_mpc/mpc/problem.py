@@ -22,6 +22,10 @@ function of one stage's ``(x_k, u_k)`` only, so the Gauss-Newton Hessian is bloc
   and the normal-force band ``F_N,min - s_1 <= F_N <= F_N,max + s_1`` at ``x_{k+1}``.
 * Bounds: EPM speed on ``c_{k+1}``, acceleration on ``dc_k`` (``|dc| <= a dt``), workspace on
   ``(e, h)_{k+1}``, slacks >= 0.
+* Stage grid: stage 0 lasts one camera frame (its command is the one sent, held for a frame),
+  stages 1..N-1 last ``dt`` (``mpc.dt_s``; one frame when unset). A step longer than the frame
+  stretches the horizon at the same N (e.g. 20 ms stages in a 100 Hz loop); ``dt`` above is the
+  stage's own step.
 
 Parameters ``p = (x_0, ref, u_prev, d)``: the estimated current state (7), the reference window
 (capsule position and velocity at stages 1..N, and the EPM velocity feed-forward for inputs
@@ -98,6 +102,9 @@ FN_SCALE = 0.1
 STATE_SCALE = np.concatenate([X_SCALE, U_SCALE])
 INPUT_SCALE = np.concatenate([U_SCALE, X_SCALE[2:4], S_SCALE])
 _STAGE = N_STATE + N_INPUT
+#: Stage-state columns of the positions (capsule x, y; EPM x, y, height) and of their rates
+#: (capsule velocity; the EPM velocity command), pairwise.
+_POSITIONS, _RATES = [0, 1, 4, 5, 6], [2, 3, 7, 8, 9]
 
 
 @dataclass(frozen=True)
@@ -117,7 +124,9 @@ class OCP:
         Variable and constraint bounds; ``lbw``/``ubw`` of ``x_0`` are placeholders, filled from
         the parameters by :meth:`variable_bounds`.
     horizon, dt_s : int, float
-        N and the step.
+        N and the step of stages 1..N-1, s.
+    steps_s : numpy.ndarray (N,)
+        Every stage's step, s: the first is the frame (``frame_s``), the others ``dt_s``.
     lead_eq_m : numpy.ndarray
         The model's equilibrium lead (coupling constraint centre), m.
     n_w, n_p : int
@@ -138,9 +147,28 @@ class OCP:
     lead_eq_m: np.ndarray
     n_w: int
     n_p: int
+    steps_s: np.ndarray
     n_x: int = N_STATE
     n_u: int = N_INPUT
     n_g: int = N_PATH
+
+    @property
+    def frame_s(self) -> float:
+        """The first stage's step: the frame period the plan advances by, s."""
+        return float(self.steps_s[0])
+
+    @cached_property
+    def uniform(self) -> bool:
+        """Whether every stage lasts one frame (the plan shifts by whole stages)."""
+        return bool(np.all(self.steps_s == self.steps_s[0]))
+
+    @cached_property
+    def node_times_s(self) -> np.ndarray:
+        """Times of stages 0..N from the frame the plan starts at, s."""
+        n, first, step = self.horizon, self.steps_s[0], self.steps_s[-1]
+        if self.uniform:  # as a product: the times a uniform grid always had
+            return first * np.arange(n + 1)
+        return np.concatenate([[0.0], first + step * np.arange(n)])
 
     # ------------------------------------------------------------------ structure
     @property
@@ -220,14 +248,43 @@ class OCP:
         return np.concatenate([np.hstack([states[:-1], inputs]).ravel(), states[-1]])
 
     def shift(self, w: np.ndarray) -> np.ndarray:
-        """``w`` advanced by one stage (the warm start of the next frame): stage k+1 becomes stage
-        k, and the last stage repeats with the command held (``dc = 0``)."""
+        """``w`` advanced by one frame (the warm start of the next frame).
+
+        On a uniform grid stage k+1 becomes stage k, and the last stage repeats with the command
+        held (``dc = 0``). On a longer-stepped grid the positions are interpolated at the new
+        stage times (continued past the horizon at the last rates) and every rate -- capsule
+        velocity, command -- is its position's mean rate over the new stage, so the linear gap
+        rows hold as in ``w``; each slack is the one of the old stage the new stage starts in.
+        """
         w = np.asarray(w, dtype=float).ravel()
+        if not self.uniform:
+            return self._shift_interpolated(w)
         # Slices, not per-stage arrays (this runs every frame): stages 1..N move down one stage,
         # then the last input (dc zeroed) and x_N again.
         out = np.concatenate([w[_STAGE:], w[-_STAGE:]])
         out[-_STAGE : -_STAGE + _NU_MODEL] = 0.0
         return out
+
+    def _shift_interpolated(self, w: np.ndarray) -> np.ndarray:
+        states, inputs = self._stages(w)  # scaled
+        old_t = self.node_times_s
+        new_t = self.frame_s + old_t
+        phys = np.column_stack([np.interp(new_t, old_t, col) for col in states.T]) * STATE_SCALE
+        # Positions (capsule p, EPM e and h) are piecewise linear in time: interpolated exactly,
+        # and continued past the horizon at the last stage's rates. Each stage's rate (capsule
+        # velocity, command) is then the position's mean rate over the new stage, so every linear
+        # gap row holds as it did in ``w``; only the velocity's implicit Euler rows move.
+        past = np.maximum(new_t - old_t[-1], 0.0)[:, None]
+        phys[:, _POSITIONS] += past * states[-1, _RATES] * STATE_SCALE[_RATES]
+        phys[1:, _RATES] = np.diff(phys[:, _POSITIONS], axis=0) / self.steps_s[:, None]
+        moved = phys / STATE_SCALE
+        stage = np.minimum(np.searchsorted(old_t, new_t[:-1], side="right") - 1, self.horizon - 1)
+        new_inputs = np.hstack([
+            np.diff(moved[:, _NX_MODEL:], axis=0),  # dc (the command's scale)
+            moved[1:, 2:4],  # capsule velocity at the next stage (the state's scale)
+            inputs[stage, _NU_MODEL + 2 :],  # slacks: the old stage the new one starts in
+        ])  # fmt: skip
+        return self._join(moved, new_inputs)
 
     def variable_bounds(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``lbw, ubw`` with ``x_0`` fixed to the parameters' state and command."""
@@ -253,7 +310,7 @@ def _next_state(xk: ca.MX, uk: ca.MX, dt_s: float) -> ca.MX:
     )
 
 
-def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
+def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: float | None = None) -> OCP:
     """Build the MPC's NLP for ``model`` with step ``dt_s`` in the stage-wise layout.
 
     Parameters
@@ -261,9 +318,11 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
     model : CapsuleModel
         The controller's capsule model (never the plant).
     dt_s : float
-        Prediction step, s.
+        Prediction step of stages 1..N-1, s.
     lead_eq_m : numpy.ndarray (2,)
         The model's equilibrium lead, m: the centre of the coupling constraint.
+    frame_s : float, optional
+        The first stage's step, s: the frame period (default ``dt_s``).
 
     Returns
     -------
@@ -273,6 +332,11 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
     sc: Scenario = model.scenario
     cfg, lim = sc.mpc, sc.limits
     n = cfg.horizon
+    for name, value in (("dt_s", dt_s), ("frame_s", frame_s)):
+        if value is not None and not value > 0:
+            raise ValueError(f"{name}: must be > 0 s, got {value}")
+    steps = np.full(n, float(dt_s))
+    steps[0] = dt_s if frame_s is None else frame_s
     n_w = _STAGE * n + N_STATE
     n_p = _NX_MODEL + N_REF * n + _NU_MODEL + N_DIST + N_FRICTION
     w = ca.MX.sym("w", n_w)
@@ -288,10 +352,11 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
     x_scale, u_scale = ca.DM(STATE_SCALE), ca.DM(INPUT_SCALE)
     rows, residuals = [], []
     for k in range(n):
+        h = float(steps[k])
         xk = x_scale * w[_STAGE * k : _STAGE * k + N_STATE]
         uk = u_scale * w[_STAGE * k + N_STATE : _STAGE * (k + 1)]
         x_next_var = w[_STAGE * (k + 1) : _STAGE * (k + 1) + N_STATE]
-        x1 = _next_state(xk, uk, dt_s)
+        x1 = _next_state(xk, uk, h)
         m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL:], uk[0:3], uk[5:7]
         v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
         acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
@@ -304,7 +369,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
             acc = acc - mu_offset * ca.fmax(f_n, 0) * v_hat / mass
         rows += [
             x_next_var - x1 / x_scale,  # gap: the coefficient of x_{k+1} is the identity
-            (m1[2:4] - xk[2:4] - dt_s * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
+            (m1[2:4] - xk[2:4] - h * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
             ca.sumsqr(lead - lead_eq) / eq_sq - 1 - sk[0],  # <= 0: capsule keeps the magnet
             (f_n + sk[1]) / FN_SCALE,  # >= F_N,min: stays on the plate
             (f_n - sk[1]) / FN_SCALE,  # <= F_N,max: tissue-safe
@@ -322,7 +387,8 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
             weight * still * err / cfg.position_tol_m,
             (m1[2:4] - ref[2:4, k]) / cfg.velocity_tol_mps,
             (c1[0:2] - ref[4:6, k]) / cfg.input_tol_mps,
-            dc / cfg.input_rate_tol_mps,
+            # The command change per dt: a shorter first stage weighs its acceleration as the rest.
+            (dc if h == dt_s else dc * (dt_s / h)) / cfg.input_rate_tol_mps,
             np.sqrt(cfg.slack_weight) * sk / S_SCALE,
         ]
 
@@ -339,17 +405,22 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray) -> OCP:
     inf = np.inf
     speed = lim.speed_mps
     c_lo = np.array([-speed, -speed, -speed if cfg.height_control else 0.0])
-    da = np.full(_NU_MODEL, lim.accel_mps2 * dt_s)
     x_lo = np.concatenate([[-inf, -inf, -inf, -inf], lim.workspace_min_m, c_lo]) / STATE_SCALE
     x_hi = np.concatenate([[inf, inf, inf, inf], lim.workspace_max_m, -c_lo]) / STATE_SCALE
-    u_lo = np.concatenate([-da, [-inf, -inf], np.zeros(n_slacks)]) / INPUT_SCALE
-    u_hi = np.concatenate([da, [inf, inf], np.full(n_slacks, inf)]) / INPUT_SCALE
-    lbw = np.concatenate([*[np.concatenate([x_lo, u_lo])] * n, x_lo])
-    ubw = np.concatenate([*[np.concatenate([x_hi, u_hi])] * n, x_hi])
+
+    def input_bounds(h: float) -> tuple[np.ndarray, np.ndarray]:
+        da = np.full(_NU_MODEL, lim.accel_mps2 * h)
+        u_lo = np.concatenate([-da, [-inf, -inf], np.zeros(n_slacks)]) / INPUT_SCALE
+        u_hi = np.concatenate([da, [inf, inf], np.full(n_slacks, inf)]) / INPUT_SCALE
+        return u_lo, u_hi
+
+    bounds = [input_bounds(float(h)) for h in steps]
+    lbw = np.concatenate([*[np.concatenate([x_lo, lo]) for lo, _ in bounds], x_lo])
+    ubw = np.concatenate([*[np.concatenate([x_hi, hi]) for _, hi in bounds], x_hi])
     stage_lo = np.concatenate([np.zeros(N_STATE + 2), [-inf, lim.normal_force_min_n / FN_SCALE, -inf]])
     stage_hi = np.concatenate([np.zeros(N_STATE + 2), [0.0, inf, lim.normal_force_max_n / FN_SCALE]])
     return OCP(
         nlp={"x": w, "p": p, "f": f, "g": g}, residual=residual, slack_gradient=slack_gradient,
         lbw=lbw, ubw=ubw, lbg=np.tile(stage_lo, n), ubg=np.tile(stage_hi, n), horizon=n, dt_s=dt_s,
-        lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p,
+        lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p, steps_s=steps,
     )  # fmt: skip
