@@ -62,6 +62,27 @@ def test_the_grid_the_bounds_and_the_horizon(coarse):
         assert dc_hi == pytest.approx(np.full(3, a * h))
 
 
+def test_the_rate_cost_weighs_the_squared_acceleration_per_unit_time(coarse):
+    """The same command change costs sqrt(dt / h) times more on the one-frame first stage, so the
+    rate residuals' squares are the EPM's squared acceleration times the stage's duration (one
+    factor for every stage): the cost of a sum over time, not per stage."""
+    ocp = build_mpc_stack(coarse).ocp
+    stage, per_stage, rate_rows = N_STATE + 7, 13, slice(8, 11)  # residual rows: see build_ocp
+    delta = np.array([0.003, -0.002, 0.0])  # m/s
+    w = np.zeros(ocp.n_w)
+    for k in (0, 1):
+        w[stage * k + N_STATE : stage * k + N_STATE + 3] = delta / INPUT_SCALE[0:3]
+    r = np.asarray(ocp.residual(w, np.zeros(ocp.n_p))).ravel().reshape(N, per_stage)
+    tol = coarse.mpc.input_rate_tol_mps
+    assert r[1, rate_rows] == pytest.approx(delta / tol)
+    assert r[0, rate_rows] == pytest.approx(delta / tol * np.sqrt(STEP_S / FRAME_S))
+    # (dc / h)^2 h: the squared acceleration integrated over the stage; the same factor on both.
+    per_time = [
+        np.sum(r[k, rate_rows] ** 2) / (np.sum((delta / h) ** 2) * h) for k, h in ((0, FRAME_S), (1, STEP_S))
+    ]
+    assert per_time[0] == pytest.approx(per_time[1])
+
+
 def test_dynamics_rows_are_the_models_implicit_euler_on_each_stages_step(coarse):
     """A rollout of the model's implicit Euler step (KINSOL), one frame then 20 ms steps, satisfies
     every gap and velocity row of the multi-rate layout; with the frame's step throughout it does

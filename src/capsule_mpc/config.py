@@ -585,7 +585,13 @@ class MPCConfig(_Strict):
         0.05, gt=0, description="EPM velocity deviation from the path feed-forward tolerance, m/s."
     )
     input_rate_tol_mps: Number = Field(
-        0.004, gt=0, description="EPM velocity change per step tolerance, m/s (smoothness)."
+        0.004,
+        gt=0,
+        description=(
+            "EPM velocity change per prediction step tolerance, m/s (smoothness); scale it with "
+            "sqrt(step) to keep its weight per unit time (a first stage shorter than mpc.dt_s is "
+            "weighted so)."
+        ),
     )
     terminal_factor: Number = Field(
         3.0, ge=1, le=100, description="Terminal tracking weight factor, [1, 100]."
