@@ -53,12 +53,14 @@ REFERENCE = {"mode": "balance", "res_g_max": 1e-10, "res_b_max": 1e-10, "res_d_m
 
 
 def case_scenario(name: str, speed_mps: float | None, horizon: int) -> Scenario:
-    """The packaged config ``name`` with the path speed and ``mpc.horizon`` set."""
+    """The packaged config ``name`` with the path speed and ``mpc.horizon`` set, every stage one
+    frame (``mpc.dt_s`` None: the cases measured before the 100 Hz config went multi-rate)."""
     scenario = load_config(packaged_config_path(name))
     if speed_mps is not None:
         path = scenario.path.model_copy(update={"speed_mps": speed_mps})
         scenario = scenario.model_copy(update={"path": path})
-    return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"horizon": horizon})})
+    mpc = scenario.mpc.model_copy(update={"horizon": horizon, "dt_s": None})
+    return scenario.model_copy(update={"mpc": mpc})
 
 
 def record_qps(scenario: Scenario, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
