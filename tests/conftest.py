@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -49,3 +50,24 @@ def fast(scenario: Scenario) -> Scenario:
             "sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
         }
     )
+
+
+def _failed(res):
+    """``res`` as a failed solve with a NaN solution (what a broken solver returns)."""
+    from capsule_mpc.mpc import SolveResult
+
+    nan = np.full_like(res.w, np.nan)
+    return SolveResult(False, "injected", 0, 0.1, res.solver, nan, nan, np.full_like(res.lam_g, np.nan))
+
+
+@pytest.fixture
+def fail_solves(monkeypatch):
+    """``fail_solves(solver, names)``: from then on the solver's methods ``names`` (default: the
+    frame's step, its SQP recovery and IPOPT) run, and their results come back failed (NaN)."""
+
+    def fail(solver, names=("solve", "sqp", "solve_converged")) -> None:
+        for name in names:
+            method = getattr(type(solver), name)
+            monkeypatch.setattr(solver, name, lambda *a, _m=method, **k: _failed(_m(solver, *a, **k)))
+
+    return fail

@@ -100,19 +100,7 @@ def test_plan_satisfies_the_model_dynamics(fast):
     assert xs[0, -1] > 0.005  # it moves the capsule along the reference
 
 
-def _failing(res: SolveResult) -> SolveResult:
-    nan = np.full_like(res.w, np.nan)
-    return SolveResult(False, "injected", 0, 0.1, res.solver, nan, nan, np.full_like(res.lam_g, np.nan))
-
-
-def _make_every_solve_fail(solver, monkeypatch) -> None:
-    """The frame's step, its SQP recovery and IPOPT all fail from now on."""
-    for name in ("solve", "sqp", "solve_converged"):
-        method = getattr(type(solver), name)
-        monkeypatch.setattr(solver, name, lambda *a, _m=method, **k: _failing(_m(solver, *a, **k)))
-
-
-def test_solver_failure_gives_shifted_plan_then_a_safe_stop(fast, monkeypatch):
+def test_solver_failure_gives_shifted_plan_then_a_safe_stop(fast, fail_solves):
     ctrl = MPCController()
     epm = np.array([-0.017, 0.0, fast.plate.epm_height_m])
     ctrl.reset(fast, PATH, epm)
@@ -126,7 +114,7 @@ def test_solver_failure_gives_shifted_plan_then_a_safe_stop(fast, monkeypatch):
         cmds.append(cmd.epm_velocity_mps)
     assert np.linalg.norm(cmds[-1]) > 0.005
     solver = ctrl.stack.solver
-    _make_every_solve_fail(solver, monkeypatch)
+    fail_solves(solver)
     statuses = []
     for k in range(12, 12 + 2 * ctrl.stack.ocp.horizon + 10):
         t = k * dt
@@ -183,7 +171,7 @@ def test_safe_command_limits_acceleration(scenario):
     assert out[:2] == pytest.approx([scenario.limits.accel_mps2 * dt, -scenario.limits.accel_mps2 * dt])
 
 
-def test_fallback_sends_the_previous_plans_next_commands(fast, monkeypatch):
+def test_fallback_sends_the_previous_plans_next_commands(fast, fail_solves):
     ctrl = MPCController()
     epm = np.array([-0.017, 0.0, fast.plate.epm_height_m])
     ctrl.reset(fast, PATH, epm)
@@ -194,7 +182,7 @@ def test_fallback_sends_the_previous_plans_next_commands(fast, monkeypatch):
         epm = epm + dt * cmd.epm_velocity_mps
     planned = ctrl.plan.us.copy()
     solver = ctrl.stack.solver
-    _make_every_solve_fail(solver, monkeypatch)
+    fail_solves(solver)
     sent = []
     for k in range(15, 18):
         t = k * dt
@@ -204,7 +192,7 @@ def test_fallback_sends_the_previous_plans_next_commands(fast, monkeypatch):
     assert np.array(sent) == pytest.approx(planned[:, 1:4].T, abs=1e-12)
 
 
-def test_a_recovery_cut_short_warm_starts_the_next_frame(fast, monkeypatch):
+def test_a_recovery_cut_short_warm_starts_the_next_frame(fast, monkeypatch, fail_solves):
     """When the frame's step and its SQP recovery fail, the shifted plan's command is sent, and the
     recovery's last iterate (not the old plan again) is where the next frame's step starts."""
     ctrl = MPCController()
@@ -226,7 +214,7 @@ def test_a_recovery_cut_short_warm_starts_the_next_frame(fast, monkeypatch):
         iterate["w"] = res.w + 1e-3  # a finite point the recovery left infeasible
         return SolveResult(False, "iteration cap", 2, res.solve_ms, "sqp", iterate["w"], res.lam_x, res.lam_g)
 
-    monkeypatch.setattr(solver, "solve", lambda *a, **k: _failing(solve(solver, *a, **k)))
+    fail_solves(solver, ("solve",))
     monkeypatch.setattr(solver, "sqp", cut_short)
     t = 15 * dt
     cmd = ctrl.step(t, Measurement(t, t - dt, PATH.position(t - dt) * 0.9), epm)

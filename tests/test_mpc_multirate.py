@@ -139,7 +139,7 @@ def test_shift_advances_the_plan_one_frame_and_keeps_its_gaps_closed(coarse, see
     assert us_s == pytest.approx(np.tile(cmd[:, None], N), abs=1e-12)
 
 
-def test_the_fallback_sends_the_plans_command_for_the_time_that_passed(coarse, monkeypatch):
+def test_the_fallback_sends_the_plans_command_for_the_time_that_passed(coarse, fail_solves):
     """On the multi-rate grid the shifted-plan fallback sends, frame by frame, the command the
     plan holds at that time: stage 1's for two frames (it lasts 20 ms), then stage 2's."""
     ctrl = MPCController()
@@ -150,15 +150,7 @@ def test_the_fallback_sends_the_plans_command_for_the_time_that_passed(coarse, m
         cmd = ctrl.step(t, Measurement(t, t - FRAME_S, PATH.position(max(t - FRAME_S, 0)) * 0.9), epm)
         epm = epm + FRAME_S * cmd.epm_velocity_mps
     planned = ctrl.plan.us.copy()
-    solver = ctrl.stack.solver
-    failed = type(solver).solve
-
-    def fail(*args, **kwargs):
-        res = failed(solver, *args, **kwargs)
-        return res.__class__(**{**res.__dict__, "success": False, "status": "forced failure"})
-
-    monkeypatch.setattr(solver, "solve", fail)
-    monkeypatch.setattr(solver, "sqp", fail)
+    fail_solves(ctrl.stack.solver)
     sent = []
     for k in range(30, 34):
         t = k * FRAME_S

@@ -63,6 +63,7 @@ __all__ = [
     "dump_config",
     "load_config",
     "packaged_config_path",
+    "stage_end_times_s",
 ]
 
 #: The paper's learned c(v) polynomial, p1..p5 highest power first (paper §IV-C, Fig. 7b).
@@ -1406,10 +1407,7 @@ class Scenario(_Strict):
 
     def prediction_times_s(self) -> np.ndarray:
         """Look-ahead times of the MPC's stages 1..N from the frame it plans at, s."""
-        steps = self.prediction_steps_s()
-        if np.all(steps == steps[0]):  # as a product: the times a uniform grid always had
-            return steps[0] * np.arange(1, len(steps) + 1)
-        return steps[0] + steps[1] * np.arange(len(steps))
+        return stage_end_times_s(self.prediction_steps_s())
 
     def controller_friction(self) -> LearnedFrictionModel:
         """The steady-state friction law the controller uses: ``friction.learned`` or the paper's."""
@@ -1423,6 +1421,16 @@ class Scenario(_Strict):
             path = self.source_path.parent / path
         data = _read_yaml(path)
         return _validate(LearnedFrictionModel, data, f"friction.learned ({path})")
+
+
+def stage_end_times_s(steps_s: np.ndarray) -> np.ndarray:
+    """End times of consecutive stages, s: ``steps_s`` is a first step, then equal ones (the MPC's
+    grid, :meth:`Scenario.prediction_steps_s`). A uniform grid's are products ``k dt``, the times
+    it always had (a cumulative sum rounds differently and shifts knot look-ups)."""
+    steps = np.asarray(steps_s, dtype=float)
+    if np.all(steps == steps[0]):
+        return steps[0] * np.arange(1, len(steps) + 1)
+    return steps[0] + steps[-1] * np.arange(len(steps))
 
 
 def packaged_config_path(name: str = "paper") -> Path:

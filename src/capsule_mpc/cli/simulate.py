@@ -44,7 +44,6 @@ __all__ = [
     "PREDICTION_FIGURE",
     "add_run_arguments",
     "export_run_arm",
-    "prediction_step_s",
     "prepare_run",
     "register",
     "run",
@@ -178,13 +177,6 @@ def prepare_run(
     return scenario, path, meta
 
 
-def prediction_step_s(scenario: Scenario) -> float:
-    """Time between the MPC's prediction stages 1..N, s (``mpc.dt_s``, else one camera frame;
-    the first stage is one frame)."""
-    dt = scenario.mpc.dt_s
-    return float(dt) if dt is not None else 1.0 / scenario.camera.rate_hz
-
-
 def write_prediction_figure(result: RunResult, out: str | Path) -> Path | None:
     """``mpc_prediction.png`` of a run whose controller predicts (see :func:`plot_prediction`).
 
@@ -196,10 +188,9 @@ def write_prediction_figure(result: RunResult, out: str | Path) -> Path | None:
     stacked = stack_predictions(result.predictions)
     if stacked is None:
         return None
-    scn = result.scenario
-    first_s = 1.0 / scn.camera.rate_hz
+    first_s, step_s = result.scenario.prediction_steps_s()[[0, -1]]
     return plot_prediction(
-        result.log, stacked, result.path, Path(out), prediction_step_s(scn), result.controller, first_s
+        result.log, stacked, result.path, Path(out), float(step_s), result.controller, float(first_s)
     )
 
 

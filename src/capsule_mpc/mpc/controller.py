@@ -89,12 +89,11 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
         return _STACKS[key]
     t0 = time.perf_counter()
     cfg = scenario.mpc
-    frame_s = 1.0 / scenario.camera.rate_hz
-    dt = cfg.dt_s if cfg.dt_s is not None else frame_s
+    steps = scenario.prediction_steps_s()  # one frame, then mpc.dt_s
     model = capsule_model(model_scenario(scenario))
     force = capsule_force_function(scenario)
     lead_eq = model_equilibrium_lead(scenario)
-    ocp = build_ocp(model, dt, lead_eq, frame_s)
+    ocp = build_ocp(model, float(steps[-1]), lead_eq, float(steps[0]))
     compile_dir = cache_directory(scenario) / "mpc" if cfg.compile_c else None
     try:
         solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, compile_dir, cfg.qp_solver)
@@ -158,8 +157,6 @@ class MPCController(Controller):
         cfg = scenario.mpc
         # The frame period: the first stage of the plan, the time between commands.
         self.dt_s = self.stack.ocp.frame_s
-        self._stage_times = scenario.prediction_times_s()
-        self._stage_steps = scenario.prediction_steps_s()
         self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * self.dt_s
         self.estimator = CapsuleEstimator(scenario.camera.noise_std_m, cfg.estimator_accel_std_mps2)
         self.disturbance_n = np.zeros(N_DIST)
@@ -192,14 +189,15 @@ class MPCController(Controller):
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
         """Capsule position and velocity at stages 1..N and the EPM feed-forward of inputs 0..N-1."""
-        n = self.stack.ocp.horizon  # type: ignore[union-attr]
-        times = t_s + self._stage_times
+        ocp = self.stack.ocp  # type: ignore[union-attr]
+        n = ocp.horizon
+        times = t_s + ocp.node_times_s[1:]
         if t_s < 0:  # settle phase: the rig holds the EPM, so plan to stay at the start
             return np.vstack([self.path.position(np.zeros(n)).T, np.zeros((4, n))])
         pos, vel = self.path.position(times).T, self.path.velocity(times).T
         if self._offline_plan is None:
             return np.vstack([pos, vel, vel])
-        starts = times - self._stage_steps  # input k applies from stage k's time on
+        starts = times - ocp.steps_s  # input k applies from stage k's time on
         ff = np.array([self._offline_plan.epm_velocity_at(t)[:2] for t in starts]).T
         return np.vstack([pos, vel, ff])
 

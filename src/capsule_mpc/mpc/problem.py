@@ -52,7 +52,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..config import Scenario
+from ..config import Scenario, stage_end_times_s
 from ..dynamics import CapsuleModel
 
 __all__ = [
@@ -166,10 +166,7 @@ class OCP:
     @cached_property
     def node_times_s(self) -> np.ndarray:
         """Times of stages 0..N from the frame the plan starts at, s."""
-        n, first, step = self.horizon, self.steps_s[0], self.steps_s[-1]
-        if self.uniform:  # as a product: the times a uniform grid always had
-            return first * np.arange(n + 1)
-        return np.concatenate([[0.0], first + step * np.arange(n)])
+        return np.concatenate([[0.0], stage_end_times_s(self.steps_s)])
 
     # ------------------------------------------------------------------ structure
     @property
