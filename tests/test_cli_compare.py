@@ -248,3 +248,34 @@ def test_compare_into_a_folder_another_command_writes_is_refused(tmp_path, capsy
     assert f"--out: {out} is in use by process {os.getpid()}" in err and "(compare)" in err
     assert sorted(p.name for p in out.iterdir()) == [LOCK_NAME, "summary.md"]
     assert (out / "summary.md").read_text() == "the other run's"
+
+
+#: What CasADi raised when a root finder failed inside a mapped step (a real message, shortened).
+_CASADI_DUMP = "\n".join([
+    "Error in Function::call for 'map525_capsule_step' [Map] at .../casadi/core/function.cpp:514:",
+    "Error in Function::operator() for 'capsule_step' [MXFunction] at .../casadi/core/function.cpp:1736:",
+    ".../casadi/interfaces/sundials/kinsol_interface.cpp:703: nlpsol process failed. Set 'error_on_fail' "
+    'option to false to ignore this error. Module "KINSol" returned flag "KIN_LINESEARCH_NONCONV".',
+    "The description of this flag is:",
+    '"The line search algorithm was unable to find an iterate sufficiently distinct from the current '
+    'iterate, or could not find an iterate satisfying the sufficient decrease condition."',
+    "Consult KINSOL documentation for more information.",
+])  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("exc", "cause"),
+    [
+        (RuntimeError(_CASADI_DUMP), "KIN_LINESEARCH_NONCONV"),
+        (ValueError("speed: must be > 0"), "speed: must be > 0"),
+        (RuntimeError("x" * 5000), "xxx"),
+        (RuntimeError(""), "RuntimeError"),
+    ],
+)
+def test_a_failure_is_one_bounded_line_with_its_cause_and_what_to_try(exc, cause):
+    from capsule_mpc.cli.compare import failure_line
+
+    line = failure_line("plan", exc)
+    assert "\n" not in line and len(line) < 400
+    assert cause in line and "capsule-mpc simulate --controller plan" in line
+    assert "Function::call" not in line

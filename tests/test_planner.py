@@ -109,6 +109,32 @@ def test_dynamics_residual_is_small_and_detects_a_wrong_state(scenario, fixed, m
     assert dynamics_residual(scenario, bad).position_m > 5e-4
 
 
+def test_dynamics_residual_never_raises_and_counts_unsolved_steps(scenario, fixed):
+    """A step no root finding can solve (a non-finite state) is counted, never raised."""
+    states = fixed.capsule_velocity_mps.copy()
+    states[7] = np.nan
+    broken = replace(fixed, capsule_velocity_mps=states)
+    res = dynamics_residual(scenario, broken)
+    assert res.unsolved_steps >= 1 and res.velocity_mps == np.inf
+    assert dynamics_residual(scenario, fixed).unsolved_steps == 0
+
+
+def test_dynamics_residual_reseeds_a_step_the_start_state_cannot_solve(scenario, fixed, monkeypatch):
+    """Where Newton from the step's start fails, the plan's own next state is tried: a plan that
+    solves its equations then has a small residual, and the step is counted as re-seeded."""
+    import capsule_mpc.planner.core as core
+
+    real = core.ca.rootfinder
+
+    def stalls_from_the_start(name, solver, fn, opts):  # one iteration: cannot converge from x_k
+        return real(name, solver, fn, {**opts, "max_iter": 1})
+
+    monkeypatch.setattr(core.ca, "rootfinder", stalls_from_the_start)
+    res = dynamics_residual(scenario, fixed)
+    assert res.reseeded_steps > 0 and res.unsolved_steps == 0
+    assert res.position_m < 1e-8 and res.velocity_mps < 1e-7
+
+
 def test_min_time_is_faster_within_the_tube_and_the_same_limits(scenario, path, fixed, min_time):
     assert min_time.success, min_time.status
     r = _assert_within_limits(scenario, min_time, path)

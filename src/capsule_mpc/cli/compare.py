@@ -72,6 +72,7 @@ __all__ = [
     "SUMMARY_COLUMNS",
     "aggregate_runs",
     "compare_controllers",
+    "failure_line",
     "register",
     "rescore_on_common_window",
     "run",
@@ -380,11 +381,38 @@ def run_seed_controllers(
                 results[name] = simulate(scenario, name, path, seed, progress=False, meta=meta, plant=plant)
         except Exception as exc:  # one broken controller must not hide the others' results
             raise_if_interrupted()  # ... but Ctrl-C (which CasADi may turn into any error) stops all
-            error = f"{type(exc).__name__}: {exc}"
-            entries[name] = {"error": error, "traceback": traceback.format_exc()}
+            entries[name] = {"error": failure_line(name, exc), "traceback": traceback.format_exc()}
         if bar is not None:
             bar.update(1)
     return results, entries, rescore_on_common_window(results, path, scenario)
+
+
+#: Longest reason kept in a failure line, characters.
+_REASON_CHARS = 240
+#: Markers of the informative line in a CasADi error (the rest is its call stack).
+_CASADI_REASON = ("returned flag", "Error in Function::", "error:")
+
+
+def failure_line(name: str, exc: BaseException) -> str:
+    """One line saying which controller failed, why, and what to try; never a solver's dump.
+
+    A CasADi error is a stack of ``Error in Function::call ...`` lines with the cause deep
+    inside (e.g. a root finder's status flag); the line with the cause is kept, cut to a
+    readable length. The full traceback stays in ``summary.json``.
+    """
+    lines = [" ".join(line.split()) for line in str(exc).splitlines() if line.strip()]
+    reason = lines[0] if lines else type(exc).__name__
+    flagged = [line for line in lines if "returned flag" in line or "returned status" in line]
+    if flagged:
+        reason = flagged[-1]
+    elif len(lines) > 1 and any(m in lines[0] for m in _CASADI_REASON):
+        reason = lines[-1]
+    if len(reason) > _REASON_CHARS:
+        reason = reason[: _REASON_CHARS - 1] + "…"
+    return (
+        f"{type(exc).__name__}: {reason} (traceback in summary.json; to see it alone: "
+        f"capsule-mpc simulate --controller {name} with the same config and seed)"
+    )
 
 
 def summary_header(

@@ -135,7 +135,7 @@ def plan_summary(
         "lead_eq_m": plan.lead_eq_m.tolist(),
         "residual": None if res is None else {
             "position_m": res.position_m, "velocity_mps": res.velocity_mps, "epm_m": res.epm_m,
-            "scaled": res.scaled,
+            "scaled": res.scaled, "reseeded_steps": res.reseeded_steps, "unsolved_steps": res.unsolved_steps,
         },
         "constraints": report,
         "limits": {
