@@ -12,7 +12,7 @@ from capsule_mpc.control import Measurement
 from capsule_mpc.dynamics import capsule_model, discrete_step
 from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack
 from capsule_mpc.mpc.controller import model_scenario
-from capsule_mpc.mpc.problem import N_PATH, N_STATE, X_SCALE
+from capsule_mpc.mpc.problem import N_INPUT, N_PATH, N_STATE, X_SCALE
 from capsule_mpc.mpc.solver import (
     HPIPM_OPTIONS,
     FastCall,
@@ -72,29 +72,32 @@ def recorded(sharp):
 
 
 def _stage_rows(ocp, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gap rows (N x 10) and implicit-velocity rows (N x 2) of the constraint vector."""
+    """Gap rows (N x N_STATE) and implicit-velocity rows (N x 2) of the constraint vector."""
     per_stage = g.reshape(ocp.horizon, N_STATE + N_PATH)
     return per_stage[:, :N_STATE], per_stage[:, N_STATE : N_STATE + 2]
 
 
 def test_layout_is_what_hpipm_needs(fast):
     ocp = build_mpc_stack(fast).ocp
-    n = ocp.horizon
-    assert ocp.structure == {"N": n, "nx": [10] * (n + 1), "nu": [7] * n + [0], "ng": [5] * n + [0]}
-    assert ocp.n_w == 17 * n + 10
+    n, nx, nu, ng = ocp.horizon, N_STATE, N_INPUT, N_PATH
+    stage = nx + nu
+    assert (nx, nu, ng) == (13, 8, 11)  # model 7 + command 3 + slope 3; dc, v_next, 3 slacks; rows
+    assert ocp.structure == {"N": n, "nx": [nx] * (n + 1), "nu": [nu] * n + [0], "ng": [ng] * n + [0]}
+    assert ocp.n_w == stage * n + nx
     qp_data, _ = nlp_functions(ocp)
     hess, _grad, _g, jac = (np.asarray(ca.DM(qp_data.sparsity_out(i), 1)) for i in range(4))
-    # Hessian block diagonal by stage (17 x 17 blocks, the last stage 10 x 10).
-    stage_of = np.minimum(np.arange(ocp.n_w) // 17, n)
+    # Hessian block diagonal by stage (stage x stage blocks, the last stage nx x nx).
+    stage_of = np.minimum(np.arange(ocp.n_w) // stage, n)
     rows, cols = np.nonzero(hess)
     assert np.all(stage_of[rows] == stage_of[cols])
     # Constraint rows of stage k touch only (x_k, u_k) and, in the gap rows, x_{k+1} -- as the identity.
     for k in range(n):
-        block = jac[k * 15 : (k + 1) * 15]
+        block = jac[k * (nx + ng) : (k + 1) * (nx + ng)]
         used = np.nonzero(block.any(axis=0))[0]
-        assert used.min() >= 17 * k and used.max() < 17 * (k + 1) + 10
-        assert np.array_equal(block[:10, 17 * (k + 1) : 17 * (k + 1) + 10] != 0, np.eye(10, dtype=bool))
-        assert not block[10:, 17 * (k + 1) :].any()
+        assert used.min() >= stage * k and used.max() < stage * (k + 1) + nx
+        nxt = slice(stage * (k + 1), stage * (k + 1) + nx)
+        assert np.array_equal(block[:nx, nxt] != 0, np.eye(nx, dtype=bool))
+        assert not block[nx:, stage * (k + 1) :].any()
 
 
 @settings(max_examples=40, deadline=None)
@@ -116,9 +119,12 @@ def test_unpack_and_shift_are_the_packings_inverse_and_a_stage_step(fast, seed):
     assert np.array_equal(xs_s[:, :-1], xs_back[:, 1:]) and np.array_equal(xs_s[:, -1], xs_back[:, -1])
     assert np.array_equal(us_s[:, :-1], us_back[:, 1:]) and np.array_equal(us_s[:, -1], us_back[:, -1])
     assert np.array_equal(ss_s[:, :-1], ss_back[:, 1:]) and np.array_equal(ss_s[:, -1], ss_back[:, -1])
-    assert np.array_equal(shifted[: 17 * (n - 1)], w[17 : 17 * n])  # stage k+1 -> k, inputs included
-    assert not shifted[17 * (n - 1) + 10 : 17 * (n - 1) + 13].any()  # the last command change: 0
-    assert np.array_equal(shifted[-10:], w[-10:])
+    stage = N_STATE + N_INPUT
+    assert np.array_equal(shifted[: stage * (n - 1)], w[stage : stage * n])  # stage k+1 -> k, inputs too
+    last_input = stage * (n - 1) + N_STATE
+    assert not shifted[last_input : last_input + 3].any()  # the last command change: 0
+    assert np.array_equal(shifted[-N_STATE:-3], w[-N_STATE:-3])  # the last state repeated ...
+    assert not shifted[-3:].any()  # ... with the held command's slope 0
 
 
 @pytest.mark.parametrize("eps_mps", [None, 0.003])

@@ -12,7 +12,7 @@ from capsule_mpc.control import Measurement
 from capsule_mpc.dynamics import capsule_model, discrete_step
 from capsule_mpc.mpc import MPCController, build_mpc_stack
 from capsule_mpc.mpc.controller import model_scenario
-from capsule_mpc.mpc.problem import INPUT_SCALE, N_PATH, N_STATE
+from capsule_mpc.mpc.problem import INPUT_SCALE, N_INPUT, N_PATH, N_STATE
 from capsule_mpc.mpc.solver import nlp_functions
 from capsule_mpc.paths import ReferencePath
 
@@ -56,7 +56,7 @@ def test_the_grid_the_bounds_and_the_horizon(coarse):
     # The acceleration bound of each stage's command change is a h: the first stage's matches the
     # safety layer's per-frame limit.
     a = coarse.limits.accel_mps2
-    stage = N_STATE + 7
+    stage = N_STATE + N_INPUT
     for k, h in ((0, FRAME_S), (1, STEP_S), (N - 1, STEP_S)):
         dc_hi = ocp.ubw[stage * k + N_STATE : stage * k + N_STATE + 3] * INPUT_SCALE[0:3]
         assert dc_hi == pytest.approx(np.full(3, a * h))
@@ -67,7 +67,7 @@ def test_the_rate_cost_weighs_the_squared_acceleration_per_unit_time(coarse):
     rate residuals' squares are the EPM's squared acceleration times the stage's duration (one
     factor for every stage): the cost of a sum over time, not per stage."""
     ocp = build_mpc_stack(coarse).ocp
-    stage, per_stage, rate_rows = N_STATE + 7, 13, slice(8, 11)  # residual rows: see build_ocp
+    stage, per_stage, rate_rows = N_STATE + N_INPUT, 14, slice(8, 11)  # residual rows: see build_ocp
     delta = np.array([0.003, -0.002, 0.0])  # m/s
     w = np.zeros(ocp.n_w)
     for k in (0, 1):
@@ -140,8 +140,9 @@ def test_shift_advances_the_plan_one_frame_and_keeps_its_gaps_closed(coarse, see
 
 
 def test_the_fallback_sends_the_plans_command_for_the_time_that_passed(coarse, fail_solves):
-    """On the multi-rate grid the shifted-plan fallback sends, frame by frame, the command the
-    plan holds at that time: stage 1's for two frames (it lasts 20 ms), then stage 2's."""
+    """On the multi-rate grid the shifted-plan fallback sends, frame by frame, the plan's velocity
+    command at the frame's end: linear over each stage (the slope constant within a stage), so
+    a frame inside stage 1 (20 ms) sends the ramp's midpoint, then stage 1's end command."""
     ctrl = MPCController()
     epm = np.array([-0.017, 0.0, coarse.plate.epm_height_m])
     ctrl.reset(coarse, PATH, epm)
@@ -158,7 +159,9 @@ def test_the_fallback_sends_the_plans_command_for_the_time_that_passed(coarse, f
         assert cmd.stats.failed
         sent.append(cmd.epm_velocity_mps)
         epm = epm + FRAME_S * cmd.epm_velocity_mps
-    # Frames 1..4 after the solve: t = 10, 20 ms in stage 1 ([10, 30) ms), 30, 40 ms in stage 2.
-    expected = planned[:, [1, 1, 2, 2]].T
+    # Frames 1..4 after the solve end at 20, 30, 40, 50 ms; the stage ends are at 10, 30, 50 ms.
+    expected = np.array([
+        (planned[:, 0] + planned[:, 1]) / 2, planned[:, 1], (planned[:, 1] + planned[:, 2]) / 2, planned[:, 2]
+    ])  # fmt: skip
     assert np.abs(np.diff(planned[:, 1:3], axis=1)).max() > 1e-6  # the stages' commands differ
     assert np.array(sent) == pytest.approx(expected, abs=1e-12)

@@ -1,4 +1,4 @@
-"""The safety layer every computed EPM command passes: speed, acceleration and workspace limits.
+"""The safety layer every computed EPM command passes: speed, acceleration, jerk and workspace limits.
 
 It sits left of the controllers that use it (the MPC and the plan replay), so neither imports
 the other for it.
@@ -15,9 +15,12 @@ has to stop harder than the acceleration limit. Only an EPM already faster than 
 is cut to the speed that stops on the face in one step (the one case of a larger change, as the
 arm's own clamp would do). The height command is 0 unless ``mpc.height_control``.
 
-Jerk (``limits.jerk_mps3``) is the arm's limit between commands (the Ruckig arm enforces it);
-it is not enforced here: the MPC's commands change their acceleration faster than 5 m/s^3 on
-about a fifth of the frames of a lab run, and limiting that would change its tracking.
+Jerk (``limits.jerk_mps3``): given the previous command's slope (its change over its frame),
+the command's change stays within ``limits.jerk_mps3 * dt_s**2`` of that slope's, so the stream
+of commands is one the jerk-limited arm can follow. Priority when the limits conflict: workspace,
+then speed and the braking envelope, then acceleration, then jerk -- a command that must brake
+harder than the jerk limit allows (an EPM fast toward a face or the speed limit, a braking
+command after a fault) keeps the acceleration bound and is reported as clipped.
 """
 
 from __future__ import annotations
@@ -56,8 +59,9 @@ def safe_command(
     epm_position_m: np.ndarray,
     scenario: Scenario,
     dt_s: float,
+    slope_prev_mps2: np.ndarray | None = None,
 ) -> tuple[np.ndarray, bool]:
-    """Enforce speed, acceleration and workspace limits on a command; returns (command, clipped).
+    """Enforce speed, acceleration, jerk and workspace limits on a command; returns (command, clipped).
 
     Parameters
     ----------
@@ -73,6 +77,9 @@ def safe_command(
         ``limits`` and ``mpc.height_control``.
     dt_s : float
         Command period, s (> 0).
+    slope_prev_mps2 : numpy.ndarray (3,), optional
+        The previous command's change over its frame divided by ``dt_s``, m/s^2 (non-finite
+        entries count as 0); None leaves jerk unbounded (acceleration and speed still hold).
 
     Returns
     -------
@@ -101,6 +108,20 @@ def safe_command(
         envelope = braking_speed_mps(np.concatenate([hi - pos, pos - lo]), lim.accel_mps2, dt_s)
         u = np.minimum(np.maximum(u, -envelope[3:]), envelope[:3])
     da = lim.accel_mps2 * dt_s
+    if slope_prev_mps2 is not None:  # jerk: the change stays near the previous change
+        slope = np.array(slope_prev_mps2, dtype=float).ravel()
+        slope[~np.isfinite(slope)] = 0.0
+        if not scenario.mpc.height_control:
+            slope[2] = 0.0
+        step = np.minimum(np.maximum(slope * dt_s, -da), da)
+        dj = lim.jerk_mps3 * dt_s * dt_s
+        lo_j, hi_j = prev + step - dj, prev + step + dj
+        # Within the speed limit and the braking envelope where the two overlap; else the
+        # nearer edge of the jerk band (the acceleration bound below still holds).
+        u = np.minimum(np.maximum(u, lo_j), hi_j)
+        if known:
+            u = np.minimum(np.maximum(u, -envelope[3:]), envelope[:3])
+        u = np.minimum(np.maximum(u, -speed), speed)
     u = np.minimum(np.maximum(u, prev - da), prev + da)
     if known:  # outside the envelope already: stop on the face rather than cross it
         u = np.minimum(np.maximum(u, np.minimum((lo - pos) / dt_s, 0.0)), np.maximum((hi - pos) / dt_s, 0.0))

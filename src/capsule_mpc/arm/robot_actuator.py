@@ -3,10 +3,14 @@
 Per camera frame the controller's velocity command becomes Ruckig's target
 (velocity interface, workspace guard); every arm tick (``arm.arm_rate_hz``) makes
 one Ruckig update and one warm-started IK solve. The EPM position the plant sees
-is the forward kinematics of the joint positions of the latest arm tick (held
-between ticks, as a joint-position-controlled robot does), so the capsule feels
-only what the arm can do. The joint trajectory is recorded and can be exported
-(:meth:`RobotArmActuator.joint_trajectory`).
+is the forward kinematics of the joint positions the arm has reached at the latest
+arm tick (held between ticks, as a joint-position-controlled robot does), so the
+capsule feels only what the arm can do. With a servo bandwidth ``f`` (the plant
+draw's ``servo_bandwidth_hz``) the reached joint positions follow the joint
+setpoints through a first-order lag of time constant ``1 / (2 pi f)`` per joint,
+discretised exactly for a setpoint held over the arm tick; without one they are
+the setpoints. The joint setpoints are recorded and can be exported
+(:meth:`RobotArmActuator.joint_trajectory`): they are what a robot driver is sent.
 """
 
 from __future__ import annotations
@@ -36,6 +40,9 @@ class RobotArmActuator(Actuator):
         and the workspace box).
     record : bool, optional
         Keep every arm tick's setpoint and joint state for export (default True).
+    servo_bandwidth_hz : float, optional
+        Bandwidth of the joint servos, Hz (finite, > 0); None (default): the joints reach their
+        setpoints at every tick.
 
     Raises
     ------
@@ -44,7 +51,16 @@ class RobotArmActuator(Actuator):
         the offending tick is not applied.
     """
 
-    def __init__(self, scenario: Scenario, *, record: bool = True) -> None:
+    def __init__(
+        self, scenario: Scenario, *, record: bool = True, servo_bandwidth_hz: float | None = None
+    ) -> None:
+        if servo_bandwidth_hz is not None and not (
+            math.isfinite(servo_bandwidth_hz) and servo_bandwidth_hz > 0
+        ):
+            raise ValueError(
+                f"servo_bandwidth_hz: must be a finite value > 0 or None, got {servo_bandwidth_hz}"
+            )
+        self.servo_bandwidth_hz = None if servo_bandwidth_hz is None else float(servo_bandwidth_hz)
         arm = scenario.arm
         lim = scenario.limits
         self.kin = ArmKinematics(arm)
@@ -55,6 +71,13 @@ class RobotArmActuator(Actuator):
         )
         self.smoother = VelocitySmoother(CartesianLimits.from_scenario(scenario), arm.arm_rate_hz, workspace)
         self.tick_s = 1.0 / arm.arm_rate_hz
+        # Fraction of the distance to the setpoint the joints cover per tick (1: no lag).
+        self._servo_alpha = (
+            1.0
+            if self.servo_bandwidth_hz is None
+            else -math.expm1(-self.tick_s * 2.0 * math.pi * self.servo_bandwidth_hz)
+        )
+        self._q_reached = np.zeros(self.kin.nq)
         self.record = record
         self._t = 0.0
         self._ticks = 0
@@ -70,6 +93,7 @@ class RobotArmActuator(Actuator):
             raise ValueError(f"position_m: must have 3 entries (x, y, height), got {p.shape[0]}")
         self.smoother.reset(p)
         q, dq = self.tracker.reset(0.0, p)
+        self._q_reached = np.array(q, dtype=float)
         self._t, self._ticks, self._t_offset = 0.0, 0, math.nan
         self._log = {k: [] for k in ("t", "p", "v", "a", "q", "dq", "fk")}
         self._store(0.0, p, np.zeros(3), np.zeros(3), q, dq)
@@ -77,8 +101,13 @@ class RobotArmActuator(Actuator):
     def _store(
         self, t: float, p: np.ndarray, v: np.ndarray, a: np.ndarray, q: np.ndarray, dq: np.ndarray
     ) -> None:
-        fk = self.tracker.position_m
-        self._xyz = (float(fk[0]), float(fk[1]), float(fk[2]))
+        fk = self.tracker.position_m  # of the setpoint q
+        if self._servo_alpha < 1.0:  # the joints lag their setpoints: the EPM is where they are
+            self._q_reached += self._servo_alpha * (np.asarray(q, dtype=float) - self._q_reached)
+            reached = self.kin.epm_position(self._q_reached)
+        else:
+            reached = fk
+        self._xyz = (float(reached[0]), float(reached[1]), float(reached[2]))
         self._q, self._dq, self._v = q, dq, v
         if self.record:
             log = self._log
@@ -114,7 +143,7 @@ class RobotArmActuator(Actuator):
 
     @property
     def position_m(self) -> np.ndarray:
-        """EPM centre (x, y, height), m: forward kinematics of the latest joint positions."""
+        """EPM centre (x, y, height), m: forward kinematics of the joint positions reached."""
         return np.array(self._xyz)
 
     @property
@@ -172,5 +201,5 @@ class RobotArmActuator(Actuator):
 
 @register_actuator("robot")
 def _make_robot_actuator(scenario: Scenario) -> Actuator:
-    """Factory of ``sim.actuator: robot``."""
+    """Factory of ``sim.actuator: robot`` (no servo lag; the simulator passes the draw's)."""
     return RobotArmActuator(scenario)

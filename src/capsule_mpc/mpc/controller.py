@@ -124,9 +124,12 @@ class _Plan:
     age: int = 0
 
     def command(self, t_s: float) -> np.ndarray:
-        """The command the plan applies ``t_s`` after it was solved (stage k: ``[t_k, t_k+1)``)."""
-        k = int(np.searchsorted(self.times, t_s + 1e-9, side="right")) - 1
-        return np.asarray(self.us[:, min(k, self.us.shape[1] - 1)], dtype=float)
+        """The command the plan sends for the frame that ends ``t_s`` after it was solved: its
+        velocity command at that time, linear over each stage (the command's slope is constant
+        over a stage, so a frame inside a longer stage sends the ramp's point), held after the
+        last stage."""
+        times = self.times[1:]
+        return np.array([np.interp(t_s, times, row) for row in self.us])
 
     def state(self, t_s: float) -> np.ndarray:
         """The model state the plan predicts ``t_s`` (>= the first stage's end) after it was
@@ -162,6 +165,7 @@ class MPCController(Controller):
         self.disturbance_n = np.zeros(N_DIST)
         self.friction_rls = FrictionOffsetRLS(cfg, self.dt_s) if cfg.friction_adaptation == "rls" else None
         self.u_prev = np.zeros(3)
+        self.slope_prev = np.zeros(3)  # the last command's change over its frame, m/s^2
         self.plan: _Plan | None = None
         self._offline_plan = None
         if cfg.feedforward == "plan":
@@ -274,7 +278,7 @@ class MPCController(Controller):
         assert stack is not None
         solver = self.solver
         offset = 0.0 if self.friction_rls is None else self.friction_rls.offset
-        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, self.disturbance_n, offset)
+        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, self.disturbance_n, offset, self.slope_prev)
         if self.plan is None:
             return solver.solve_converged(p, self._initial_guess(x0))
         guess = stack.ocp.shift(self.plan.w)
@@ -388,7 +392,7 @@ class MPCController(Controller):
             plan.age += 1
             plan.w = self.stack.ocp.shift(plan.w)  # type: ignore[union-attr]
             plan.lam_x = plan.lam_g = None
-            return plan.command(plan.age * self.dt_s)
+            return plan.command((plan.age + 1) * self.dt_s)
         self.plan = None
         return np.zeros(3)  # braking target; the safety layer limits the deceleration
 
@@ -397,10 +401,11 @@ class MPCController(Controller):
         rig keeps the EPM still whatever is commanded, so the controller sends (and assumes) 0."""
         if hold:
             u = np.zeros(3)
-        cmd, clipped = safe_command(u, self.u_prev, epm, self.scenario, self.dt_s)
+        cmd, clipped = safe_command(u, self.u_prev, epm, self.scenario, self.dt_s, self.slope_prev)
         if clipped:
             self.clipped_steps += 1
             stats.extra["clipped"] = 1.0
+        self.slope_prev = (cmd - self.u_prev) / self.dt_s
         self.u_prev = cmd
         return Command(epm_velocity_mps=cmd, stats=stats)
 

@@ -56,6 +56,7 @@ from ..config import Scenario, stage_end_times_s
 from ..dynamics import CapsuleModel
 
 __all__ = [
+    "A_SCALE",
     "FN_SCALE",
     "INPUT_SCALE",
     "N_DIST",
@@ -86,22 +87,30 @@ N_DIST = 3
 N_FRICTION = 1
 #: Model state (p, v, e, h) and EPM velocity sizes (see :mod:`capsule_mpc.dynamics`).
 _NX_MODEL, _NU_MODEL = 7, 3
-#: Stage state: the model state and the command applied (10); stage input: dc, v_next, slacks (7).
-N_STATE = _NX_MODEL + _NU_MODEL
-N_INPUT = _NU_MODEL + 2 + n_slacks
-#: Path rows per stage: implicit velocity (2), coupling, normal force (2).
-N_PATH = 5
+#: Stage state: the model state, the command applied and its slope (13); stage input: dc, v_next,
+#: slacks (7).
+N_STATE = _NX_MODEL + 2 * _NU_MODEL
+N_INPUT = _NU_MODEL + 2 + n_slacks + 1
+#: Path rows per stage: implicit velocity (2), coupling, normal force (2), jerk (3 lower, 3 upper).
+N_PATH = 11
+#: Stage-state columns of the command's slope (the EPM acceleration of the step that ends there).
+_SLOPE = slice(_NX_MODEL + _NU_MODEL, N_STATE)
 #: Variable scales: the NLP works in mm, cm/s and unit-order slacks, so the QP sees a
 #: well-conditioned problem. Physical value = scale * NLP value.
 X_SCALE = np.array([1e-3, 1e-3, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
 U_SCALE = np.array([1e-2, 1e-2, 1e-2])
+#: Scale of the command's slope (EPM acceleration), m/s^2, and of the jerk rows, m/s^3.
+A_SCALE = np.array([0.1, 0.1, 0.1])
+J_SCALE = 1.0
 #: Slack scales: coupling slack in units of max_lead^2 (dimensionless), normal-force slack in N.
 S_SCALE = np.array([1.0, 0.1])
 #: Normal-force constraint scale, N.
 FN_SCALE = 0.1
 #: Scales of the stage state (model state, command) and input (dc, capsule velocity, slacks).
-STATE_SCALE = np.concatenate([X_SCALE, U_SCALE])
-INPUT_SCALE = np.concatenate([U_SCALE, X_SCALE[2:4], S_SCALE])
+STATE_SCALE = np.concatenate([X_SCALE, U_SCALE, A_SCALE])
+#: Scale of the jerk rows' slack (a slope change beyond the jerk limit), m/s^2.
+JERK_SLACK_SCALE = 0.1
+INPUT_SCALE = np.concatenate([U_SCALE, X_SCALE[2:4], S_SCALE, [JERK_SLACK_SCALE]])
 _STAGE = N_STATE + N_INPUT
 #: Stage-state columns of the positions (capsule x, y; EPM x, y, height) and of their rates
 #: (capsule velocity; the EPM velocity command), pairwise.
@@ -190,7 +199,7 @@ class OCP:
         w = np.asarray(w, dtype=float).ravel()
         phys = w[self._later_states] * STATE_SCALE  # stages 1..N: one gather (this runs every frame)
         ss = (w[self._slacks] * S_SCALE).T
-        return phys[:, :_NX_MODEL].T, phys[:, _NX_MODEL:].T, ss
+        return phys[:, :_NX_MODEL].T, phys[:, _NX_MODEL : _NX_MODEL + _NU_MODEL].T, ss
 
     @cached_property
     def _later_states(self) -> np.ndarray:
@@ -211,11 +220,14 @@ class OCP:
         u_prev: np.ndarray,
         disturbance_n: np.ndarray,
         friction_offset: float = 0.0,
+        slope_prev: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3) and
-        the friction-coefficient offset (dimensionless; 0: the model's friction)."""
+        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3), the
+        friction-coefficient offset (dimensionless; 0: the model's friction) and the slope of the
+        command being applied (3, m/s^2: its change from the one before, per frame; default 0)."""
+        slope = np.zeros(_NU_MODEL) if slope_prev is None else np.ravel(slope_prev)
         return np.concatenate(
-            [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), np.ravel(disturbance_n),
+            [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), slope, np.ravel(disturbance_n),
              [float(friction_offset)]]
         )  # fmt: skip
 
@@ -236,9 +248,11 @@ class OCP:
         xs, us, ss = np.asarray(xs, dtype=float), np.asarray(us, dtype=float), np.asarray(ss, dtype=float)
         x_first = xs[:, 0] if x0 is None else np.ravel(x0)
         c_first = us[:, 0] if u_prev is None else np.ravel(u_prev)
-        states = np.vstack([np.concatenate([x_first, c_first]), np.vstack([xs, us]).T])
-        commands = states[:, _NX_MODEL:]
-        inputs = np.hstack([np.diff(commands, axis=0), xs[2:4].T, ss.T])
+        commands = np.vstack([c_first, us.T])
+        slopes = np.vstack([np.zeros(_NU_MODEL), np.diff(commands, axis=0) / self.steps_s[:, None]])
+        model = np.vstack([x_first, xs.T])
+        states = np.hstack([model, commands, slopes])
+        inputs = np.hstack([np.diff(commands, axis=0), xs[2:4].T, ss.T, np.zeros((ss.shape[1], 1))])
         return self._join(states / STATE_SCALE, inputs / INPUT_SCALE)
 
     def _join(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
@@ -261,6 +275,7 @@ class OCP:
         # then the last input (dc zeroed) and x_N again.
         out = np.concatenate([w[_STAGE:], w[-_STAGE:]])
         out[-_STAGE : -_STAGE + _NU_MODEL] = 0.0
+        out[-N_STATE:][_SLOPE] = 0.0  # the held command has no slope
         return out
 
     def _shift_interpolated(self, w: np.ndarray) -> np.ndarray:
@@ -275,10 +290,12 @@ class OCP:
         past = np.maximum(new_t - old_t[-1], 0.0)[:, None]
         phys[:, _POSITIONS] += past * states[-1, _RATES] * STATE_SCALE[_RATES]
         phys[1:, _RATES] = np.diff(phys[:, _POSITIONS], axis=0) / self.steps_s[:, None]
+        cmd = slice(_NX_MODEL, _NX_MODEL + _NU_MODEL)
+        phys[1:, _SLOPE] = np.diff(phys[:, cmd], axis=0) / self.steps_s[:, None]
         moved = phys / STATE_SCALE
         stage = np.minimum(np.searchsorted(old_t, new_t[:-1], side="right") - 1, self.horizon - 1)
         new_inputs = np.hstack([
-            np.diff(moved[:, _NX_MODEL:], axis=0),  # dc (the command's scale)
+            np.diff(moved[:, cmd], axis=0),  # dc (the command's scale)
             moved[1:, 2:4],  # capsule velocity at the next stage (the state's scale)
             inputs[stage, _NU_MODEL + 2 :],  # slacks: the old stage the new one starts in
         ])  # fmt: skip
@@ -292,20 +309,22 @@ class OCP:
         return lbw, ubw
 
     def initial_state(self, p: np.ndarray) -> np.ndarray:
-        """Scaled stage-0 state from the parameters: the estimated state and ``u_prev``."""
+        """Scaled stage-0 state from the parameters: the estimated state, ``u_prev`` and its slope."""
         n = self.horizon
         i_u = _NX_MODEL + N_REF * n
-        return np.concatenate([p[:_NX_MODEL], p[i_u : i_u + _NU_MODEL]]) / STATE_SCALE
+        return np.concatenate([p[:_NX_MODEL], p[i_u : i_u + 2 * _NU_MODEL]]) / STATE_SCALE
 
 
 def _next_state(xk: ca.MX, uk: ca.MX, dt_s: float) -> ca.MX:
-    """Physical x_{k+1} from physical (x_k, u_k): implicit Euler of p' = v and e' = c."""
+    """Physical x_{k+1} from physical (x_k, u_k): implicit Euler of p' = v and e' = c; the
+    command's slope is its change over the step."""
     pos, epm, height, cmd = xk[0:2], xk[4:6], xk[6], xk[7:10]
     cmd_next = cmd + uk[0:3]
     v_next = uk[3:5]
     return ca.vertcat(
-        pos + dt_s * v_next, v_next, epm + dt_s * cmd_next[0:2], height + dt_s * cmd_next[2], cmd_next
-    )
+        pos + dt_s * v_next, v_next, epm + dt_s * cmd_next[0:2], height + dt_s * cmd_next[2], cmd_next,
+        uk[0:3] / dt_s,
+    )  # fmt: skip
 
 
 def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: float | None = None) -> OCP:
@@ -336,11 +355,11 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     steps = np.full(n, float(dt_s))
     steps[0] = dt_s if frame_s is None else frame_s
     n_w = _STAGE * n + N_STATE
-    n_p = _NX_MODEL + N_REF * n + _NU_MODEL + N_DIST + N_FRICTION
+    n_p = _NX_MODEL + N_REF * n + 2 * _NU_MODEL + N_DIST + N_FRICTION
     w = ca.MX.sym("w", n_w)
     p = ca.MX.sym("p", n_p)
     ref = ca.reshape(p[_NX_MODEL : _NX_MODEL + N_REF * n], N_REF, n)
-    i_dist = _NX_MODEL + N_REF * n + _NU_MODEL
+    i_dist = _NX_MODEL + N_REF * n + 2 * _NU_MODEL
     dist, mu_offset = p[i_dist : i_dist + N_DIST], p[i_dist + N_DIST]
 
     mass = sc.capsule.mass_kg
@@ -355,7 +374,8 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
         uk = u_scale * w[_STAGE * k + N_STATE : _STAGE * (k + 1)]
         x_next_var = w[_STAGE * (k + 1) : _STAGE * (k + 1) + N_STATE]
         x1 = _next_state(xk, uk, h)
-        m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL:], uk[0:3], uk[5:7]
+        m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL : _NX_MODEL + _NU_MODEL], uk[0:3], uk[5:7]
+        sj, jerk = uk[7], (uk[0:3] / h - xk[_SLOPE]) / J_SCALE
         v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
         acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
         lead, _force, f_n, _mu = model.outputs(m1)
@@ -371,6 +391,11 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
             ca.sumsqr(lead - lead_eq) / eq_sq - 1 - sk[0],  # <= 0: capsule keeps the magnet
             (f_n + sk[1]) / FN_SCALE,  # >= F_N,min: stays on the plate
             (f_n - sk[1]) / FN_SCALE,  # <= F_N,max: tissue-safe
+            # The slope's change (the jerk the arm must make) within the jerk limit, softened by
+            # one slack so that a start state already past it (after a braking fallback) keeps
+            # the QP feasible; the safety layer enforces the limit on the command sent.
+            jerk + sj / J_SCALE,  # >= -J frame
+            jerk - sj / J_SCALE,  # <= J frame
         ]
         weight = cfg.terminal_factor if k == n - 1 else 1.0
         err = m1[0:2] - ref[0:2, k]
@@ -390,6 +415,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
             # N = 20, 20 ms stages, lab, 10 draws: cross-track RMS 0.55 mm; 0.73 with dt / h).
             (dc if h == dt_s else dc * np.sqrt(dt_s / h)) / cfg.input_rate_tol_mps,
             np.sqrt(cfg.slack_weight) * sk / S_SCALE,
+            np.sqrt(cfg.slack_weight) * sj / JERK_SLACK_SCALE,
         ]
 
     res = ca.vertcat(*residuals)
@@ -397,7 +423,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     slack_gradient = np.zeros(n_w)
     for k in range(n):
         i0 = _STAGE * k + N_STATE + _NU_MODEL + 2
-        slack_gradient[i0 : i0 + n_slacks] = cfg.slack_weight
+        slack_gradient[i0 : i0 + n_slacks + 1] = cfg.slack_weight  # with the jerk slack
     f = 0.5 * ca.sumsqr(res) + ca.dot(ca.DM(slack_gradient), w)
     g = ca.vertcat(*rows)
     residual = ca.Function("mpc_residual", [w, p], [res], ["w", "p"], ["r"])
@@ -405,22 +431,30 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     inf = np.inf
     speed = lim.speed_mps
     c_lo = np.array([-speed, -speed, -speed if cfg.height_control else 0.0])
-    x_lo = np.concatenate([[-inf, -inf, -inf, -inf], lim.workspace_min_m, c_lo]) / STATE_SCALE
-    x_hi = np.concatenate([[inf, inf, inf, inf], lim.workspace_max_m, -c_lo]) / STATE_SCALE
+    a_lo = -lim.accel_mps2 * np.array([1.0, 1.0, 1.0 if cfg.height_control else 0.0])
+    x_lo = np.concatenate([[-inf, -inf, -inf, -inf], lim.workspace_min_m, c_lo, a_lo]) / STATE_SCALE
+    x_hi = np.concatenate([[inf, inf, inf, inf], lim.workspace_max_m, -c_lo, -a_lo]) / STATE_SCALE
 
     def input_bounds(h: float) -> tuple[np.ndarray, np.ndarray]:
         da = np.full(_NU_MODEL, lim.accel_mps2 * h)
-        u_lo = np.concatenate([-da, [-inf, -inf], np.zeros(n_slacks)]) / INPUT_SCALE
-        u_hi = np.concatenate([da, [inf, inf], np.full(n_slacks, inf)]) / INPUT_SCALE
+        u_lo = np.concatenate([-da, [-inf, -inf], np.zeros(n_slacks + 1)]) / INPUT_SCALE
+        u_hi = np.concatenate([da, [inf, inf], np.full(n_slacks + 1, inf)]) / INPUT_SCALE
         return u_lo, u_hi
 
     bounds = [input_bounds(float(h)) for h in steps]
     lbw = np.concatenate([*[np.concatenate([x_lo, lo]) for lo, _ in bounds], x_lo])
     ubw = np.concatenate([*[np.concatenate([x_hi, hi]) for _, hi in bounds], x_hi])
-    stage_lo = np.concatenate([np.zeros(N_STATE + 2), [-inf, lim.normal_force_min_n / FN_SCALE, -inf]])
-    stage_hi = np.concatenate([np.zeros(N_STATE + 2), [0.0, inf, lim.normal_force_max_n / FN_SCALE]])
+    # The jerk rows bound the slope's change at every stage end by the jerk limit over one frame:
+    # the commands sent frame by frame are the plan's velocity at each frame's end (linear over a
+    # stage), so a slope changes within one frame wherever a stage ends.
+    lbg, ubg = [], []
+    for _ in range(n):
+        dj = np.full(_NU_MODEL, lim.jerk_mps3 * float(steps[0]) / J_SCALE)
+        fixed = np.zeros(N_STATE + 2)
+        lbg.append(np.concatenate([fixed, [-inf, lim.normal_force_min_n / FN_SCALE, -inf], -dj, np.full(3, -inf)]))
+        ubg.append(np.concatenate([fixed, [0.0, inf, lim.normal_force_max_n / FN_SCALE], np.full(3, inf), dj]))
     return OCP(
         nlp={"x": w, "p": p, "f": f, "g": g}, residual=residual, slack_gradient=slack_gradient,
-        lbw=lbw, ubw=ubw, lbg=np.tile(stage_lo, n), ubg=np.tile(stage_hi, n), horizon=n, dt_s=dt_s,
+        lbw=lbw, ubw=ubw, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg), horizon=n, dt_s=dt_s,
         lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p, steps_s=steps,
     )  # fmt: skip

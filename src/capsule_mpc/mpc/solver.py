@@ -166,7 +166,8 @@ def nlp_functions(ocp: OCP, expand: bool = True) -> tuple[ca.Function, ca.Functi
 
 def _linearisation_point(ocp: OCP, w: ca.MX, p: ca.MX) -> tuple[ca.MX, ca.MX, ca.MX]:
     """``w`` with stage 0 set from the parameters, and the variable bounds (``x_0`` fixed)."""
-    nx, nu = len(X_SCALE), len(U_SCALE)  # the model's state and input: p = (x0, ref, u_prev, d)
+    # The model's state, then the command and its slope: p = (x0, ref, u_prev, slope_prev, d, dmu).
+    nx, nu = len(X_SCALE), 2 * len(U_SCALE)
     i_u = nx + N_REF * ocp.horizon
     x0 = ca.vertcat(p[0:nx], p[i_u : i_u + nu]) / ca.DM(STATE_SCALE)
     w_lin = ca.vertcat(x0, w[N_STATE:])

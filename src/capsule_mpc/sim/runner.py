@@ -494,9 +494,14 @@ def _fault_injector(scenario: Scenario, seed: int) -> FaultInjector | None:
 
 
 def _make_actuator(scenario: Scenario, truth: PlantTruth) -> Actuator:
-    """The scenario's actuator; the simple arm gets the draw's servo lag (the robot arm has its own)."""
+    """The scenario's actuator with the draw's servo lag: on the simple arm's velocity, on the
+    robot arm's joints."""
     if truth.servo_bandwidth_hz is not None and scenario.sim.actuator == "simple":
         return SimpleArm(scenario, servo_bandwidth_hz=truth.servo_bandwidth_hz)
+    if truth.servo_bandwidth_hz is not None and scenario.sim.actuator == "robot":
+        from ..arm import RobotArmActuator  # lazy: Pinocchio loads only for the robot arm
+
+        return RobotArmActuator(scenario, servo_bandwidth_hz=truth.servo_bandwidth_hz)
     return make_actuator(scenario)
 
 
