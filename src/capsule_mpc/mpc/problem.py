@@ -450,9 +450,10 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     lbg, ubg = [], []
     for _ in range(n):
         dj = np.full(_NU_MODEL, lim.jerk_mps3 * float(steps[0]) / J_SCALE)
-        fixed = np.zeros(N_STATE + 2)
-        lbg.append(np.concatenate([fixed, [-inf, lim.normal_force_min_n / FN_SCALE, -inf], -dj, np.full(3, -inf)]))
-        ubg.append(np.concatenate([fixed, [0.0, inf, lim.normal_force_max_n / FN_SCALE], np.full(3, inf), dj]))
+        fixed, free = np.zeros(N_STATE + 2), np.full(_NU_MODEL, inf)
+        fn_lo, fn_hi = lim.normal_force_min_n / FN_SCALE, lim.normal_force_max_n / FN_SCALE
+        lbg.append(np.concatenate([fixed, [-inf, fn_lo, -inf], -dj, -free]))
+        ubg.append(np.concatenate([fixed, [0.0, inf, fn_hi], free, dj]))
     return OCP(
         nlp={"x": w, "p": p, "f": f, "g": g}, residual=residual, slack_gradient=slack_gradient,
         lbw=lbw, ubw=ubw, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg), horizon=n, dt_s=dt_s,
