@@ -8,7 +8,7 @@ configs/rectangle.yaml. Prints tables and writes JSON with the machine info (CPU
 average, casadi version) and the config used, and a figure of the time distributions beside it.
 
     .venv/bin/python benchmarks/mpc_bench.py [--horizons 10 20 40 60] [--schemes rti sqp ipopt]
-        [--qp-solvers hpipm piqp qrqp] [--frames 300] [--repeats 1]
+        [--qp-solvers hpipm piqp] [--frames 300] [--repeats 1]
         [--out results/benchmarks/mpc_bench.json]
 """
 

@@ -67,12 +67,13 @@ def test_the_rate_cost_weighs_the_squared_acceleration_per_unit_time(coarse):
     rate residuals' squares are the EPM's squared acceleration times the stage's duration (one
     factor for every stage): the cost of a sum over time, not per stage."""
     ocp = build_mpc_stack(coarse).ocp
-    stage, per_stage, rate_rows = N_STATE + N_INPUT, 14, slice(8, 11)  # residual rows: see build_ocp
+    stage, rate_rows = N_STATE + N_INPUT, slice(8, 11)  # residual rows: see build_ocp
     delta = np.array([0.003, -0.002, 0.0])  # m/s
     w = np.zeros(ocp.n_w)
     for k in (0, 1):
         w[stage * k + N_STATE : stage * k + N_STATE + 3] = delta / INPUT_SCALE[0:3]
-    r = np.asarray(ocp.residual(w, np.zeros(ocp.n_p))).ravel().reshape(N, per_stage)
+    r = np.asarray(ocp.residual(w, np.zeros(ocp.n_p))).ravel()
+    r = r.reshape(N, r.size // N)
     tol = coarse.mpc.input_rate_tol_mps
     assert r[1, rate_rows] == pytest.approx(delta / tol)
     assert r[0, rate_rows] == pytest.approx(delta / tol * np.sqrt(STEP_S / FRAME_S))

@@ -523,12 +523,12 @@ class MPCConfig(_Strict):
             "step iterated with a line search to convergence; ipopt: interior point every frame."
         ),
     )
-    qp_solver: Literal["hpipm", "piqp", "qrqp"] = Field(
+    qp_solver: Literal["hpipm", "piqp"] = Field(
         "hpipm",
         description=(
             "QP solver inside the SQP schemes, on the same stage-wise problem: hpipm (Riccati-"
-            "structured interior point; fastest), piqp (sparse interior point) or qrqp (CasADi's "
-            "active set; slow after large changes)."
+            "structured interior point; fastest) or piqp (sparse interior point). CasADi's active-set "
+            "qrqp is not offered: it reports the jerk-limited problem's steps infeasible."
         ),
     )
     max_sqp_iter: Integer = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
@@ -592,6 +592,15 @@ class MPCConfig(_Strict):
             "EPM velocity change per prediction step tolerance, m/s (smoothness); scale it with "
             "sqrt(step) to keep its weight per unit time (a first stage shorter than mpc.dt_s is "
             "weighted so)."
+        ),
+    )
+    input_jerk_tol_mps2: Number | None = Field(
+        0.02,
+        gt=0,
+        description=(
+            "Tolerance of the change of the EPM acceleration from one step to the next, m/s^2 "
+            "(the jerk the arm makes, times a frame): a cost on it smooths the commands below the "
+            "hard jerk limit (limits.jerk_mps3); None: no such cost."
         ),
     )
     terminal_factor: Number = Field(

@@ -18,12 +18,14 @@ from .checks import ExportCheck, check_epm_plan, default_max_deviation_m, verify
 from .errors import ArmError, ExportCheckError, PlanError, SmoothingError, UnreachableTargetError
 from .export import (
     ArmExport,
+    check_run_trajectory,
     export_arm_trajectory,
     joint_figure,
     plot_joint_trajectory,
     read_epm_plan_csv,
     read_joint_trajectory_csv,
     read_joint_trajectory_yaml,
+    run_trajectory_since,
     write_arm_outputs,
 )
 from .kinematics import (
@@ -63,6 +65,7 @@ __all__ = [
     "VelocitySmoother",
     "WorkspaceReport",
     "check_epm_plan",
+    "check_run_trajectory",
     "check_workspace",
     "default_max_deviation_m",
     "export_arm_trajectory",
@@ -71,6 +74,7 @@ __all__ = [
     "read_epm_plan_csv",
     "read_joint_trajectory_csv",
     "read_joint_trajectory_yaml",
+    "run_trajectory_since",
     "smooth_waypoints",
     "solve_trajectory",
     "verify_arm_trajectory",

@@ -20,7 +20,7 @@ The arm trajectory (:func:`verify_arm_trajectory`, after smoothing and IK, befor
 * forward kinematics of the joint positions (an independent model) within the IK tolerances
   (``arm.ik_position_tolerance_m``, ``arm.ik_orientation_tolerance_rad``) of the setpoints;
 * joint positions within the enforced limits, joint velocities within the allowed ones;
-* Cartesian setpoint velocities and accelerations within the arm's limits;
+* Cartesian setpoint velocities, accelerations and jerks within the arm's limits;
 * the EPM (forward kinematics) inside the workspace box;
 * the EPM within ``max_deviation_m`` of the plan (linearly interpolated at the same time; the
   last row held after the plan ends).
@@ -67,6 +67,9 @@ PLAN_DEVIATION_FRACTION = 0.2
 ROUNDING_M = 1e-6
 #: Relative rounding of Ruckig's analytic velocities and accelerations against their limits.
 _LIMIT_ROUNDING = 1e-9
+#: Relative rounding of a jerk computed from consecutive setpoint accelerations (their times are
+#: sums of the arm period: a few ulps of the tick).
+_JERK_ROUNDING = 1e-6
 #: Absolute rounding of the forward-kinematics check against the IK tolerances (m, rad).
 _FK_ROUNDING = 1e-12
 
@@ -362,6 +365,11 @@ def verify_arm_trajectory(
     limits = CartesianLimits.from_scenario(scenario)
     v_over = np.abs(cart.velocity_mps) > limits.velocity_mps * (1 + _LIMIT_ROUNDING)
     a_over = np.abs(cart.acceleration_mps2) > limits.acceleration_mps2 * (1 + _LIMIT_ROUNDING)
+    # Jerk between consecutive setpoints (Ruckig keeps it within the limit on its uniform grid).
+    jerk = np.zeros_like(cart.acceleration_mps2)
+    if t.shape[0] > 1:
+        jerk[1:] = np.diff(cart.acceleration_mps2, axis=0) / np.diff(t)[:, None]
+    j_over = np.abs(jerk) > limits.jerk_mps3 * (1 + _JERK_ROUNDING)
     checks = (
         (
             fk_err > arm.ik_position_tolerance_m + _FK_ROUNDING,
@@ -397,6 +405,13 @@ def verify_arm_trajectory(
             lambda k: (
                 f"setpoint acceleration {cart.acceleration_mps2[k].round(4).tolist()} m/s^2 beyond the "
                 f"per-axis limit {limits.acceleration_mps2.tolist()} m/s^2"
+            ),
+        ),
+        (
+            j_over.any(axis=1),
+            lambda k: (
+                f"setpoint jerk {jerk[k].round(3).tolist()} m/s^3 beyond the per-axis limit "
+                f"{limits.jerk_mps3.tolist()} m/s^3"
             ),
         ),
         (

@@ -29,7 +29,7 @@ import csv
 import json
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import IO, Any
 
@@ -50,12 +50,14 @@ __all__ = [
     "SUMMARY_JSON",
     "ArmExport",
     "arm_summary",
+    "check_run_trajectory",
     "export_arm_trajectory",
     "joint_figure",
     "plot_joint_trajectory",
     "read_epm_plan_csv",
     "read_joint_trajectory_csv",
     "read_joint_trajectory_yaml",
+    "run_trajectory_since",
     "thin_waypoints",
     "write_arm_outputs",
 ]
@@ -448,6 +450,50 @@ def export_arm_trajectory(
     summary = arm_summary(cart, joints, limits, arm.arm_rate_hz, check)
     paths = write_arm_outputs(out_dir, cart, joints, summary, plot=plot)
     return ArmExport(paths, cart, joints, summary)
+
+
+def run_trajectory_since(
+    cart: CartesianTrajectory, joints: JointTrajectory, t0_s: float = 0.0
+) -> tuple[CartesianTrajectory, JointTrajectory]:
+    """The arm ticks of a run from ``t0_s`` on (the settle phase before t = 0 holds the EPM)."""
+    keep = np.asarray(cart.t_s) >= t0_s - 1e-9
+    cart_part = replace(
+        cart, t_s=cart.t_s[keep], position_m=cart.position_m[keep], velocity_mps=cart.velocity_mps[keep],
+        acceleration_mps2=cart.acceleration_mps2[keep],
+    )  # fmt: skip
+    joints_part = replace(
+        joints, t_s=joints.t_s[keep], q_rad=joints.q_rad[keep], dq_radps=joints.dq_radps[keep],
+        epm_position_m=joints.epm_position_m[keep],
+    )  # fmt: skip
+    return cart_part, joints_part
+
+
+def check_run_trajectory(
+    scenario: Scenario, cart: CartesianTrajectory, joints: JointTrajectory
+) -> tuple[ExportCheck, dict[str, Any]]:
+    """Check the joint commands a robot-arm run actually sent, as they would be exported.
+
+    The commanded signal itself is checked (:func:`~capsule_mpc.arm.checks.verify_arm_trajectory`
+    with the arm's own Cartesian setpoints as the plan): forward kinematics of every joint command
+    within the IK tolerance of its setpoint, joint positions and velocities within their limits,
+    the setpoints' velocity, acceleration and jerk within the arm's limits, the EPM inside the
+    workspace. Nothing is re-smoothed or re-sampled, so the verdict is the loop's own.
+
+    Returns
+    -------
+    ExportCheck, dict
+        The figures measured, and the summary ``arm_summary.json`` holds.
+
+    Raises
+    ------
+    ExportCheckError
+        At the first tick a check fails (time, EPM position, the check and the limit named).
+    """
+    kin = ArmKinematics(scenario.arm)
+    tolerance = default_max_deviation_m(scenario)
+    check = verify_arm_trajectory(scenario, kin, cart.t_s, cart.position_m, cart, joints, tolerance)
+    limits = CartesianLimits.from_scenario(scenario)
+    return check, arm_summary(cart, joints, limits, scenario.arm.arm_rate_hz, check)
 
 
 def read_epm_plan_csv(

@@ -211,6 +211,8 @@ def export_run_arm(result: RunResult, out_dir: str | Path) -> dict[str, Path] | 
 
     from ..arm import ArmError, export_arm_trajectory
 
+    if result.arm_run is not None:  # the robot arm ran the loop: its own joint commands
+        return _export_robot_run(result, out_dir)
     log = result.log
     moving = np.asarray(log["t_s"]) >= 0
     if np.count_nonzero(moving) < 2:
@@ -231,6 +233,26 @@ def export_run_arm(result: RunResult, out_dir: str | Path) -> dict[str, Path] | 
         f"{s['ik']['max_position_error_m']:.1e} m -> {', '.join(p.name for p in arm.paths.values())}"
     )
     return dict(arm.paths)
+
+
+def _export_robot_run(result: RunResult, out_dir: str | Path) -> dict[str, Path] | None:
+    """Write the joint commands the robot arm actually ran (checked in the run: ``arm_ok``)."""
+    from ..arm import check_run_trajectory, write_arm_outputs
+
+    if result.flags.arm_failure:
+        print(f"  arm: the joint commands fail their check; arm files skipped: {result.flags.arm_failure}",
+              file=sys.stderr)  # fmt: skip
+        return None
+    assert result.arm_run is not None
+    cart, joints = result.arm_run
+    _check, summary = check_run_trajectory(result.scenario, cart, joints)
+    paths = write_arm_outputs(out_dir, cart, joints, summary)
+    print(
+        f"  arm: the {summary['n_setpoints']} joint commands the arm ran at {summary['arm_rate_hz']:.0f} Hz, "
+        f"worst IK error {summary['ik']['max_position_error_m']:.1e} m -> "
+        f"{', '.join(p.name for p in paths.values())}"
+    )
+    return dict(paths)
 
 
 def _print_result(result: RunResult, out: Path) -> None:

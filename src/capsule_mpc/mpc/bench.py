@@ -152,7 +152,7 @@ def bench_scenario(
         Compile the NLP functions to C.
     cache_dir : Path, optional
         Cache folder (``force_map.cache_dir``; the compiled code goes to its ``mpc/``).
-    qp_solver : {'hpipm', 'piqp', 'qrqp'}, optional
+    qp_solver : {'hpipm', 'piqp'}, optional
         QP solver of the SQP schemes (default: the base's).
 
     Returns
@@ -515,7 +515,7 @@ def run_benchmark(
         Seed of the runs (default ``sim.seed``).
     progress : callable, optional
         Called with a line of text before each measurement.
-    qp_solvers : sequence of {'hpipm', 'piqp', 'qrqp'}
+    qp_solvers : sequence of {'hpipm', 'piqp'}
         QP solvers of the SQP schemes (each scheme is measured with each).
     repeats : int
         Closed-loop runs per variant and horizon, >= 1 (see :func:`median_run`).

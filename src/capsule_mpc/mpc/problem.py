@@ -417,6 +417,8 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
             np.sqrt(cfg.slack_weight) * sk / S_SCALE,
             np.sqrt(cfg.slack_weight) * sj / JERK_SLACK_SCALE,
         ]
+        if cfg.input_jerk_tol_mps2 is not None:
+            residuals.append(jerk * J_SCALE / cfg.input_jerk_tol_mps2)
 
     res = ca.vertcat(*residuals)
     # The linear slack penalty, slack_weight per unit slack (scaled slack = physical / S_SCALE).

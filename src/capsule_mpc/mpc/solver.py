@@ -62,7 +62,7 @@ MAX_STEP_VIOLATION = 20.0
 #: IPOPT statuses that give a usable (if not fully converged) point.
 _IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded"}
 #: QP solvers the SQP schemes can use on the stage-wise layout.
-QP_SOLVERS = ("hpipm", "piqp", "qrqp")
+QP_SOLVERS = ("hpipm", "piqp")
 #: HPIPM settings (issue 10, 127 recorded QPs at N = 20): with HPIPM's default absolute
 #: tolerances 24-41 of them hit the iteration cap; 'speed' mode with these residual tolerances
 #: (scaled units) and a cap of 8-15 iterations gave no failure and unchanged commands. Measured
@@ -138,8 +138,6 @@ def qp_options(qpsol: str, ocp: OCP) -> dict:
         return {**ocp.structure, "error_on_fail": False, "hpipm": dict(HPIPM_OPTIONS)}
     if qpsol == "piqp":
         return {"error_on_fail": False, "piqp": {"verbose": False}}
-    if qpsol == "qrqp":
-        return {"print_iter": False, "print_header": False, "error_on_fail": False, "max_iter": 50}
     raise ValueError(f"mpc.qp_solver: must be one of {list(QP_SOLVERS)}, got {qpsol!r}")
 
 
@@ -389,7 +387,7 @@ class MPCSolver:
     compile_dir : Path, optional
         Compile the NLP's derivative and value functions to C and cache them here (None: run
         them in CasADi's virtual machine).
-    qpsol : {'hpipm', 'piqp', 'qrqp'}
+    qpsol : {'hpipm', 'piqp'}
         QP solver of the SQP schemes (see :func:`qp_options`).
     """
 

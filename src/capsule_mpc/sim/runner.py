@@ -177,6 +177,7 @@ class RunFlags:
     failure: str = ""
     failure_t_s: float = math.nan
     invalid_commands: int = 0
+    arm_failure: str = ""
 
     def describe(
         self, final_error_mm: float, path_left_mm: float = math.nan, end_t_s: float = math.nan
@@ -328,13 +329,15 @@ class RunResult:
     predictions: list[np.ndarray | None] = field(default_factory=list)
     realtime: RealtimeStats | None = None
     truth: PlantTruth | None = None
+    arm_run: tuple[Any, Any] | None = None
     fault_events: list[FaultEvent] = field(default_factory=list)
 
     @property
     def failed(self) -> bool:
         """Whether the run failed: it did not come to rest within ``sim.completion_tol_m`` of the
-        end (stalled, timed out, decoupled or dropped)."""
-        return not self.flags.completed
+        end (stalled, timed out, decoupled or dropped), or the joint commands the robot arm ran
+        fail their check (``flags.arm_failure``)."""
+        return not self.flags.completed or bool(self.flags.arm_failure)
 
     def outcome_text(self) -> str:
         """How the run ended, in words, for a console line.
@@ -350,6 +353,8 @@ class RunResult:
             text += f" at t = {f.failure_t_s:.3f} s"
         if f.invalid_commands:
             text += f"; {f.invalid_commands} invalid commands replaced by a stop"
+        if f.arm_failure:
+            text += f"; arm commands invalid: {f.arm_failure}"
         limits = limit_text(self.limit_counts)
         return f"{text}; {limits}" if limits else text
 
@@ -734,13 +739,41 @@ def simulate(
     metrics["measurements_rejected"] = sum(int(st.extra.get("measurement_rejected", 0)) for st in stats)
     if faults is not None:
         metrics.update(fault_metrics(faults, arrays))
+    arm_run = _check_arm_run(scenario, act, flags, metrics)
     return RunResult(
         scenario=scenario, controller=name, seed=seed, path=path, log=arrays, metrics=metrics,
         flags=flags, step_stats=stats, limit_counts=limits, wall_time_s=wall,
         sim_time_s=(k - k_first) * loop.dt, plant_steps=k - k_first, meta=dict(meta or {}),
         predictions=predictions, realtime=pacing, truth=truth,
-        fault_events=[] if faults is None else list(faults.events),
+        fault_events=[] if faults is None else list(faults.events), arm_run=arm_run,
     )  # fmt: skip
+
+
+def _check_arm_run(
+    scenario: Scenario, act: Actuator, flags: RunFlags, metrics: dict[str, Any]
+) -> tuple[Any, Any] | None:
+    """The robot arm's setpoints and joint commands from t = 0 on, checked as they would be exported
+    (:func:`capsule_mpc.arm.check_run_trajectory`); None for an actuator that keeps none.
+
+    Sets ``metrics['arm_ok']`` and, on a failed check, ``flags.arm_failure`` (the check's message).
+    """
+    trajectories = getattr(act, "joint_trajectory", None)
+    if trajectories is None or not getattr(act, "record", False):
+        return None
+    from ..arm import ArmError, check_run_trajectory, run_trajectory_since
+
+    cart, joints = run_trajectory_since(act.cartesian_trajectory(), act.joint_trajectory())  # type: ignore[attr-defined]
+    if cart.t_s.shape[0] < 2:
+        return None
+    try:
+        check, _summary = check_run_trajectory(scenario, cart, joints)
+    except ArmError as exc:
+        flags.arm_failure = str(exc)
+        metrics["arm_ok"] = False
+    else:
+        metrics["arm_ok"] = True
+        metrics["arm_max_fk_error_m"] = check.max_fk_error_m
+    return cart, joints
 
 
 def _score(
