@@ -18,7 +18,7 @@ from capsule_mpc.config import LearnedFrictionModel, MPCConfig
 from capsule_mpc.dynamics import capsule_model
 from capsule_mpc.magnetics import model_equilibrium_lead
 from capsule_mpc.mpc.adaptation import SPEED_WINDOW_S, FrictionOffsetRLS, friction_regression
-from capsule_mpc.mpc.problem import N_STATE, X_SCALE, build_ocp
+from capsule_mpc.mpc.problem import N_PATH, N_STATE, X_SCALE, build_ocp
 
 DT = 1.0 / 30
 RLS_CFG = MPCConfig(friction_adaptation="rls")
@@ -157,11 +157,11 @@ def test_the_ocp_parameter_changes_the_models_friction(scenario):
     vel = x1[2:4]
     v_hat = vel / math.sqrt(vel @ vel + scenario.friction.smoothing_eps_mps**2)
     expected = DT * offset * float(f_n) * v_hat / scenario.capsule.mass_kg / X_SCALE[2:4]
-    rows = slice(N_STATE, N_STATE + 2)  # stage 0's velocity rows, after its 10 gap rows
+    rows = slice(N_STATE, N_STATE + 2)  # stage 0's velocity rows, after its gap rows
     np.testing.assert_allclose(g1[rows] - g0[rows], expected, rtol=1e-9)
     others = np.ones(g0.size, dtype=bool)
     for k in range(n):
-        others[k * (N_STATE + 5) + N_STATE : k * (N_STATE + 5) + N_STATE + 2] = False
+        others[k * (N_STATE + N_PATH) + N_STATE : k * (N_STATE + N_PATH) + N_STATE + 2] = False
     np.testing.assert_array_equal(g1[others], g0[others])
 
 

@@ -188,7 +188,10 @@ def test_simulate_mpc_writes_predictions_and_arm_outputs(tmp_path, short_path, q
     joints = np.loadtxt(out / "joint_trajectory.csv", delimiter=",", skiprows=1)
     moving = log["t_s"] >= 0
     assert joints[0, 0] == pytest.approx(log["t_s"][moving][0])  # from t = 0 on, not the settle
-    assert joints[-1, 0] >= log["t_s"][-1] - 1e-9
+    tick = 1.0 / load_config(out / "config.yaml").arm.arm_rate_hz
+    assert joints[-1, 0] >= log["t_s"][-1] - tick - 1e-9  # the arm's last tick of the run
+    run = json.loads((out / "run.json").read_text())
+    assert run["metrics"]["arm_ok"] and run["flags"]["arm_failure"] == ""
     text = capsys.readouterr().out
     assert "solve time median" in text and "arm:" in text
     assert set(read_manifest(out)["files"]) == names - {MANIFEST_NAME}
@@ -209,17 +212,42 @@ def test_simulate_refuses_an_out_that_is_a_file_before_running(tmp_path, short_p
     assert f.read_text() == "keep"
 
 
-def test_simulate_reports_an_arm_that_cannot_follow(
+def test_simulate_fails_a_run_whose_joint_commands_fail_their_check(
     tmp_path, short_path, quick_config, capsys, monkeypatch, table
 ):
+    """The robot arm's joint commands are checked in the run: a failed check is in run.json
+    (``arm_ok`` false, the check's message), no arm file is written, and simulate exits 1."""
+    from capsule_mpc.arm import ExportCheckError
+
+    def too_fast(scenario, cart, joints):
+        raise ExportCheckError(cart.t_s[5], cart.position_m[5], "joint 2 beyond its velocity limit")
+
+    monkeypatch.setattr("capsule_mpc.arm.check_run_trajectory", too_fast)
+    out = tmp_path / "arm"
+    args = ["simulate", "--controller", "follow", "--arm", "--config", str(quick_config), "--out", str(out)]
+    assert main([*args, "--waypoints", str(short_path), "--speed", "0.04", "--no-progress"]) == 1
+    run = json.loads((out / "run.json").read_text())
+    assert run["metrics"]["arm_ok"] is False and "joint 2 beyond its velocity limit" in run["flags"]["arm_failure"]
+    captured = capsys.readouterr()
+    assert "arm commands invalid: " in captured.out.splitlines()[0]
+    assert "fail their check" in captured.err and "skipped" in captured.err
+    assert (out / "log.csv").exists() and not (out / "joint_trajectory.csv").exists()
+
+
+def test_simulate_reports_an_arm_that_cannot_follow(
+    tmp_path, short_path, capsys, monkeypatch, table
+):
+    """With the simplified actuator the arm outputs come from the logged EPM trajectory."""
     from capsule_mpc.arm import UnreachableTargetError
 
     def unreachable(scenario, t_s, epm, out_dir, **kw):
         raise UnreachableTargetError(t_s[3], epm[3], "joint 2 leaves its position limit")
 
     monkeypatch.setattr("capsule_mpc.arm.export_arm_trajectory", unreachable)
+    simple = tmp_path / "simple.yaml"
+    simple.write_text("base: paper\nsim: {settle_s: 0.5, tail_s: 0.5, actuator: simple}\n")
     out = tmp_path / "arm"
-    args = ["simulate", "--controller", "follow", "--arm", "--config", str(quick_config), "--out", str(out)]
+    args = ["simulate", "--controller", "follow", "--arm", "--config", str(simple), "--out", str(out)]
     assert main([*args, "--waypoints", str(short_path), "--speed", "0.04", "--no-progress"]) == run_status(
         out
     )
@@ -281,7 +309,6 @@ def test_simulate_says_a_stalled_run_stalled_and_exits_1(tmp_path, short_path, c
     first = check_summary(capsys.readouterr().out, run)
     short = run["metrics"]["final_error_mm"]
     assert first.startswith(f"follow: stalled {short:.2f} mm short of the end (at rest, ")
-    assert "actuator limits: acceleration-limited in" in first
     assert (out / "log.csv").exists() and (out / "trajectories.png").exists()  # the run is still written
 
 

@@ -44,7 +44,6 @@ def test_mpc_beats_follow_on_the_same_run(fast, mpc_run):
     assert mpc_run.metrics["tracking_rms_mm"] < 0.5 * follow.metrics["tracking_rms_mm"]
     # The start offset (the capsule rests off the path) is both runs' largest cross-track error here.
     assert mpc_run.metrics["cross_track_max_mm"] <= follow.metrics["cross_track_max_mm"]
-    assert mpc_run.metrics["cross_track_rms_mm"] < follow.metrics["cross_track_rms_mm"]
     # At the end the capsule creeps onto the last waypoint at about the rest threshold (0.1 mm/s;
     # the final approach that would finish it is off here): whether the short tail counts it at
     # rest is a coin toss, its distance to the end is not.

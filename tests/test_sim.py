@@ -246,7 +246,7 @@ def test_unavailable_actuator_is_a_clear_error(scenario, monkeypatch):
     # As before the Ruckig + Pinocchio arm registers 'robot': no provider module defines it.
     monkeypatch.setattr("capsule_mpc.actuation._ACTUATORS", {"simple": SimpleArm})
     monkeypatch.setattr("capsule_mpc.actuation._PROVIDERS", ("capsule_mpc._no_such_arm",))
-    assert isinstance(make_actuator(scenario), SimpleArm)
+    assert isinstance(make_actuator(tweak(scenario, "sim", actuator="simple")), SimpleArm)
     with pytest.raises(ConfigError, match=r"sim\.actuator: 'robot' is not available"):
         make_actuator(tweak(scenario, "sim", actuator="robot"))
 
@@ -601,7 +601,8 @@ def test_describe_says_how_far_short_and_when_it_was_cut_off():
 
 def test_a_run_held_at_the_workspace_face_reports_the_clamps_and_the_stall(scenario):
     """The EPM pushed into a small workspace: clamped, the capsule stops short; both said in words."""
-    boxed = tweak(tweak(scenario, "sim", settle_s=0.2), "limits", workspace_min_m=[-0.03, -0.13, 0.085])
+    simple = tweak(scenario, "sim", settle_s=0.2, actuator="simple")  # the simple arm's clamps
+    boxed = tweak(simple, "limits", workspace_min_m=[-0.03, -0.13, 0.085])
     res = simulate(boxed, Push([-0.02, 0.0, 0.0]), SHORT, seed=0)
     clamps = res.limit_counts["workspace_clamped_steps"]
     assert res.flags.stalled and res.failed and clamps > 0

@@ -456,10 +456,13 @@ class SimConfig(_Strict):
         ),
     )
     actuator: Literal["simple", "robot"] = Field(
-        "simple",
+        "robot",
         description=(
-            "How the EPM follows commands: 'simple' (per-axis speed/acceleration-limited arm) or "
-            "'robot' (Ruckig + Pinocchio arm, when available)."
+            "How the EPM follows commands: 'robot' (the arm users have: Ruckig jerk-limited "
+            "setpoints at arm.arm_rate_hz, Pinocchio inverse kinematics of the UR5, the plant "
+            "draw's joint servo lag; the EPM is the forward kinematics of the joints reached) or "
+            "'simple' (a simplified actuator for quick studies: per-axis speed and acceleration "
+            "limits, no jerk limit, no kinematics)."
         ),
     )
     decouple_lead_m: Number = Field(
@@ -924,7 +927,13 @@ class ArmConfig(_Strict):
         ),
     )
     arm_rate_hz: Number = Field(
-        500.0, ge=10, le=10000, description="Rate of the arm's setpoints, Hz, [10, 10000]. UR: 500 Hz."
+        500.0,
+        ge=10,
+        le=10000,
+        description=(
+            "Rate of the arm's setpoints, Hz, [10, 10000]: 500 Hz for a UR e-Series controller, "
+            "125 Hz for a CB3."
+        ),
     )
     plan_lookahead_s: Number = Field(
         0.2,

@@ -446,12 +446,14 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     bounds = [input_bounds(float(h)) for h in steps]
     lbw = np.concatenate([*[np.concatenate([x_lo, lo]) for lo, _ in bounds], x_lo])
     ubw = np.concatenate([*[np.concatenate([x_hi, hi]) for _, hi in bounds], x_hi])
-    # The jerk rows bound the slope's change at every stage end by the jerk limit over one frame:
-    # the commands sent frame by frame are the plan's velocity at each frame's end (linear over a
-    # stage), so a slope changes within one frame wherever a stage ends.
+    # The jerk rows bound the slope's change at a stage's start by the jerk limit over the time
+    # between the two steps' midpoints: stage 0's over one frame (the command sent now follows the
+    # one sent a frame ago, exactly what the safety layer allows), a later stage's over its own and
+    # the previous stage's half steps (on a uniform grid also one frame).
+    gaps = (np.concatenate([[steps[0]], steps[:-1]]) + steps) / 2
     lbg, ubg = [], []
-    for _ in range(n):
-        dj = np.full(_NU_MODEL, lim.jerk_mps3 * float(steps[0]) / J_SCALE)
+    for k in range(n):
+        dj = np.full(_NU_MODEL, lim.jerk_mps3 * float(gaps[k]) / J_SCALE)
         fixed, free = np.zeros(N_STATE + 2), np.full(_NU_MODEL, inf)
         fn_lo, fn_hi = lim.normal_force_min_n / FN_SCALE, lim.normal_force_max_n / FN_SCALE
         lbg.append(np.concatenate([fixed, [-inf, fn_lo, -inf], -dj, -free]))
