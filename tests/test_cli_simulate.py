@@ -227,16 +227,15 @@ def test_simulate_fails_a_run_whose_joint_commands_fail_their_check(
     args = ["simulate", "--controller", "follow", "--arm", "--config", str(quick_config), "--out", str(out)]
     assert main([*args, "--waypoints", str(short_path), "--speed", "0.04", "--no-progress"]) == 1
     run = json.loads((out / "run.json").read_text())
-    assert run["metrics"]["arm_ok"] is False and "joint 2 beyond its velocity limit" in run["flags"]["arm_failure"]
+    assert run["metrics"]["arm_ok"] is False
+    assert "joint 2 beyond its velocity limit" in run["flags"]["arm_failure"]
     captured = capsys.readouterr()
     assert "arm commands invalid: " in captured.out.splitlines()[0]
     assert "fail their check" in captured.err and "skipped" in captured.err
     assert (out / "log.csv").exists() and not (out / "joint_trajectory.csv").exists()
 
 
-def test_simulate_reports_an_arm_that_cannot_follow(
-    tmp_path, short_path, capsys, monkeypatch, table
-):
+def test_simulate_reports_an_arm_that_cannot_follow(tmp_path, short_path, capsys, monkeypatch, table):
     """With the simplified actuator the arm outputs come from the logged EPM trajectory."""
     from capsule_mpc.arm import UnreachableTargetError
 
