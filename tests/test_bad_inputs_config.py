@@ -413,6 +413,20 @@ def test_hostile_yaml_is_refused_in_a_short_message_within_seconds(
     assert not out.exists() or not any(out.iterdir())
 
 
+def test_the_demo_reads_its_learned_model_with_the_same_loader(tmp_path):
+    from capsule_mpc.cli.demo import model_is_current
+
+    log = tmp_path / "log.csv"
+    log.write_text("t_s\n")
+    os.utime(log, (0, 0))
+    model = tmp_path / "learned_friction.yaml"
+    fitted = f"force_model: lookup\nsources: [{log.resolve()}]\n"
+    model.write_text(fitted)
+    assert model_is_current(model, [log])
+    model.write_text(fitted + "x: " + "[" * 5000 + "]" * 5000 + "\n")  # refused: fitted again
+    assert not model_is_current(model, [log])
+
+
 def _sim_speed_main():
     spec = importlib.util.spec_from_file_location("sim_speed", REPO / "benchmarks" / "sim_speed.py")
     assert spec is not None and spec.loader is not None
