@@ -51,7 +51,7 @@ from capsule_mpc.mpc.problem import build_ocp
 scn = load_config()
 scn = scn.model_copy(update={"mpc": scn.mpc.model_copy(update={"horizon": int(sys.argv[2])})})
 ocp = build_ocp(capsule_model(model_scenario(scn)), 1.0 / 30.0, model_equilibrium_lead(scn))
-solver.subprocess.run = lambda *args, **kwargs: os.kill(os.getpid(), signal.SIGKILL)
+solver._gcc = lambda source, out: os.kill(os.getpid(), signal.SIGKILL)
 solver.compiled_nlp_functions(ocp, Path(sys.argv[1]))
 """
 
@@ -335,27 +335,56 @@ def _leftovers(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if not p.name.endswith(".lock"))
 
 
-def _interrupt(*args, **kwargs):
-    assert (Path(kwargs["cwd"]) / "mpc_nlp.c").exists()  # the C code is there to be cleaned up
-    raise KeyboardInterrupt
+def _processes() -> dict[int, tuple[str, int]]:
+    """State and parent of every process (from /proc)."""
+    found = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            state, ppid = stat.read_text().rsplit(")", 1)[1].split()[:2]
+        except (OSError, IndexError):
+            continue
+        found[int(stat.parent.name)] = (state, int(ppid))
+    return found
 
 
-def _gcc_fails(*args, **kwargs):
-    return subprocess.CompletedProcess(args[0], 1, "", "mpc_nlp.c:1: error: injected\n")
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie does not)."""
+    state = _processes().get(pid, ("X", 0))[0]
+    return state not in ("Z", "X")
 
 
-@pytest.mark.parametrize(
-    ("run", "raised"),
-    [(_interrupt, KeyboardInterrupt), (_gcc_fails, RuntimeError)],
-    ids=["ctrl-c", "gcc-fails"],
-)
-def test_a_compile_that_ends_early_leaves_nothing(scenario, tmp_path, monkeypatch, run, raised):
+def _ctrl_c_in_gcc(monkeypatch, folder: Path, started: list[int]) -> type[BaseException]:
+    """Ctrl-C half a second into gcc (the C code generated, the compilers running)."""
+    communicate = subprocess.Popen.communicate
+
+    def interrupted(self, *args, **kwargs):
+        assert list(folder.glob(".build.*/mpc_nlp.c"))
+        with pytest.raises(subprocess.TimeoutExpired):
+            communicate(self, timeout=0.5)
+        started.extend([self.pid, *(pid for pid, (_, ppid) in _processes().items() if ppid == self.pid)])
+        assert len(started) > 1  # gcc runs a compiler (cc1)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(subprocess.Popen, "communicate", interrupted)
+    return KeyboardInterrupt
+
+
+def _gcc_fails(monkeypatch, folder: Path, started: list[int]) -> type[BaseException]:
+    """gcc refuses an option."""
     import capsule_mpc.mpc.solver as solver
 
-    monkeypatch.setattr(solver.subprocess, "run", run)
+    monkeypatch.setattr(solver, "_CFLAGS", [*solver._CFLAGS, "-no-such-option"])
+    return RuntimeError
+
+
+@pytest.mark.parametrize("end", [_ctrl_c_in_gcc, _gcc_fails], ids=["ctrl-c", "gcc-fails"])
+def test_a_compile_that_ends_early_leaves_nothing(scenario, tmp_path, monkeypatch, end):
+    started: list[int] = []
+    raised = end(monkeypatch, tmp_path, started)
     with pytest.raises(raised):
         compiled_nlp_functions(_ocp(scenario), tmp_path)
-    assert _leftovers(tmp_path) == []
+    assert _leftovers(tmp_path) == []  # no build folder (nor the compilers' temporary files)
+    assert not any(_running(pid) for pid in started)  # gcc and the compiler it ran: killed
 
 
 def test_the_build_folder_of_a_killed_process_is_removed_at_the_next_start(scenario, tmp_path):

@@ -27,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import os
+import signal
 import subprocess
 import time
 from dataclasses import dataclass
@@ -328,6 +329,40 @@ def nlp_cache_key(ocp: OCP) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
 
 
+def _gcc(source: str, out: Path) -> None:
+    """Compile ``source`` (a C file in ``out``'s folder) to the shared library ``out``.
+
+    gcc runs in that folder with relative names (the library does not depend on the folder's
+    name), puts its temporary files there, and runs in its own process group: whatever ends the
+    call (Ctrl-C included) kills gcc and the compilers it started.
+
+    Raises
+    ------
+    OSError
+        No gcc.
+    RuntimeError
+        gcc failed (its first error line).
+    """
+    command = ["gcc", *_CFLAGS, source, "-o", out.name]
+    env = {**os.environ, "TMPDIR": str(out.parent)}
+    with subprocess.Popen(
+        command, cwd=out.parent, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True,
+    ) as gcc:  # fmt: skip
+        try:
+            _, err = gcc.communicate()
+        except BaseException:
+            try:
+                os.killpg(gcc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            raise
+    if gcc.returncode != 0:
+        lines = err.strip().splitlines() or ["no message"]
+        first_error = next((line for line in lines if "error" in line), lines[-1])
+        raise RuntimeError(f"gcc failed (exit {gcc.returncode}): {first_error}")
+
+
 class _NotExpandable(Exception):
     """The problem cannot be expanded to SX: there is no C code to generate."""
 
@@ -364,13 +399,7 @@ def compiled_nlp_functions(ocp: OCP, cache_dir: Path) -> tuple[ca.Function, ca.F
         gen.add(qp_data)
         gen.add(merit)
         run_interruptibly(gen.generate, str(out.parent) + os.sep)
-        # Relative names in the build folder: the library does not depend on the folder's name.
-        gcc = ["gcc", *_CFLAGS, "mpc_nlp.c", "-o", out.name]
-        done = subprocess.run(gcc, cwd=out.parent, capture_output=True, text=True, check=False)
-        if done.returncode != 0:
-            lines = done.stderr.strip().splitlines() or ["no message"]
-            first_error = next((line for line in lines if "error" in line), lines[-1])
-            raise RuntimeError(f"gcc failed (exit {done.returncode}): {first_error}")
+        _gcc("mpc_nlp.c", out)
 
     def load(path: Path) -> tuple[ca.Function, ca.Function]:
         qp_data, merit = ca.external("mpc_qp_data", str(path)), ca.external("mpc_merit", str(path))
