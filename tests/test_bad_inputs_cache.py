@@ -124,6 +124,12 @@ def _map_foreign(p: Path) -> None:
     _rewrite(p, _npz(p, _foreign), checksum=True)
 
 
+def _map_folder(p: Path) -> None:
+    p.unlink()
+    p.mkdir()
+    (p / "file").write_text("a folder in the entry's place\n")
+
+
 def _map_no_checksum(p: Path) -> None:
     _checksum(p).unlink()
 
@@ -142,6 +148,7 @@ MAP_CASES = {
         _map_foreign,
         r"cannot be used \(it holds the table of key '0123456789abcdef'\)",
     ),
+    "a-folder": (_map_folder, r"cannot be read \(\[Errno 21\] Is a directory"),
     "no-checksum": (_map_no_checksum, r"has no checksum \(force_map_\w+\.npz\.sha256 is missing\)"),
     "checksum-of-another-entry": (_map_checksum_of_another, r"has a checksum file that is not its own"),
 }

@@ -2,7 +2,8 @@
 
 The folder is a configured one (``force_map.cache_dir``), else ``$CAPSULE_MPC_CACHE``, else
 ``~/.cache/capsule_mpc``. One that cannot be written (a file, ``/proc``, no permission) is
-replaced, for the process, by a temporary folder, said in one line on stderr.
+replaced, for the process, by a temporary folder, said in one line on stderr; the temporary
+folder is removed when the process exits (or, if it was killed, when another needs one).
 
 An entry is a file with a checksum file beside it, ``<entry>.sha256`` (``sha256sum`` format),
 put in place after the entry. An entry is used only if it matches its checksum and loads; one
@@ -44,6 +45,8 @@ _FALLBACK_PREFIX = "capsule_mpc-cache."
 _UNUSABLE = (OSError, ValueError, KeyError, EOFError, RuntimeError, zipfile.BadZipFile)
 #: Longest reason quoted from an exception in a warning, characters.
 _MAX_REASON = 160
+#: Most bytes of a checksum file read (its line is ~100).
+_MAX_CHECKSUM = 1024
 
 #: Unwritable folders and the temporary folders used instead of them (removed at exit).
 _fallbacks: dict[Path, tempfile.TemporaryDirectory[str]] = {}
@@ -169,7 +172,8 @@ def _sha256(path: Path) -> str:
 def _check(path: Path, checksum: Path) -> str | None:
     """Why the entry ``path`` cannot be trusted, or None if it matches its checksum."""
     try:
-        fields = checksum.read_text(encoding="ascii").split()
+        with checksum.open("rb") as fh:
+            fields = fh.read(_MAX_CHECKSUM).decode("ascii").split()
     except FileNotFoundError:
         return f"has no checksum ({checksum.name} is missing)"
     except (OSError, UnicodeDecodeError) as exc:
@@ -186,8 +190,11 @@ def _check(path: Path, checksum: Path) -> str | None:
 
 
 def _remove(path: Path, checksum: Path) -> None:
-    path.unlink(missing_ok=True)
-    checksum.unlink(missing_ok=True)
+    for stale in (path, checksum):
+        if stale.is_dir() and not stale.is_symlink():
+            shutil.rmtree(stale)
+        else:
+            stale.unlink(missing_ok=True)
 
 
 @contextmanager
