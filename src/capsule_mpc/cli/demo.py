@@ -32,7 +32,7 @@ from typing import Any, Final, Literal
 
 import yaml
 
-from ..config import Scenario, load_config, packaged_config_path
+from ..config import ConfigError, Scenario, load_config, packaged_config_path, read_yaml
 from ..outputs import output_folder
 from .demonstrate import DEFAULT_SPEEDS_MPS
 
@@ -116,10 +116,10 @@ def model_is_current(model_path: Path, log_paths: Sequence[Path]) -> bool:
     if any(Path(p).stat().st_mtime >= stamp for p in log_paths):
         return False
     try:
-        data = yaml.safe_load(model_path.read_text()) or {}
-    except (OSError, yaml.YAMLError):
+        data = read_yaml(model_path)
+    except ConfigError:  # unreadable or refused: fitted again
         return False
-    if not isinstance(data, dict) or data.get("force_model") != FORCE_MODEL:
+    if data.get("force_model") != FORCE_MODEL:
         return False
     return set(data.get("sources") or []) == {str(Path(p).resolve()) for p in log_paths}
 

@@ -396,9 +396,10 @@ def machine_info() -> dict[str, Any]:
 
 
 def _fresh_cache(parent: Path, source: Path) -> Path:
-    """An empty cache folder holding copies of the force maps (so nothing but the MPC is cold)."""
+    """An empty cache folder holding copies of the force maps and their checksums (so nothing but
+    the MPC is cold)."""
     folder = Path(tempfile.mkdtemp(dir=parent))
-    for table in source.glob("force_map_*.npz"):
+    for table in source.glob("force_map_*.npz*"):
         shutil.copy2(table, folder / table.name)
     return folder
 
