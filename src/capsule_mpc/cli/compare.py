@@ -450,7 +450,7 @@ def compare_controllers(
     """
     from tqdm import tqdm
 
-    from ..atomic import atomic_path, write_text_atomic
+    from ..atomic import write_text_atomic
     from ..sim import write_run
 
     if runs < 1:
@@ -484,9 +484,7 @@ def compare_controllers(
                 first = results
                 predicting = results.get(PREDICTING_CONTROLLER)
                 if predicting is not None and stack_predictions(predicting.predictions) is not None:
-                    with atomic_path(out / PREDICTION_FIGURE) as tmp:
-                        write_prediction_figure(predicting, tmp)
-                    prediction_figure = out / PREDICTION_FIGURE
+                    prediction_figure = write_prediction_figure(predicting, out / PREDICTION_FIGURE)
     aggregated = aggregate_runs(per_seed)
     if runs == 1:  # as before: the run's text entries (run_dir, failure, traceback) beside its metrics
         for name, entry in aggregated.items():
@@ -534,7 +532,6 @@ def _write_figures(
     runs: int,
 ) -> list[str]:
     """trajectories.png and errors.png of the first seed, metrics.png of every run; the file names."""
-    from ..atomic import atomic_path
     from ..plots import plot_errors, plot_metrics, plot_trajectories
 
     if not first:  # no controller ran on the first seed
@@ -552,9 +549,8 @@ def _write_figures(
         "errors.png": lambda file: plot_errors(logs, path, file, ends),
         "metrics.png": lambda file: plot_metrics(bars, file),
     }
-    for name, plot in draw.items():  # each figure complete or absent, never half written
-        with atomic_path(out / name) as tmp:
-            plot(tmp)
+    for name, plot in draw.items():  # each figure complete or absent (written atomically)
+        plot(out / name)
     return list(draw)
 
 
