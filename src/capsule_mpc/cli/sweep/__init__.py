@@ -40,7 +40,8 @@ refused (exit 2, naming the difference). A worker process that dies loses its ru
 is recorded as crashed (every controller failed, with the reason), the others go on, and a
 resumed sweep runs it again. Exit status: 0 when every controller ran on every seed; 1 when any
 controller failed or a run crashed (each named on stderr); 2 on bad input (nothing is written);
-130 on Ctrl-C (the workers are stopped, the finished runs' files are kept, no summary is written).
+130 on Ctrl-C, 143 on SIGTERM, 129 on SIGHUP (the workers are stopped, the finished runs' files are
+kept, no summary is written, the manifest says ``interrupted``).
 """
 
 from __future__ import annotations
