@@ -13,8 +13,10 @@ worker processes are stopped.
 from __future__ import annotations
 
 import argparse
+import codecs
 import importlib
 import importlib.metadata
+import io
 import os
 import signal
 import sys
@@ -88,8 +90,18 @@ def _run(argv: Sequence[str] | None) -> int:
     return status
 
 
+def _tolerate_encoding(streams: Sequence[object]) -> None:
+    """Print what a locale's encoding cannot show (``±`` under ``LC_ALL=C``) as escapes, rather
+    than fail on it; the files are UTF-8 whatever the locale."""
+    for stream in streams:
+        if isinstance(stream, io.TextIOWrapper) and codecs.lookup(stream.encoding).name != "utf-8":
+            stream.reconfigure(errors="backslashreplace")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``capsule-mpc`` console script; returns the exit status (module docstring)."""
+    if argv is None:  # the console script: the streams are ours
+        _tolerate_encoding([sys.stdout, sys.stderr])
     try:
         with interruptible(TERMINATING_SIGNALS):
             return _run(argv)

@@ -32,6 +32,7 @@ from typing import Any, Final, Literal
 
 import yaml
 
+from ..atomic import write_text_atomic
 from ..config import Scenario, load_config, packaged_config_path
 from ..outputs import output_folder
 from .demonstrate import DEFAULT_SPEEDS_MPS
@@ -116,7 +117,7 @@ def model_is_current(model_path: Path, log_paths: Sequence[Path]) -> bool:
     if any(Path(p).stat().st_mtime >= stamp for p in log_paths):
         return False
     try:
-        data = yaml.safe_load(model_path.read_text()) or {}
+        data = yaml.safe_load(model_path.read_text(encoding="utf-8")) or {}
     except (OSError, yaml.YAMLError):
         return False
     if not isinstance(data, dict) or data.get("force_model") != FORCE_MODEL:
@@ -192,8 +193,8 @@ def _learn(base: Scenario, logs: list[Path], out: Path, refit: bool) -> Path:
 
 
 def _write_if_changed(path: Path, text: str) -> None:
-    if not path.exists() or path.read_text() != text:
-        path.write_text(text)
+    if not path.exists() or path.read_text(encoding="utf-8") != text:
+        write_text_atomic(path, text)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -207,7 +207,9 @@ def _write_outputs(args: argparse.Namespace, result: LearningResult) -> list[str
             write_samples_csv(result.samples, stack.enter_context(atomic_path(args.samples_out)))
         if args.figures:
             figures = save_figures(result, args.figures, stack=stack)
-        stack.enter_context(atomic_path(args.out)).write_text(model_yaml(result.model, result.warnings))
+        stack.enter_context(atomic_path(args.out)).write_text(
+            model_yaml(result.model, result.warnings), encoding="utf-8"
+        )
     return [str(p) for p in figures]
 
 

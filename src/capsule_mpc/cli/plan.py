@@ -110,7 +110,7 @@ def _plan_into(
         print(f"capsule-mpc plan: {plan.failure}; diagnostics in {out / PLAN_JSON}", file=sys.stderr)
         return 1
     paths = write_plan(scenario, plan, path, out, meta)
-    _print_plan(json.loads(paths["json"].read_text()))
+    _print_plan(json.loads(paths["json"].read_text(encoding="utf-8")))
     if not args.no_arm:
         try:
             arm = export_arm_trajectory(scenario, plan.t_s, plan.epm_position_m, out)
