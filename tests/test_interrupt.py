@@ -374,7 +374,7 @@ def test_a_sweep_stopped_by_a_signal_exits_128_plus_n_and_leaves_no_process(tmp_
     assert status == 128 + signum, err
     assert err.strip().splitlines()[-1] == f"capsule-mpc: interrupted by {signal.Signals(signum).name}"
     manifest = read_manifest(out)
-    assert manifest["status"] == "interrupted"
+    assert manifest["status"] == "interrupted" and manifest["exit_status"] == 128 + signum
     assert not (out / LOCK_NAME).exists()
     assert not (out / "summary.json").exists()
     for run in (out / "runs").iterdir():  # complete files only

@@ -9,7 +9,11 @@ A command that writes into ``--out`` enters :func:`output_folder`, which
 3. removes what the previous command there produced, as listed in its manifest, so a folder never
    mixes the outputs of two runs (files the user put there are never touched);
 4. on exit writes ``manifest.json``: the command, its arguments, the start and end times, how it
-   ended (``complete``, ``failed`` or ``interrupted``) and every file it wrote or replaced (a
+   ended (``status``: ``complete`` when its exit status is 0, else ``failed`` or
+   ``interrupted``), its exit status (``exit_status``: the one the command set on the
+   :class:`OutputFolder`, 1 for an error it did not handle, 128 + N for signal N) and the files it
+   wrote: those renamed into place by :mod:`capsule_mpc.atomic` while it ran, so a file someone
+   else creates in the folder meanwhile is never claimed, nor removed by the next command (a
    command that failed or was interrupted before writing anything leaves no manifest);
 5. if the command refused its input (:class:`~capsule_mpc.config.ConfigError`, or the command's
    own refusals) after the folder was prepared, removes what it wrote and the folder too if it
@@ -31,13 +35,15 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-from .atomic import write_text_atomic
+from .atomic import ENCODING, recording_writes, write_text_atomic
 from .config import ConfigError
+from .interrupt import exit_status
 
 __all__ = [
     "LOCK_NAME",
     "MANIFEST_NAME",
     "OutputError",
+    "OutputFolder",
     "output_file_problem",
     "output_folder",
     "read_manifest",
@@ -48,12 +54,31 @@ __all__ = [
 MANIFEST_NAME = "manifest.json"
 #: The lock file present while a command writes into the folder.
 LOCK_NAME = ".capsule-mpc.lock"
-
-_Snapshot = dict[str, tuple[int, int]]
+#: Exit status of a command stopped by an error it did not handle (as Python's own).
+_EXIT_ERROR = 1
 
 
 class OutputError(ConfigError):
     """An output folder that cannot be used (a file, not writable, or in use by another command)."""
+
+
+class OutputFolder:
+    """The folder :func:`output_folder` prepared, and how the command that writes into it ends.
+
+    Attributes
+    ----------
+    path : Path
+        The folder (as given, not resolved).
+    status : int
+        The command's exit status, recorded in the manifest: 0 (the default) means the work was
+        done (``complete``); a command that ends with another status sets it before leaving the
+        block (``failed``). When an exception leaves the block, the status set is recorded if not
+        0 (a command that turns that error into its own exit status), else 1.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.status = 0
 
 
 def output_file_problem(out: Path, example_name: str) -> str | None:
@@ -86,7 +111,7 @@ def write_report_file(out: Path, text: str, prog: str) -> int:
 def read_manifest(folder: str | Path) -> dict | None:
     """The manifest the last command left in ``folder``; ``None`` if there is none or it is unreadable."""
     try:
-        data = json.loads((Path(folder) / MANIFEST_NAME).read_text(encoding="utf-8"))
+        data = json.loads((Path(folder) / MANIFEST_NAME).read_text(encoding=ENCODING))
     except (OSError, ValueError):
         return None
     return data if isinstance(data, dict) else None
@@ -117,7 +142,7 @@ def _acquire_lock(folder: Path, command: str) -> Path:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             try:
-                held = json.loads(lock.read_text(encoding="utf-8"))
+                held = json.loads(lock.read_text(encoding=ENCODING))
                 pid, host = int(held["pid"]), str(held["host"])
             except (OSError, ValueError, KeyError, TypeError):
                 held, pid, host = {}, -1, ""
@@ -135,7 +160,7 @@ def _acquire_lock(folder: Path, command: str) -> Path:
             ) from None
         except OSError as exc:
             raise OutputError(f"--out: cannot write into {folder}: {exc.strerror}") from None
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        with os.fdopen(fd, "w", encoding=ENCODING) as fh:
             json.dump(info, fh)
         return lock
     raise OutputError(f"--out: could not take the lock {lock}")  # pragma: no cover - a race lost twice
@@ -153,7 +178,7 @@ def _remove_files(folder: Path, rels: Sequence[str]) -> None:
     parents: set[Path] = set()
     for rel in rels:
         path = _inside(folder, rel)
-        if path is not None and path.is_file():
+        if path is not None and path.is_file() and path.name not in (LOCK_NAME, MANIFEST_NAME):
             path.unlink()
             parents.update(p for p in path.parents if folder.resolve() in p.parents)
     for parent in sorted(parents, key=lambda p: len(p.parts), reverse=True):
@@ -161,18 +186,66 @@ def _remove_files(folder: Path, rels: Sequence[str]) -> None:
             parent.rmdir()
 
 
-def _snapshot(folder: Path) -> _Snapshot:
-    """Every file under ``folder`` (relative path -> modification time, size), lock and manifest excluded."""
-    out: _Snapshot = {}
-    for path in folder.rglob("*"):
-        if path.is_file() and path.name not in (LOCK_NAME, MANIFEST_NAME):
-            st = path.stat()
-            out[path.relative_to(folder).as_posix()] = (st.st_mtime_ns, st.st_size)
-    return out
+def _prepare(path: str | Path) -> tuple[Path, bool]:
+    """Check and create the folder; (the folder, whether this call created it).
+
+    Raises
+    ------
+    OutputError
+        See :func:`output_folder`.
+    """
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"--out: {folder} exists and is not a folder")
+    created = not folder.exists()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"--out: cannot create {folder}: {exc.strerror}") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        if created:
+            folder.rmdir()
+        raise OutputError(f"--out: {folder} is not writable")
+    return folder, created
 
 
-def _written_since(folder: Path, before: _Snapshot) -> list[str]:
-    return sorted(rel for rel, sig in _snapshot(folder).items() if before.get(rel) != sig)
+def _relative(folder: Path, files: set[Path]) -> list[str]:
+    """The files written under ``folder`` that are still there, as paths relative to it."""
+    root = folder.resolve()
+    return sorted(
+        f.relative_to(root).as_posix()
+        for f in files
+        if f.name not in (LOCK_NAME, MANIFEST_NAME) and f.is_file() and root in f.parents
+    )
+
+
+def _write_manifest(
+    folder: Path,
+    command: str,
+    argv: Sequence[str] | None,
+    started: float,
+    outcome: tuple[str, int],
+    written: list[str],
+    kept: list[str],
+) -> None:
+    """Write the manifest of a command that ended with ``outcome`` (status, exit status)."""
+    status, code = outcome
+    if written or status == "complete":  # the earlier work resumed is part of this result
+        written = sorted(
+            set(written) | {f for f in kept if (k := _inside(folder, f)) is not None and k.is_file()}
+        )
+    # A command stopped before it wrote anything leaves nothing, not a manifest of nothing.
+    if status == "complete" or written:
+        manifest = {
+            "command": command,
+            "argv": list(sys.argv[1:] if argv is None else argv),
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(started)),
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "status": status,
+            "exit_status": code,
+            "files": written,
+        }
+        write_text_atomic(folder / MANIFEST_NAME, json.dumps(manifest, indent=2) + "\n")
 
 
 @contextmanager
@@ -184,7 +257,7 @@ def output_folder(
     argv: Sequence[str] | None = None,
     refusals: tuple[type[BaseException], ...] = (ConfigError,),
     resume: bool = False,
-) -> Iterator[Path]:
+) -> Iterator[OutputFolder]:
     """Prepare ``path`` for ``command``'s outputs and yield it; see the module docstring.
 
     Parameters
@@ -207,61 +280,49 @@ def output_folder(
         ``replace_previous`` False, the manifest lists the files the previous manifest listed
         that are still there as well as those written now.
 
+    Yields
+    ------
+    OutputFolder
+        The folder (``.path``); the command sets ``.status`` to its exit status if not 0.
+
     Raises
     ------
     OutputError
         ``path`` is a file, cannot be created or written, or another command holds its lock.
     """
-    folder = Path(path)
-    if folder.exists() and not folder.is_dir():
-        raise OutputError(f"--out: {folder} exists and is not a folder")
-    created = not folder.exists()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"--out: cannot create {folder}: {exc.strerror}") from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        if created:
-            folder.rmdir()
-        raise OutputError(f"--out: {folder} is not writable")
+    folder, created = _prepare(path)
     lock = _acquire_lock(folder, command)
     try:
         if replace_previous:
             _remove_files(folder, _listed(folder))
         kept = _listed(folder) if resume else []
-        before = _snapshot(folder)
         started = time.time()
-        status: str | None = "failed"
+        handle = OutputFolder(folder)
+        outcome: tuple[str, int] | None = ("failed", _EXIT_ERROR)
+        written: list[str] = []
         try:
-            yield folder
-            status = "complete"
-        except KeyboardInterrupt:
-            status = "interrupted"
-            raise
-        except refusals:
-            # Bad input found after the folder was prepared: leave nothing behind.
-            _remove_files(folder, _written_since(folder, before))
-            if replace_previous:  # the previous run's files are gone: its manifest too
-                (folder / MANIFEST_NAME).unlink(missing_ok=True)
-            status = None
-            raise
+            with recording_writes(folder) as files:
+                try:
+                    yield handle
+                    outcome = ("complete" if handle.status == 0 else "failed", handle.status)
+                except KeyboardInterrupt as exc:
+                    outcome = ("interrupted", exit_status(exc))
+                    raise
+                except refusals:
+                    # Bad input found after the folder was prepared: leave nothing behind.
+                    _remove_files(folder, _relative(folder, files))
+                    if replace_previous:  # the previous run's files are gone: its manifest too
+                        (folder / MANIFEST_NAME).unlink(missing_ok=True)
+                    outcome = None
+                    raise
+                except BaseException:  # an error the command did not handle here
+                    outcome = ("failed", handle.status or _EXIT_ERROR)
+                    raise
+                finally:
+                    written = _relative(folder, files) if outcome is not None else []
         finally:
-            written = _written_since(folder, before) if status is not None else []
-            if written or status == "complete":  # the earlier work resumed is part of this result
-                written = sorted(
-                    set(written) | {f for f in kept if (k := _inside(folder, f)) is not None and k.is_file()}
-                )
-            # A command stopped before it wrote anything leaves nothing, not a manifest of nothing.
-            if status == "complete" or written:
-                manifest = {
-                    "command": command,
-                    "argv": list(sys.argv[1:] if argv is None else argv),
-                    "started": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(started)),
-                    "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                    "status": status,
-                    "files": written,
-                }
-                write_text_atomic(folder / MANIFEST_NAME, json.dumps(manifest, indent=2) + "\n")
+            if outcome is not None:
+                _write_manifest(folder, command, argv, started, outcome, written, kept)
     finally:
         lock.unlink(missing_ok=True)
         if created and folder.is_dir() and not any(folder.iterdir()):

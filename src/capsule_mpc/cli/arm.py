@@ -49,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         t, p = read_epm_plan_csv(args.plan, default_height_m=scenario.plate.epm_height_m)
         wall0 = time.perf_counter()
-        with output_folder(args.out, "arm-export", refusals=(ArmError, ValueError)) as out:
-            result = export_arm_trajectory(scenario, t, p, out, plot=not args.no_plot)
+        refusals = (ArmError, ValueError, OSError)  # nothing written: what was is removed
+        with output_folder(args.out, "arm-export", refusals=refusals) as folder:
+            result = export_arm_trajectory(scenario, t, p, folder.path, plot=not args.no_plot)
     except (ArmError, ValueError, OSError) as exc:
         where = f"{args.plan}: " if isinstance(exc, ArmError) else ""
         print(f"capsule-mpc arm-export: {where}{exc} (nothing written)", file=sys.stderr)

@@ -563,22 +563,22 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         print(f"capsule-mpc compare: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
         return 2
-    with output_folder(args.out, "compare") as out:
+    with output_folder(args.out, "compare") as folder:
         summary = compare_controllers(
-            scenario, path, out, seed, controllers=args.controllers, meta=meta,
+            scenario, path, folder.path, seed, controllers=args.controllers, meta=meta,
             progress=not args.no_progress, runs=args.runs,
         )  # fmt: skip
+        failures = [
+            (name, seed_entry["seed"], entry["error"])
+            for seed_entry in summary["runs"]
+            for name, entry in seed_entry["controllers"].items()
+            if "error" in entry
+        ]
+        folder.status = 1 if failures else 0
     print(summary_table(summary["controllers"], args.runs), end="")
-    failed = False
-    for seed_entry in summary["runs"]:
-        for name, entry in seed_entry["controllers"].items():
-            if "error" in entry:
-                failed = True
-                where = f"seed {seed_entry['seed']}"
-                print(
-                    f"capsule-mpc compare: controller {name!r} failed ({where}): {entry['error']}",
-                    file=sys.stderr,
-                )
+    for name, failed_seed, error in failures:
+        print(f"capsule-mpc compare: controller {name!r} failed (seed {failed_seed}): {error}",
+              file=sys.stderr)  # fmt: skip
     folders = "one folder per controller" if args.runs == 1 else f"{RUNS_FOLDER}/seed_<S>/<controller>/"
     print(f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, {folders})")
-    return 1 if failed else 0
+    return folder.status

@@ -91,8 +91,9 @@ def run(args: argparse.Namespace) -> int:
     from .simulate import prepare_run
 
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
-    with output_folder(args.out, "plan") as out:
-        return _plan_into(args, scenario, path, meta, out)
+    with output_folder(args.out, "plan") as folder:
+        folder.status = _plan_into(args, scenario, path, meta, folder.path)
+    return folder.status
 
 
 def _plan_into(

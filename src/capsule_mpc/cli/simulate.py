@@ -293,7 +293,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
     seed = scenario.sim.seed if args.seed is None else args.seed
-    with output_folder(args.out, "simulate") as out:
+    with output_folder(args.out, "simulate") as folder:
+        out = folder.path
         result = simulate(
             scenario,
             args.controller,
@@ -312,4 +313,5 @@ def run(args: argparse.Namespace) -> int:
         want_arm = args.arm if args.arm is not None else args.controller in ARM_CONTROLLERS
         if want_arm:
             export_run_arm(result, out)
-    return EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
+        folder.status = EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
+    return folder.status

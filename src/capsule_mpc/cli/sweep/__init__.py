@@ -159,33 +159,35 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc sweep: resuming the sweep in {args.out}: {done} of {args.runs} runs done")
     with ExitStack() as stack:
         client = stack.enter_context(dask_client(args.scheduler, args.workers)) if args.scheduler else None
-        out = stack.enter_context(
+        folder = stack.enter_context(
             output_folder(args.out, "sweep", replace_previous=not resume, resume=resume)
         )
         summary = sweep(
-            scenario, path, out, seed, args.runs, controllers=names, vary=vary, executor=args.executor,
-            workers=args.workers, client=client, meta=meta, progress=not args.no_progress,
+            scenario, path, folder.path, seed, args.runs, controllers=names, vary=vary,
+            executor=args.executor, workers=args.workers, client=client, meta=meta,
+            progress=not args.no_progress,
         )  # fmt: skip
+        failures = _failures(summary)
+        folder.status = 1 if failures else 0
     print(summary_table(summary["controllers"], args.runs), end="")
     print(worst_table(summary["worst"]), end="")
-    failed = False
-    for entry in summary["runs"]:
-        if "crashed" in entry:
-            failed = True
-            print(
-                f"capsule-mpc sweep: run of seed {entry['seed']} crashed: {entry['crashed']}", file=sys.stderr
-            )
-            continue
-        for name, result in entry["controllers"].items():
-            if "error" in result:
-                failed = True
-                print(
-                    f"capsule-mpc sweep: controller {name!r} failed (seed {entry['seed']}): "
-                    f"{result['error']}",
-                    file=sys.stderr,
-                )
+    for failure in failures:
+        print(f"capsule-mpc sweep: {failure}", file=sys.stderr)
     print(
         f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, "
         f"{RUNS_FOLDER}/seed_<S>.json)"
     )
-    return 1 if failed else 0
+    return folder.status
+
+
+def _failures(summary: dict[str, Any]) -> list[str]:
+    """What failed in a sweep: each crashed run, and each controller that failed on a seed."""
+    failures = []
+    for entry in summary["runs"]:
+        if "crashed" in entry:
+            failures.append(f"run of seed {entry['seed']} crashed: {entry['crashed']}")
+            continue
+        for name, result in entry["controllers"].items():
+            if "error" in result:
+                failures.append(f"controller {name!r} failed (seed {entry['seed']}): {result['error']}")
+    return failures
