@@ -93,7 +93,7 @@ def test_a_second_command_into_a_locked_folder_is_refused(tmp_path):
         assert (out / LOCK_NAME).exists()  # the refused command did not release the holder's lock
 
 
-def test_a_stale_lock_is_taken_over_with_a_warning(tmp_path):
+def test_a_stale_lock_is_taken_over_with_one_line_on_stderr(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
     dead = subprocess.run(
@@ -102,9 +102,13 @@ def test_a_stale_lock_is_taken_over_with_a_warning(tmp_path):
 
     lock = {"pid": int(dead.stdout), "host": socket.gethostname(), "command": "simulate"}
     (out / LOCK_NAME).write_text(json.dumps(lock))
-    with pytest.warns(UserWarning, match="no longer runs"), output_folder(out, "simulate"):
+    with output_folder(out, "simulate"):
         write_text_atomic(out / "x", "1")
     assert read_manifest(out)["status"] == "complete"
+    assert capsys.readouterr().err == (
+        f"capsule-mpc simulate: warning: --out: {out} was locked by process {lock['pid']}, which no "
+        "longer runs; taking the lock\n"
+    )
 
 
 @pytest.mark.parametrize(

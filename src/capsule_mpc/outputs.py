@@ -2,10 +2,22 @@
 
 A command that writes into ``--out`` enters :func:`output_folder`, which
 
-1. refuses a path that is a file or cannot be created or written (:class:`OutputError`, exit 2);
+1. refuses, before it writes anything (:class:`OutputError`, exit 2, one line saying why):
+
+   * a path that is a file, or that cannot be created or written (e.g. a name too long);
+   * the working directory (``--out .`` or ``--out ''``) or a folder holding it, and a folder in
+     the ``capsule_mpc`` package: outputs belong in a folder of their own;
+   * a folder holding one of the command's input files (``--config``, ``--waypoints``,
+     ``--plan``): the command would remove or overwrite its own input;
+   * a folder holding files named like the package's outputs (:data:`OUTPUT_NAMES`: an older
+     run's ``predictions.npz``, a ``config.yaml`` of one's own) that no manifest there lists:
+     they are not the package's to remove, and the new run would overwrite them or leave them
+     mixed with its own files (a sweep resuming its own work and the caching commands,
+     ``demonstrate`` and ``demo``, are not refused);
+
 2. takes a lock file (``.capsule-mpc.lock``, created exclusively): a second command into the same
    folder is refused while the first runs; a lock left by a process that no longer exists on
-   this host is taken over with a warning;
+   this host is taken over, with a one-line warning on stderr;
 3. removes what the previous command there produced, as listed in its manifest, so a folder never
    mixes the outputs of two runs (files the user put there are never touched);
 4. on exit writes ``manifest.json``: the command, its arguments, the start and end times, how it
@@ -25,13 +37,13 @@ complete files only, and the manifest says it was interrupted.
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import os
 import socket
 import sys
 import time
-import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -42,11 +54,13 @@ from .interrupt import exit_status
 __all__ = [
     "LOCK_NAME",
     "MANIFEST_NAME",
+    "OUTPUT_NAMES",
     "OutputError",
     "OutputFolder",
     "output_file_problem",
     "output_folder",
     "read_manifest",
+    "shown_path",
     "write_report_file",
 ]
 
@@ -54,12 +68,33 @@ __all__ = [
 MANIFEST_NAME = "manifest.json"
 #: The lock file present while a command writes into the folder.
 LOCK_NAME = ".capsule-mpc.lock"
+#: The names (``fnmatch`` patterns) of the files the commands write into their folders, at any
+#: depth: such a file that no manifest lists makes a folder refused (module docstring).
+OUTPUT_NAMES = (
+    # simulate, and every run of compare
+    "log.csv", "config.yaml", "run.json", "predictions.npz",
+    "trajectories.png", "errors.png", "mpc_prediction.png",
+    # the arm export of arm-export, plan and simulate
+    "epm_trajectory.csv", "joint_trajectory.csv", "joint_trajectory.yaml", "joint_trajectory.png",
+    "arm_summary.json",
+    # plan
+    "epm_plan.csv", "plan.json", "plan.png",
+    # compare and sweep
+    "summary.json", "summary.md", "metrics.png", "distribution_*.png", "sweep.json", "seed_*.json",
+    # demonstrate and demo
+    "demonstrations.json", "demonstration.json", "learned_friction.yaml", "scenario.yaml",
+    "friction_*.png",
+)  # fmt: skip
+#: How deep below the folder :data:`OUTPUT_NAMES` are looked for (compare --runs writes
+#: ``runs/seed_<S>/<controller>/log.csv``).
+_OUTPUT_DEPTH = 3
 #: Exit status of a command stopped by an error it did not handle (as Python's own).
 _EXIT_ERROR = 1
 
 
 class OutputError(ConfigError):
-    """An output folder that cannot be used (a file, not writable, or in use by another command)."""
+    """An output folder that cannot be used (a file, not writable, in use by another command, or
+    a folder the command must not write into)."""
 
 
 class OutputFolder:
@@ -147,9 +182,10 @@ def _acquire_lock(folder: Path, command: str) -> Path:
             except (OSError, ValueError, KeyError, TypeError):
                 held, pid, host = {}, -1, ""
             if host == socket.gethostname() and pid > 0 and not _pid_alive(pid):
-                warnings.warn(
-                    f"--out: {folder} was locked by process {pid}, which no longer runs; taking the lock",
-                    stacklevel=3,
+                print(
+                    f"capsule-mpc {command}: warning: --out: {folder} was locked by process {pid}, which "
+                    "no longer runs; taking the lock",
+                    file=sys.stderr,
                 )
                 lock.unlink(missing_ok=True)
                 continue
@@ -186,7 +222,70 @@ def _remove_files(folder: Path, rels: Sequence[str]) -> None:
             parent.rmdir()
 
 
-def _prepare(path: str | Path) -> tuple[Path, bool]:
+def shown_path(path: str | Path) -> str:
+    """``path`` for a one-line message: ``''`` for an empty one, a very long one shortened."""
+    text = str(path)
+    if not text:
+        return "''"
+    return text if len(text) <= 100 else f"{text[:60]}...{text[-20:]} ({len(text)} characters)"
+
+
+def _holds(folder: Path, path: Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies inside it (both resolved)."""
+    return path == folder or folder in path.parents
+
+
+def _misplaced(folder: Path, shown: str, inputs: Mapping[str, str | Path | None]) -> str | None:
+    """Why ``folder`` (resolved) must not take a command's outputs, or None."""
+    import capsule_mpc
+
+    cwd = Path.cwd().resolve()
+    if folder == cwd:
+        return f"--out: {shown} is the working directory; give the outputs a folder of their own"
+    if folder in cwd.parents:
+        return f"--out: {shown} holds the working directory ({cwd}); give the outputs a folder of their own"
+    package = Path(capsule_mpc.__file__).resolve().parent
+    if _holds(package, folder):
+        return f"--out: {shown} is in the capsule_mpc package ({package}); write the outputs elsewhere"
+    for option, given in inputs.items():
+        if given is not None and str(given) and _holds(folder, Path(given).resolve()):
+            return (
+                f"--out: {shown} holds {option} {given}, an input of this command, which it could remove "
+                "or overwrite; give another folder"
+            )
+    return None
+
+
+def _check_unlisted(folder: Path, shown: str) -> None:
+    """Refuse a folder holding files named like :data:`OUTPUT_NAMES` that its manifest does not list."""
+    unlisted = _unlisted_outputs(folder, _listed(folder))
+    if unlisted:
+        more = f" and {len(unlisted) - 1} more" if len(unlisted) > 1 else ""
+        raise OutputError(
+            f"--out: {shown} holds {unlisted[0]}{more}, named like this package's outputs but listed in "
+            "no manifest there; they would be overwritten or mixed with the new files: move them away "
+            "or give another folder"
+        )
+
+
+def _unlisted_outputs(folder: Path, listed: Sequence[str]) -> list[str]:
+    """The files under ``folder`` named like :data:`OUTPUT_NAMES` that ``listed`` does not hold."""
+    known = set(listed)
+    found: list[str] = []
+    root_depth = len(folder.parts)
+    for here, dirs, files in os.walk(folder):
+        depth = len(Path(here).parts) - root_depth
+        if depth >= _OUTPUT_DEPTH:
+            dirs.clear()
+        dirs.sort()
+        for name in sorted(files):
+            rel = (Path(here) / name).relative_to(folder).as_posix()
+            if rel not in known and any(fnmatch.fnmatchcase(name, p) for p in OUTPUT_NAMES):
+                found.append(rel)
+    return found
+
+
+def _prepare(path: str | Path, inputs: Mapping[str, str | Path | None]) -> tuple[Path, bool]:
     """Check and create the folder; (the folder, whether this call created it).
 
     Raises
@@ -194,18 +293,21 @@ def _prepare(path: str | Path) -> tuple[Path, bool]:
     OutputError
         See :func:`output_folder`.
     """
-    folder = Path(path)
-    if folder.exists() and not folder.is_dir():
-        raise OutputError(f"--out: {folder} exists and is not a folder")
-    created = not folder.exists()
+    folder, shown = Path(path), shown_path(path)
     try:
+        if folder.exists() and not folder.is_dir():
+            raise OutputError(f"--out: {shown} exists and is not a folder")
+        problem = _misplaced(folder.resolve(), shown, inputs)
+        if problem:
+            raise OutputError(problem)
+        created = not folder.exists()
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OutputError(f"--out: cannot create {folder}: {exc.strerror}") from None
+        raise OutputError(f"--out: cannot create {shown}: {exc.strerror or exc}") from None
     if not os.access(folder, os.W_OK | os.X_OK):
         if created:
             folder.rmdir()
-        raise OutputError(f"--out: {folder} is not writable")
+        raise OutputError(f"--out: {shown} is not writable")
     return folder, created
 
 
@@ -257,6 +359,7 @@ def output_folder(
     argv: Sequence[str] | None = None,
     refusals: tuple[type[BaseException], ...] = (ConfigError,),
     resume: bool = False,
+    inputs: Mapping[str, str | Path | None] | None = None,
 ) -> Iterator[OutputFolder]:
     """Prepare ``path`` for ``command``'s outputs and yield it; see the module docstring.
 
@@ -279,6 +382,9 @@ def output_folder(
         The command continues its own earlier, unfinished work in ``path`` (``sweep``): with
         ``replace_previous`` False, the manifest lists the files the previous manifest listed
         that are still there as well as those written now.
+    inputs : mapping of str to path, optional
+        The command's input files by option (``{"--config": ..., "--waypoints": ...}``; None
+        for an option not given): a folder holding one is refused.
 
     Yields
     ------
@@ -288,11 +394,13 @@ def output_folder(
     Raises
     ------
     OutputError
-        ``path`` is a file, cannot be created or written, or another command holds its lock.
+        ``path`` cannot or must not be used (module docstring), or another command holds its lock.
     """
-    folder, created = _prepare(path)
+    folder, created = _prepare(path, inputs or {})
     lock = _acquire_lock(folder, command)
     try:
+        if replace_previous and not resume and not created:
+            _check_unlisted(folder, shown_path(path))
         if replace_previous:
             _remove_files(folder, _listed(folder))
         kept = _listed(folder) if resume else []

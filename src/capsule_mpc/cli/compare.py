@@ -59,6 +59,7 @@ from ..control import available_controllers
 from ..metrics import run_metrics, stack_predictions
 from ..outputs import output_folder
 from ..paths import ReferencePath
+from .arguments import input_files
 from .simulate import PREDICTION_FIGURE, add_run_arguments, prepare_run, write_prediction_figure
 
 if TYPE_CHECKING:
@@ -563,7 +564,8 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         print(f"capsule-mpc compare: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
         return 2
-    with output_folder(args.out, "compare") as folder:
+    inputs = input_files(args, "--config", "--waypoints")
+    with output_folder(args.out, "compare", inputs=inputs) as folder:
         summary = compare_controllers(
             scenario, path, folder.path, seed, controllers=args.controllers, meta=meta,
             progress=not args.no_progress, runs=args.runs,

@@ -35,6 +35,7 @@ import yaml
 from ..atomic import write_text_atomic
 from ..config import Scenario, load_config, packaged_config_path
 from ..outputs import output_folder
+from .arguments import input_files
 from .demonstrate import DEFAULT_SPEEDS_MPS
 
 __all__ = [
@@ -212,7 +213,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     config = args.config if args.config is not None else str(packaged_config_path("rectangle"))
     # The folder keeps its demonstrations and model as a cache: nothing earlier is removed.
-    with output_folder(Path(args.out).resolve(), "demo", replace_previous=False) as folder:
+    inputs = input_files(args, "--config")
+    with output_folder(Path(args.out).resolve(), "demo", replace_previous=False, inputs=inputs) as folder:
         folder.status = _demo(args, config, folder.path, wall0)
     return folder.status
 

@@ -12,6 +12,7 @@ from typing import Any
 from ..config import load_config
 from ..learning.demonstrations import DEMO_PATHS, run_demonstrations
 from ..outputs import output_folder
+from .arguments import input_files
 from .learn import output_problem
 
 __all__ = ["register", "run"]
@@ -76,9 +77,10 @@ def run(args: argparse.Namespace) -> int:
     if problem:
         print(f"capsule-mpc demonstrate: {problem}", file=sys.stderr)
         return 2
+    inputs = input_files(args, "--config")
     try:
         # The folder is a cache of runs: earlier ones are kept (and reused when unchanged).
-        with output_folder(args.out, "demonstrate", replace_previous=False) as folder:
+        with output_folder(args.out, "demonstrate", replace_previous=False, inputs=inputs) as folder:
             folder.status = 2  # until the runs are done: a bad value or a write error (below) is exit 2
             runs = run_demonstrations(
                 scenario, args.speeds, args.out, repeats=args.repeats, seed=args.seed,

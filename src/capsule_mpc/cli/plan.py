@@ -88,10 +88,11 @@ def _print_plan(summary: dict[str, Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     """Plan, write the files, export the arm trajectory; see the module docstring for the status."""
     from ..outputs import output_folder
+    from .arguments import input_files
     from .simulate import prepare_run
 
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
-    with output_folder(args.out, "plan") as folder:
+    with output_folder(args.out, "plan", inputs=input_files(args, "--config", "--waypoints")) as folder:
         folder.status = _plan_into(args, scenario, path, meta, folder.path)
     return folder.status
 

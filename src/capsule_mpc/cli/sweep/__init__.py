@@ -55,7 +55,7 @@ from typing import Any
 from ...config import ConfigError
 from ...control import available_controllers
 from ...outputs import output_folder
-from ..arguments import int_at_least
+from ..arguments import input_files, int_at_least
 from ..compare import RUNS_FOLDER, _controller_names, summary_table
 from ..simulate import add_run_arguments, prepare_run
 from .campaign import sweep
@@ -160,8 +160,11 @@ def run(args: argparse.Namespace) -> int:
     with ExitStack() as stack:
         client = stack.enter_context(dask_client(args.scheduler, args.workers)) if args.scheduler else None
         folder = stack.enter_context(
-            output_folder(args.out, "sweep", replace_previous=not resume, resume=resume)
-        )
+            output_folder(
+                args.out, "sweep", replace_previous=not resume, resume=resume,
+                inputs=input_files(args, "--config", "--waypoints"),
+            )
+        )  # fmt: skip
         summary = sweep(
             scenario, path, folder.path, seed, args.runs, controllers=names, vary=vary,
             executor=args.executor, workers=args.workers, client=client, meta=meta,

@@ -108,7 +108,10 @@ def check_resume(out: str | Path, spec: Mapping[str, Any]) -> bool:
         its ``sweep.json`` cannot be read.
     """
     held_file = Path(out) / SPEC_FILE
-    if not held_file.is_file():
+    try:
+        if not held_file.is_file():
+            return False
+    except OSError:  # e.g. a name too long: no sweep there (the output folder says why)
         return False
     try:
         held = json.loads(held_file.read_text(encoding="utf-8"))
