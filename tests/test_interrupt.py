@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import re
 import signal
 import subprocess
@@ -152,6 +153,7 @@ def test_sigterm_and_sighup_stop_a_command_block_as_ctrl_c_does_naming_the_signa
                 time.sleep(0.05)  # recorded, not raised, as SIGINT is
             pytest.fail("not interrupted")
         assert info.value.signum == signum and exit_status(info.value) == 128 + signum
+        assert pickle.loads(pickle.dumps(info.value)).signum == signum  # e.g. across processes
         assert signal.getsignal(signum) == signal.SIG_DFL  # restored
     assert exit_status(KeyboardInterrupt()) == 130
 

@@ -79,6 +79,9 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(signal.Signals(signum).name)
         self.signum = int(signum)
 
+    def __reduce__(self) -> tuple[type[Interrupted], tuple[int]]:
+        return type(self), (self.signum,)
+
 
 def exit_status(exc: BaseException) -> int:
     """The exit status of a process stopped by ``exc``: 128 + its signal's number (130 for a
