@@ -1731,5 +1731,5 @@ def dump_config(scenario: Scenario, path: str | Path | None = None) -> str:
         )
     text = yaml.safe_dump(data, sort_keys=False)
     if path is not None:
-        Path(path).write_text(text)
+        Path(path).write_text(text, encoding="utf-8")
     return text

@@ -90,7 +90,7 @@ def _float_text(x: float) -> str:
 
 def _atomic_write(path: Path, writer: Callable[[IO[str]], None]) -> Path:
     """Write a text file through ``writer(file)`` into a temp file beside ``path``, then rename it."""
-    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
+    with atomic_path(path) as tmp, tmp.open("w", encoding="utf-8", newline="") as f:
         writer(f)
     return path
 
@@ -508,9 +508,9 @@ def read_epm_plan_csv(
 
 def read_joint_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
     """``joint_trajectory.csv`` as arrays: ``t_s`` (N,), ``q_rad`` (N, 6), ``dq_radps`` (N, 6)."""
-    with Path(path).open() as f:
+    with Path(path).open(encoding="utf-8") as f:
         header = f.readline().strip().split(",")
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8")
     q_idx = [i for i, c in enumerate(header) if c.startswith("q")]
     dq_idx = [i for i, c in enumerate(header) if c.startswith("dq")]
     return {"t_s": data[:, 0], "q_rad": data[:, q_idx], "dq_radps": data[:, dq_idx]}
@@ -519,6 +519,6 @@ def read_joint_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
 def read_joint_trajectory_yaml(path: str | Path) -> dict[str, Any]:
     """Parse ``joint_trajectory.yaml`` (uses libyaml's C loader when available)."""
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-    with Path(path).open() as f:
+    with Path(path).open(encoding="utf-8") as f:
         data: dict[str, Any] = yaml.load(f, Loader=loader)
     return data

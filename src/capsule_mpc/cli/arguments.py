@@ -4,8 +4,16 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
+from pathlib import Path
 
-__all__ = ["int_at_least"]
+__all__ = ["input_files", "int_at_least"]
+
+
+def input_files(args: argparse.Namespace, *options: str) -> dict[str, str | Path | None]:
+    """The input files a command was given, by option (``--config``, ``--waypoints``, ...; None for
+    one not given): its output folder must not hold them
+    (:func:`capsule_mpc.outputs.output_folder`)."""
+    return {option: getattr(args, option.removeprefix("--").replace("-", "_"), None) for option in options}
 
 
 def int_at_least(minimum: int) -> Callable[[str], int]:

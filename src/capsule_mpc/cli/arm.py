@@ -16,6 +16,7 @@ from typing import Any
 from ..arm import ArmError, export_arm_trajectory, read_epm_plan_csv
 from ..config import load_config
 from ..outputs import output_folder
+from .arguments import input_files
 
 __all__ = ["register", "run"]
 
@@ -49,8 +50,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         t, p = read_epm_plan_csv(args.plan, default_height_m=scenario.plate.epm_height_m)
         wall0 = time.perf_counter()
-        with output_folder(args.out, "arm-export", refusals=(ArmError, ValueError)) as out:
-            result = export_arm_trajectory(scenario, t, p, out, plot=not args.no_plot)
+        inputs = input_files(args, "--plan", "--config")
+        refusals = (ArmError, ValueError, OSError)  # nothing written: what was is removed
+        with output_folder(args.out, "arm-export", refusals=refusals, inputs=inputs) as folder:
+            result = export_arm_trajectory(scenario, t, p, folder.path, plot=not args.no_plot)
     except (ArmError, ValueError, OSError) as exc:
         where = f"{args.plan}: " if isinstance(exc, ArmError) else ""
         print(f"capsule-mpc arm-export: {where}{exc} (nothing written)", file=sys.stderr)

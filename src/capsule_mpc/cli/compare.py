@@ -59,6 +59,7 @@ from ..control import available_controllers
 from ..metrics import run_metrics, stack_predictions
 from ..outputs import output_folder
 from ..paths import ReferencePath
+from .arguments import input_files
 from .simulate import PREDICTION_FIGURE, add_run_arguments, prepare_run, write_prediction_figure
 
 if TYPE_CHECKING:
@@ -478,7 +479,7 @@ def compare_controllers(
     """
     from tqdm import tqdm
 
-    from ..atomic import atomic_path, write_text_atomic
+    from ..atomic import write_text_atomic
     from ..sim import write_run
 
     if runs < 1:
@@ -512,9 +513,7 @@ def compare_controllers(
                 first = results
                 predicting = results.get(PREDICTING_CONTROLLER)
                 if predicting is not None and stack_predictions(predicting.predictions) is not None:
-                    with atomic_path(out / PREDICTION_FIGURE) as tmp:
-                        write_prediction_figure(predicting, tmp)
-                    prediction_figure = out / PREDICTION_FIGURE
+                    prediction_figure = write_prediction_figure(predicting, out / PREDICTION_FIGURE)
     aggregated = aggregate_runs(per_seed)
     if runs == 1:  # as before: the run's text entries (run_dir, failure, traceback) beside its metrics
         for name, entry in aggregated.items():
@@ -562,7 +561,6 @@ def _write_figures(
     runs: int,
 ) -> list[str]:
     """trajectories.png and errors.png of the first seed, metrics.png of every run; the file names."""
-    from ..atomic import atomic_path
     from ..plots import plot_errors, plot_metrics, plot_trajectories
 
     if not first:  # no controller ran on the first seed
@@ -580,9 +578,8 @@ def _write_figures(
         "errors.png": lambda file: plot_errors(logs, path, file, ends),
         "metrics.png": lambda file: plot_metrics(bars, file),
     }
-    for name, plot in draw.items():  # each figure complete or absent, never half written
-        with atomic_path(out / name) as tmp:
-            plot(tmp)
+    for name, plot in draw.items():  # each figure complete or absent (written atomically)
+        plot(out / name)
     return list(draw)
 
 
@@ -595,22 +592,23 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         print(f"capsule-mpc compare: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
         return 2
-    with output_folder(args.out, "compare") as out:
+    inputs = input_files(args, "--config", "--waypoints")
+    with output_folder(args.out, "compare", inputs=inputs) as folder:
         summary = compare_controllers(
-            scenario, path, out, seed, controllers=args.controllers, meta=meta,
+            scenario, path, folder.path, seed, controllers=args.controllers, meta=meta,
             progress=not args.no_progress, runs=args.runs,
         )  # fmt: skip
+        failures = [
+            (name, seed_entry["seed"], entry["error"])
+            for seed_entry in summary["runs"]
+            for name, entry in seed_entry["controllers"].items()
+            if "error" in entry
+        ]
+        folder.status = 1 if failures else 0
     print(summary_table(summary["controllers"], args.runs), end="")
-    failed = False
-    for seed_entry in summary["runs"]:
-        for name, entry in seed_entry["controllers"].items():
-            if "error" in entry:
-                failed = True
-                where = f"seed {seed_entry['seed']}"
-                print(
-                    f"capsule-mpc compare: controller {name!r} failed ({where}): {entry['error']}",
-                    file=sys.stderr,
-                )
+    for name, failed_seed, error in failures:
+        print(f"capsule-mpc compare: controller {name!r} failed (seed {failed_seed}): {error}",
+              file=sys.stderr)  # fmt: skip
     folders = "one folder per controller" if args.runs == 1 else f"{RUNS_FOLDER}/seed_<S>/<controller>/"
     print(f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, {folders})")
-    return 1 if failed else 0
+    return folder.status

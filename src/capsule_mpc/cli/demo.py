@@ -32,8 +32,10 @@ from typing import Any, Final, Literal
 
 import yaml
 
+from ..atomic import write_text_atomic
 from ..config import ConfigError, Scenario, load_config, packaged_config_path, read_yaml
 from ..outputs import output_folder
+from .arguments import input_files
 from .demonstrate import DEFAULT_SPEEDS_MPS
 
 __all__ = [
@@ -192,8 +194,8 @@ def _learn(base: Scenario, logs: list[Path], out: Path, refit: bool) -> Path:
 
 
 def _write_if_changed(path: Path, text: str) -> None:
-    if not path.exists() or path.read_text() != text:
-        path.write_text(text)
+    if not path.exists() or path.read_text(encoding="utf-8") != text:
+        write_text_atomic(path, text)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -211,8 +213,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     config = args.config if args.config is not None else str(packaged_config_path("rectangle"))
     # The folder keeps its demonstrations and model as a cache: nothing earlier is removed.
-    with output_folder(Path(args.out).resolve(), "demo", replace_previous=False) as out:
-        return _demo(args, config, out, wall0)
+    inputs = input_files(args, "--config")
+    with output_folder(Path(args.out).resolve(), "demo", replace_previous=False, inputs=inputs) as folder:
+        folder.status = _demo(args, config, folder.path, wall0)
+    return folder.status
 
 
 def _demo(args: argparse.Namespace, config: str, out: Path, wall0: float) -> int:
@@ -242,14 +246,15 @@ def _demo(args: argparse.Namespace, config: str, out: Path, wall0: float) -> int
     print(
         f"[4/4] compare: {', '.join(args.controllers) if args.controllers else 'every available controller'}"
     )
-    with output_folder(compare_dir, "compare"):  # a comparison replaces the previous one
+    with output_folder(compare_dir, "compare") as compared:  # a comparison replaces the previous one
         summary = compare_controllers(
             scenario, path, compare_dir, seed, controllers=args.controllers,
             meta={"config": str(scenario_path), "waypoints_file": None}, progress=not args.no_progress,
         )  # fmt: skip
+        errors = [n for n, e in summary["controllers"].items() if "error" in e]
+        compared.status = 1 if errors else 0
     print(f"  compared in {time.perf_counter() - t0:.1f} s")
     print(summary_table(summary["controllers"]), end="")
-    errors = [n for n, e in summary["controllers"].items() if "error" in e]
     for name in errors:
         print(f"capsule-mpc demo: controller {name!r} failed: {summary['controllers'][name]['error']}")
     print(f"demo results ({time.perf_counter() - wall0:.1f} s):")

@@ -12,6 +12,7 @@ from typing import Any
 from ..config import load_config
 from ..learning.demonstrations import DEMO_PATHS, run_demonstrations
 from ..outputs import output_folder
+from .arguments import input_files
 from .learn import output_problem
 
 __all__ = ["register", "run"]
@@ -76,13 +77,17 @@ def run(args: argparse.Namespace) -> int:
     if problem:
         print(f"capsule-mpc demonstrate: {problem}", file=sys.stderr)
         return 2
+    inputs = input_files(args, "--config")
     try:
         # The folder is a cache of runs: earlier ones are kept (and reused when unchanged).
-        with output_folder(args.out, "demonstrate", replace_previous=False):
+        with output_folder(args.out, "demonstrate", replace_previous=False, inputs=inputs) as folder:
+            folder.status = 2  # until the runs are done: a bad value or a write error (below) is exit 2
             runs = run_demonstrations(
                 scenario, args.speeds, args.out, repeats=args.repeats, seed=args.seed,
                 path_kinds=args.paths, use_cache=not args.no_cache, progress=True,
             )  # fmt: skip
+            failed = [r for r in runs if r.status in ("decoupled", "dropped")]
+            folder.status = 1 if failed else 0
     except ValueError as exc:
         print(f"capsule-mpc demonstrate: {exc}", file=sys.stderr)
         return 2
@@ -91,7 +96,6 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
         return 2
     frames = sum(r.n_frames for r in runs)
-    failed = [r for r in runs if r.status in ("decoupled", "dropped")]
     cached = sum(r.cached for r in runs)
     print(
         f"{len(runs)} demonstration run(s) ({cached} cached), {frames} frames, in {args.out} "
@@ -99,4 +103,4 @@ def run(args: argparse.Namespace) -> int:
     )
     for r in failed:
         print(f"  warning: {r.run_dir} failed: {r.status}; its log is usable up to the failure")
-    return 1 if failed else 0
+    return folder.status

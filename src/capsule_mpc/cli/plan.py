@@ -88,11 +88,13 @@ def _print_plan(summary: dict[str, Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     """Plan, write the files, export the arm trajectory; see the module docstring for the status."""
     from ..outputs import output_folder
+    from .arguments import input_files
     from .simulate import prepare_run
 
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
-    with output_folder(args.out, "plan") as out:
-        return _plan_into(args, scenario, path, meta, out)
+    with output_folder(args.out, "plan", inputs=input_files(args, "--config", "--waypoints")) as folder:
+        folder.status = _plan_into(args, scenario, path, meta, folder.path)
+    return folder.status
 
 
 def _plan_into(
@@ -110,7 +112,7 @@ def _plan_into(
         print(f"capsule-mpc plan: {plan.failure}; diagnostics in {out / PLAN_JSON}", file=sys.stderr)
         return 1
     paths = write_plan(scenario, plan, path, out, meta)
-    _print_plan(json.loads(paths["json"].read_text()))
+    _print_plan(json.loads(paths["json"].read_text(encoding="utf-8")))
     if not args.no_arm:
         try:
             arm = export_arm_trajectory(scenario, plan.t_s, plan.epm_position_m, out)

@@ -32,7 +32,7 @@ from ..magnetics import force_map
 from ..outputs import output_folder
 from ..path_reach import check_epm_workspace
 from ..paths import ReferencePath, path_from_scenario
-from .arguments import int_at_least
+from .arguments import input_files, int_at_least
 
 if TYPE_CHECKING:
     from ..sim import RunResult
@@ -293,7 +293,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
     seed = scenario.sim.seed if args.seed is None else args.seed
-    with output_folder(args.out, "simulate") as out:
+    inputs = input_files(args, "--config", "--waypoints")
+    with output_folder(args.out, "simulate", inputs=inputs) as folder:
+        out = folder.path
         result = simulate(
             scenario,
             args.controller,
@@ -312,4 +314,5 @@ def run(args: argparse.Namespace) -> int:
         want_arm = args.arm if args.arm is not None else args.controller in ARM_CONTROLLERS
         if want_arm:
             export_run_arm(result, out)
-    return EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
+        folder.status = EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
+    return folder.status

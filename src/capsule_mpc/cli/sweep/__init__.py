@@ -40,7 +40,8 @@ refused (exit 2, naming the difference). A worker process that dies loses its ru
 is recorded as crashed (every controller failed, with the reason), the others go on, and a
 resumed sweep runs it again. Exit status: 0 when every controller ran on every seed; 1 when any
 controller failed or a run crashed (each named on stderr); 2 on bad input (nothing is written);
-130 on Ctrl-C (the workers are stopped, the finished runs' files are kept, no summary is written).
+130 on Ctrl-C, 143 on SIGTERM, 129 on SIGHUP (the workers are stopped, the finished runs' files are
+kept, no summary is written, the manifest says ``interrupted``).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ from typing import Any
 from ...config import ConfigError
 from ...control import available_controllers
 from ...outputs import output_folder
-from ..arguments import int_at_least
+from ..arguments import input_files, int_at_least
 from ..compare import RUNS_FOLDER, _controller_names, summary_table
 from ..simulate import add_run_arguments, prepare_run
 from .campaign import sweep
@@ -158,33 +159,38 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc sweep: resuming the sweep in {args.out}: {done} of {args.runs} runs done")
     with ExitStack() as stack:
         client = stack.enter_context(dask_client(args.scheduler, args.workers)) if args.scheduler else None
-        out = stack.enter_context(
-            output_folder(args.out, "sweep", replace_previous=not resume, resume=resume)
-        )
-        summary = sweep(
-            scenario, path, out, seed, args.runs, controllers=names, vary=vary, executor=args.executor,
-            workers=args.workers, client=client, meta=meta, progress=not args.no_progress,
+        folder = stack.enter_context(
+            output_folder(
+                args.out, "sweep", replace_previous=not resume, resume=resume,
+                inputs=input_files(args, "--config", "--waypoints"),
+            )
         )  # fmt: skip
+        summary = sweep(
+            scenario, path, folder.path, seed, args.runs, controllers=names, vary=vary,
+            executor=args.executor, workers=args.workers, client=client, meta=meta,
+            progress=not args.no_progress,
+        )  # fmt: skip
+        failures = _failures(summary)
+        folder.status = 1 if failures else 0
     print(summary_table(summary["controllers"], args.runs), end="")
     print(worst_table(summary["worst"]), end="")
-    failed = False
-    for entry in summary["runs"]:
-        if "crashed" in entry:
-            failed = True
-            print(
-                f"capsule-mpc sweep: run of seed {entry['seed']} crashed: {entry['crashed']}", file=sys.stderr
-            )
-            continue
-        for name, result in entry["controllers"].items():
-            if "error" in result:
-                failed = True
-                print(
-                    f"capsule-mpc sweep: controller {name!r} failed (seed {entry['seed']}): "
-                    f"{result['error']}",
-                    file=sys.stderr,
-                )
+    for failure in failures:
+        print(f"capsule-mpc sweep: {failure}", file=sys.stderr)
     print(
         f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, "
         f"{RUNS_FOLDER}/seed_<S>.json)"
     )
-    return 1 if failed else 0
+    return folder.status
+
+
+def _failures(summary: dict[str, Any]) -> list[str]:
+    """What failed in a sweep: each crashed run, and each controller that failed on a seed."""
+    failures = []
+    for entry in summary["runs"]:
+        if "crashed" in entry:
+            failures.append(f"run of seed {entry['seed']} crashed: {entry['crashed']}")
+            continue
+        for name, result in entry["controllers"].items():
+            if "error" in result:
+                failures.append(f"controller {name!r} failed (seed {entry['seed']}): {result['error']}")
+    return failures
