@@ -202,7 +202,7 @@ def _locked(path: Path) -> Iterator[None]:
     """Hold an exclusive lock on the entry ``path`` (a lock file beside it); without one if the
     file system has no locks."""
     try:
-        handle = path.with_name(f".{path.name}.lock").open("a")
+        handle = path.with_name(f".{path.name}.lock").open("a", encoding="utf-8")
     except OSError:
         yield
         return

@@ -347,6 +347,7 @@ def _gcc(source: str, out: Path) -> None:
     env = {**os.environ, "TMPDIR": str(out.parent)}
     with subprocess.Popen(
         command, cwd=out.parent, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        encoding="utf-8", errors="replace",
         start_new_session=True,
     ) as gcc:  # fmt: skip
         try:
