@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .budget import MAX_SPEED_MPS, MAX_WAYPOINTS, format_bytes
 from .config import ConfigError, Scenario
 
 __all__ = [
@@ -48,6 +49,8 @@ PIPE_BEND_RADIUS_M = 0.015
 _BEND_SEGMENTS = 8
 #: Rounding allowance when checking generated path points against the plate and the workspace, m.
 _EDGE_TOL_M = 1e-12
+#: Longest line of a waypoint file counted when its size is checked against MAX_WAYPOINTS, bytes.
+_MAX_WAYPOINT_LINE_BYTES = 256
 #: Point-segment pairs :meth:`ReferencePath.project` evaluates at once (about 100 bytes each).
 _PROJECT_PAIRS = 1 << 18
 
@@ -317,9 +320,20 @@ def from_waypoints_file(
     ConfigError
         Naming the file and the row (1-based line number in the file): missing/bad header, a row
         without two numbers, a non-finite value, a point outside the workspace, a zero-length
-        segment, or fewer than 2 points.
+        segment, fewer than 2 points, or more than :data:`capsule_mpc.budget.MAX_WAYPOINTS` (a
+        file larger than 256 bytes per waypoint is refused unread).
     """
     path = Path(path)
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise ConfigError(f"waypoints file {path}: cannot read: {exc}") from exc
+    if size > MAX_WAYPOINTS * _MAX_WAYPOINT_LINE_BYTES:
+        raise ConfigError(
+            f"waypoints file {path}: {format_bytes(size)}, more than {MAX_WAYPOINTS} waypoints can take "
+            f"({format_bytes(MAX_WAYPOINTS * _MAX_WAYPOINT_LINE_BYTES)}); a path has at most {MAX_WAYPOINTS} "
+            "waypoints (capsule_mpc.budget.MAX_WAYPOINTS)"
+        )
     try:
         text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (Excel's "CSV UTF-8") is read
     except UnicodeDecodeError as exc:
@@ -329,16 +343,22 @@ def from_waypoints_file(
         ) from None
     except OSError as exc:
         raise ConfigError(f"waypoints file {path}: cannot read: {exc}") from exc
-    rows = list(csv.reader(text.splitlines()))
-    if not rows or [c.strip() for c in rows[0]] != ["x_m", "y_m"]:
-        got = rows[0] if rows else "an empty file"
+    rows = csv.reader(text.splitlines())
+    header = next(rows, None)
+    if header is None or [c.strip() for c in header] != ["x_m", "y_m"]:
+        got = header if header is not None else "an empty file"
         raise ConfigError(f"waypoints file {path}: line 1: header must be 'x_m,y_m', got {got!r}")
     (x_lo, y_lo), (x_hi, y_hi) = workspace
     points: list[tuple[float, float]] = []
     lines: list[int] = []
-    for line, row in enumerate(rows[1:], start=2):
+    for line, row in enumerate(rows, start=2):
         if not row or all(not c.strip() for c in row):
             continue
+        if len(points) == MAX_WAYPOINTS:
+            raise ConfigError(
+                f"waypoints file {path}: line {line}: more than {MAX_WAYPOINTS} waypoints; a path has at "
+                f"most {MAX_WAYPOINTS} (capsule_mpc.budget.MAX_WAYPOINTS)"
+            )
         if len(row) != 2:
             raise ConfigError(f"waypoints file {path}: line {line}: need 2 values x_m,y_m, got {row!r}")
         try:
@@ -392,8 +412,8 @@ def path_from_scenario(
     """
     cfg = scenario.path
     v = cfg.speed_mps if speed is None else float(speed)
-    if not (math.isfinite(v) and 0 < v <= 0.1):
-        raise ConfigError(f"speed: must be in (0, 0.1] m/s, got {speed}")
+    if not (math.isfinite(v) and 0 < v <= MAX_SPEED_MPS):
+        raise ConfigError(f"speed: must be in (0, {MAX_SPEED_MPS:g}] m/s, got {speed}")
     if waypoints is not None:
         path = from_waypoints_file(waypoints, v, scenario_workspace(scenario))
     elif cfg.kind == "rectangle":
