@@ -396,7 +396,10 @@ class PathConfig(_Strict):
         description=(
             "Nominal speed v along the path, m/s, (0, 0.1], and at most what the EPM can follow on the "
             "path with speed to spare (capsule_mpc.paths.max_path_speed: 0.072 m/s on an axis-aligned "
-            "path with the default limits). Paper: 0.02."
+            "path with the default limits). At least what keeps a run within an hour of simulated time "
+            "(sim.settle_s + 1.25 L / v + sim.tail_s <= 3600 s: 0.00011 m/s on the 0.32 m rectangle) and "
+            "its log, plan and arm setpoints within half the memory available (capsule_mpc.budget); "
+            "refused with the figures before any work otherwise. Paper: 0.02."
         ),
     )
     rectangle_size_m: tuple[Number, Number] = Field(
@@ -406,7 +409,11 @@ class PathConfig(_Strict):
         (0.0, 0.0), description="Plate point the path is centred on (x, y), m."
     )
     waypoints_file: Path | None = Field(
-        None, description="CSV with header x_m,y_m (kind: waypoints); relative to the config file."
+        None,
+        description=(
+            "CSV with header x_m,y_m (kind: waypoints), at most 10000 waypoints "
+            "(capsule_mpc.budget.MAX_WAYPOINTS); relative to the config file."
+        ),
     )
 
     @field_validator("rectangle_size_m")

@@ -54,12 +54,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config import Scenario
+from ..config import ConfigError, Scenario
 from ..control import available_controllers
 from ..metrics import run_metrics, stack_predictions
 from ..outputs import output_folder
 from ..paths import ReferencePath
-from .arguments import input_files
+from .arguments import input_files, refuse_repeats, run_count
 from .simulate import PREDICTION_FIGURE, add_run_arguments, prepare_run, write_prediction_figure
 
 if TYPE_CHECKING:
@@ -72,11 +72,13 @@ __all__ = [
     "RUNS_FOLDER",
     "SUMMARY_COLUMNS",
     "aggregate_runs",
+    "check_controllers",
     "compare_controllers",
     "failure_line",
     "register",
     "rescore_on_common_window",
     "run",
+    "run_figures",
     "run_seed_controllers",
     "summary_header",
     "summary_table",
@@ -110,16 +112,6 @@ CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
 RUNS_FOLDER = "runs"
 
 
-def _runs_count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1 (runs per controller), got {text!r}")
-    return value
-
-
 def register(sub: Any) -> None:
     """Add the ``compare`` command."""
     p = sub.add_parser(
@@ -142,10 +134,10 @@ def register(sub: Any) -> None:
     )
     p.add_argument(
         "--runs",
-        type=_runs_count,
+        type=run_count,
         default=1,
         metavar="N",
-        help="seeds per controller, an integer >= 1: run k uses seed + k (default 1)",
+        help="seeds per controller, an integer in [1, 10000]: run k uses seed + k (default 1)",
     )
     p.set_defaults(func=run)
 
@@ -583,15 +575,42 @@ def _write_figures(
     return list(draw)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Compare the controllers; exit status 1 if any controller failed on a seed, 2 for an unknown one."""
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
-    seed = scenario.sim.seed if args.seed is None else args.seed
+def check_controllers(controllers: Sequence[str] | None) -> list[str]:
+    """The controllers a comparison runs (:func:`_controller_names`), after refusing an unknown one or
+    one given twice.
+
+    Raises
+    ------
+    ConfigError
+        ``--controllers: unknown [...]; available: [...]`` or ``--controllers: 'x' is given more than once``.
+    """
     known = available_controllers()
-    unknown = [n for n in args.controllers or [] if n not in known]
+    unknown = [n for n in controllers or [] if n not in known]
     if unknown:
-        print(f"capsule-mpc compare: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
-        return 2
+        raise ConfigError(f"--controllers: unknown {unknown}; available: {known}")
+    refuse_repeats("--controllers", controllers or [])
+    return _controller_names(controllers)
+
+
+def run_figures(names: Sequence[str], runs: int) -> dict[str, Any]:
+    """What a comparison of ``names`` over ``runs`` seeds holds in memory at once, as keyword
+    arguments of :func:`capsule_mpc.budget.check_run`: every controller's run of a seed, and of
+    the first seed too when there are several; the offline plan for the ``plan`` controller."""
+    copies = 2 if runs > 1 else 1
+    return {
+        "runs": len(names) * copies,
+        "predicting": sum(n == PREDICTING_CONTROLLER for n in names) * copies,
+        "plan": "fixed" if PLANNING_CONTROLLER in names else None,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compare the controllers; exit status 1 if any controller failed on a seed, 2 on bad input."""
+    names = check_controllers(args.controllers)
+    scenario, path, meta = prepare_run(
+        args.config, args.waypoints, args.speed, args.plant, **run_figures(names, args.runs)
+    )
+    seed = scenario.sim.seed if args.seed is None else args.seed
     inputs = input_files(args, "--config", "--waypoints")
     with output_folder(args.out, "compare", inputs=inputs) as folder:
         summary = compare_controllers(

@@ -47,16 +47,17 @@ kept, no summary is written, the manifest says ``interrupted``).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+from ...budget import check_processes
 from ...config import ConfigError
-from ...control import available_controllers
 from ...outputs import output_folder
-from ..arguments import input_files, int_at_least
-from ..compare import RUNS_FOLDER, _controller_names, summary_table
+from ..arguments import input_files, int_at_least, run_count
+from ..compare import RUNS_FOLDER, check_controllers, run_figures, summary_table
 from ..simulate import add_run_arguments, prepare_run
 from .campaign import sweep
 from .results import SPEC_FILE, check_resume, finished_runs, sweep_spec, worst_runs, worst_table
@@ -96,7 +97,7 @@ def register(sub: Any) -> None:
     )
     add_run_arguments(p)
     p.add_argument(
-        "--runs", type=int_at_least(1), required=True, metavar="N", help="number of runs (seeds), >= 1"
+        "--runs", type=run_count, required=True, metavar="N", help="number of runs (seeds), in [1, 10000]"
     )
     p.add_argument(
         "--controllers", nargs="+", default=None, help="only these controllers (default: all available)"
@@ -129,7 +130,7 @@ def register(sub: Any) -> None:
         default=None,
         metavar="K",
         help="worker processes, >= 1 (default: the CPU count); not with --scheduler (the cluster has "
-        "its own)",
+        "its own); at most as many as half the memory available holds, with their runs (capsule_mpc.budget)",
     )
     p.set_defaults(func=run)
 
@@ -145,14 +146,17 @@ def run(args: argparse.Namespace) -> int:
     """Run the sweep; exit status 1 if a controller failed or a run crashed, 2 on bad input."""
     _check_executor_arguments(args)
     vary = list(args.vary or [])
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
+    names = check_controllers(args.controllers)
+    # Each local worker holds one seed's runs (every controller) at a time; the process pool starts
+    # no more workers than there are runs, a Dask LocalCluster all of them; a remote cluster's
+    # workers are its own (this machine then holds no run).
+    workers = args.workers or os.cpu_count() or 1
+    workers = 1 if args.scheduler else workers if args.executor == "dask" else min(workers, args.runs)
+    check_processes(workers)
+    figures = {**run_figures(names, 1), "processes": workers} if not args.scheduler else {"runs": 0}
+    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant, **figures)
     check_vary(scenario, vary)
-    known = available_controllers()
-    unknown = [n for n in args.controllers or [] if n not in known]
-    if unknown:
-        raise ConfigError(f"--controllers: unknown {unknown}; available: {known}")
     seed = scenario.sim.seed if args.seed is None else args.seed
-    names = _controller_names(args.controllers)
     resume = check_resume(args.out, sweep_spec(scenario, path, seed, args.runs, names, vary))
     if resume:
         done = len(finished_runs(Path(args.out), [seed + k for k in range(args.runs)]))
