@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from capsule_mpc import ConfigError, Scenario
+from capsule_mpc import ConfigError, Scenario, dump_config, load_config
 from capsule_mpc.arm import (
     ArmError,
     ArmKinematics,
@@ -37,7 +37,7 @@ from capsule_mpc.arm import (
 )
 from capsule_mpc.arm.export import thin_waypoints
 from capsule_mpc.cli import main
-from capsule_mpc.config import config_from_dict
+from capsule_mpc.config import config_from_dict, packaged_config_path
 
 RATE_HZ = 500.0
 DT = 1.0 / RATE_HZ
@@ -465,14 +465,17 @@ def test_cli_arm_export(tmp_path, capsys):
         header="t_s,epm_x_m,epm_y_m,epm_z_m",
         comments="",
     )
+    (tmp_path / "config.yaml").write_text(dump_config(load_config()))  # as plan and simulate leave it
     assert main(["arm-export", "--plan", str(plan), "--out", str(tmp_path / "o"), "--no-plot"]) == 0
     out = capsys.readouterr().out
+    assert out.startswith(f"config: {tmp_path / 'config.yaml'} (the config beside the plan)\n")
     assert "worst finite-difference jerk" in out and "IK: worst EPM position error" in out
     assert (tmp_path / "o" / "joint_trajectory.yaml").exists()
     assert not (tmp_path / "o" / "joint_trajectory.png").exists()
     far = tmp_path / "far.csv"
     far.write_text("t_s,epm_x_m,epm_y_m,epm_z_m\n0,0,0,0.095\n15,0,0.9,0.095\n")
-    assert main(["arm-export", "--plan", str(far), "--out", str(tmp_path / "far")]) == 2
+    paper = str(packaged_config_path("paper"))
+    assert main(["arm-export", "--plan", str(far), "--out", str(tmp_path / "far"), "--config", paper]) == 2
     err = capsys.readouterr().err
     assert "far.csv: data row 2 (t_s = 15), epm_y_m: must be in the EPM workspace [-0.13, 0.13] m" in err
     assert not (tmp_path / "far").exists()
@@ -615,3 +618,18 @@ def test_joint_figure_shows_every_limit_with_units(scenario, plan_joints):
                 else:
                     assert f"{value:+.2f}" in notes and "off-scale" in notes  # else named at the edge
     assert "named at the panel edge" in fig._suptitle.get_text()
+
+
+def test_a_step_longer_than_ruckig_can_plan_names_the_rows_and_the_reason(scenario):
+    """Ruckig returns a code its Python binding cannot name (-101, "is not a valid Result"): the error
+    names the plan rows of the step and says what the code means."""
+    limits = CartesianLimits.from_scenario(scenario)
+    t = np.array([0.0, 8000.0, 16000.0])
+    p = np.array([[0.0, 0.0, 0.095], [0.01, 0.0, 0.095], [0.02, 0.0, 0.095]])
+    with pytest.raises(SmoothingError) as exc:
+        smooth_waypoints(t, p, limits, 10.0, rows=np.array([1, 5, 9]))
+    assert str(exc.value) == (
+        "Ruckig failed at t = 8000.0000 s, EPM target (+0.0100, +0.0000, +0.0950) m: cannot plan the motion "
+        "from data row 1 to data row 5 (8000 s at least): Ruckig reports a motion that would last longer "
+        "than its numerical limit (about 7600 s) (result -101)"
+    )

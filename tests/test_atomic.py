@@ -1,11 +1,18 @@
-"""Atomic output: a writer that fails leaves the old file and no temporary file behind."""
+"""Atomic output: a writer that fails leaves the old file and no temporary file behind; text is
+UTF-8 under any locale; the files written are recorded for the output folders."""
 
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from capsule_mpc.atomic import atomic_path, write_text_atomic
+import capsule_mpc
+from capsule_mpc.atomic import atomic_path, recording_writes, write_text_atomic
 
 
 def test_success_replaces_and_creates_parents(tmp_path):
@@ -33,3 +40,30 @@ def test_temporary_name_keeps_the_suffix(tmp_path):
         assert tmp.suffix == ".npz" and tmp.parent == tmp_path
         np.savez_compressed(tmp, a=np.arange(3))
     assert np.load(target)["a"].tolist() == [0, 1, 2]
+
+
+def test_text_is_utf8_whatever_the_locale(tmp_path):
+    """Under ``LC_ALL=C`` without Python's UTF-8 mode the locale's encoding is ASCII."""
+    target = tmp_path / "summary.md"
+    code = (
+        "import sys; from capsule_mpc.atomic import write_text_atomic; "
+        "write_text_atomic(sys.argv[1], 'mean \\u00b1 sd, m/s\\u00b3, \\u00b5m')"
+    )
+    env = dict(os.environ, LC_ALL="C", LANG="C", PYTHONUTF8="0", PYTHONCOERCECLOCALE="0")
+    env["PYTHONPATH"] = str(Path(capsule_mpc.__file__).resolve().parents[1])
+    proc = subprocess.run([sys.executable, "-c", code, str(target)], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert target.read_bytes() == "mean ± sd, m/s³, µm".encode()
+
+
+def test_writes_are_recorded_by_the_blocks_whose_folder_holds_them(tmp_path):
+    outer, inner = tmp_path / "demo", tmp_path / "demo" / "compare"
+    with recording_writes(outer) as in_outer:
+        write_text_atomic(outer / "scenario.yaml", "a")
+        with recording_writes(inner) as in_inner:
+            write_text_atomic(inner / "summary.md", "b")
+            (inner / "notes.txt").write_text("not through the package's writers")
+        write_text_atomic(tmp_path / "elsewhere.txt", "c")
+    write_text_atomic(outer / "after.txt", "d")
+    assert in_inner == {(inner / "summary.md").resolve()}
+    assert in_outer == {(outer / "scenario.yaml").resolve(), (inner / "summary.md").resolve()}

@@ -16,8 +16,11 @@ import numpy as np
 import pytest
 
 from capsule_mpc.cli import main
+from capsule_mpc.config import packaged_config_path
 
 HEADER = "t_s,epm_x_m,epm_y_m,epm_z_m"
+#: The scenario the plans are exported with unless a case gives its own.
+PAPER = str(packaged_config_path("paper"))
 #: The good plan: 2 s at 30 Hz, x from -0.03 to +0.03 m along a cosine (peak 47 mm/s, 74 mm/s^2).
 T_END_S, RATE_HZ = 2.0, 30.0
 
@@ -187,6 +190,28 @@ CASES = [
         config="limits: {accel_mps2: 0.01}",
     ),
     Case(
+        "rows-1e4-s-apart",  # Ruckig cannot plan a step that long: refused by the row, before it is asked
+        lambda: csv_text([[0.0, 0.0, 0.0, 0.095], [1e4, 0.01, 0.0, 0.095], [2e4, 0.02, 0.0, 0.095]]),
+        lambda: (
+            "data row 2 (t_s = 10000), t_s: is 1e+04 s after data row 1 (t_s = 0); a plan spans at most "
+            "3600 s (capsule_mpc.budget.MAX_SIM_TIME_S)"
+        ),
+    ),
+    Case(
+        "span-over-an-hour-at-the-camera-rate",
+        lambda: csv_text([[k / 30.0, 0.0, 0.0, 0.095] for k in range(108_000 + 2)]),
+        lambda: "data row 108002 (t_s = 3600.03), t_s: is 3.6e+03 s after data row 1 (t_s = 0)",
+    ),
+    Case(
+        "setpoints-beyond-the-memory",  # 3000 s at 10 kHz: 3e7 setpoints, 57 GiB
+        lambda: csv_text([[0.0, 0.0, 0.0, 0.095], [3000.0, 0.01, 0.0, 0.095]]),
+        lambda: (
+            "t_s: the plan spans 3e+03 s: 3e+07 arm setpoints at 10000 Hz (arm.arm_rate_hz) needing 57 GiB; "
+            "at most 50% of the 8 GiB of memory available: at most 2.1e+02 s at this rate"
+        ),
+        config="arm: {arm_rate_hz: 10000}",
+    ),
+    Case(
         "deviation-beyond-tolerance",  # every row within the limits, the whole beyond the arm
         lambda: csv_text(from_rest_at_speed_limit()),
         lambda: "the arm trajectory fails its check at t = ",
@@ -212,15 +237,18 @@ def files_in(out: Path) -> list[Path]:
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
-def test_bad_plan_is_refused_with_the_row_and_nothing_written(case: Case, tmp_path, capsys):
+def test_bad_plan_is_refused_with_the_row_and_nothing_written(case: Case, tmp_path, capsys, monkeypatch):
+    from capsule_mpc import budget
+
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 8 * 2**30)  # figures independent of it
     plan = tmp_path / "plan.csv"
     write_plan(plan, case.plan())
     out = tmp_path / "out"
-    args = ["arm-export", "--plan", str(plan), "--out", str(out)]
+    args = ["arm-export", "--plan", str(plan), "--out", str(out), "--config", PAPER]
     if case.config is not None:
         cfg = tmp_path / "scenario.yaml"
         cfg.write_text(f"base: paper\n{case.config}\n")
-        args += ["--config", str(cfg)]
+        args[-1] = str(cfg)
     assert main(args) == 2
     err = capsys.readouterr().err
     assert err.startswith("capsule-mpc arm-export: ") and err.count("\n") == 1, err
@@ -234,7 +262,8 @@ def test_the_good_plan_is_exported(tmp_path, capsys):
     """The plan every case derives from passes (so the cases fail for their own reason)."""
     plan = tmp_path / "plan.csv"
     plan.write_text(csv_text(GOOD))
-    assert main(["arm-export", "--plan", str(plan), "--out", str(tmp_path / "out"), "--no-plot"]) == 0
+    args = ["arm-export", "--plan", str(plan), "--out", str(tmp_path / "out"), "--config", PAPER, "--no-plot"]
+    assert main(args) == 0
     assert "EPM deviation from the plan max" in capsys.readouterr().out
     assert (tmp_path / "out" / "joint_trajectory.yaml").exists()
 
@@ -244,8 +273,46 @@ def test_out_is_an_existing_file(tmp_path, capsys):
     plan.write_text(csv_text(GOOD))
     out = tmp_path / "out"
     out.write_text("keep me\n")
-    assert main(["arm-export", "--plan", str(plan), "--out", str(out), "--no-plot"]) == 2
+    assert main(["arm-export", "--plan", str(plan), "--out", str(out), "--config", PAPER, "--no-plot"]) == 2
     err = capsys.readouterr().err
     assert str(out) in err and err.rstrip().endswith("(nothing written)")
     assert out.read_text() == "keep me\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "plan.csv"]
+
+
+def test_too_many_rows_are_refused_while_read(tmp_path, capsys, monkeypatch):
+    """Rows beyond the maximum stop the reading at the first one (a smaller maximum keeps it quick)."""
+    import capsule_mpc.arm.export as export
+
+    monkeypatch.setattr(export, "MAX_PLAN_ROWS", 50)
+    plan = tmp_path / "plan.csv"
+    plan.write_text(csv_text(GOOD))
+    out = tmp_path / "out"
+    assert main(["arm-export", "--plan", str(plan), "--out", str(out), "--config", PAPER]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"capsule-mpc arm-export: {plan}: data row 51 (line 52): more than 50 data rows; a plan has at most "
+        "50 (capsule_mpc.budget.MAX_PLAN_ROWS) (nothing written)\n"
+    )
+    assert files_in(out) == []
+
+
+def test_without_a_config_the_one_beside_the_plan_is_used_and_named(tmp_path, capsys):
+    plan = tmp_path / "run" / "epm_plan.csv"
+    plan.parent.mkdir()
+    plan.write_text(csv_text(GOOD))
+    out = tmp_path / "out"
+    assert main(["arm-export", "--plan", str(plan), "--out", str(out), "--no-plot"]) == 2
+    assert capsys.readouterr().err == (
+        f"capsule-mpc arm-export: --config: required: no config.yaml beside {plan}; give the scenario the "
+        "plan was made for (its limits, workspace and arm), e.g. --config configs/paper.yaml "
+        "(nothing written)\n"
+    )
+    assert files_in(out) == []
+    # The rig the plan was made for sits beside it (as plan and simulate leave it): its limits apply.
+    (plan.parent / "config.yaml").write_text("base: paper\nlimits: {speed_mps: 0.01}\n")
+    assert main(["arm-export", "--plan", str(plan), "--out", str(out), "--no-plot"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == f"config: {plan.parent / 'config.yaml'} (the config beside the plan)\n"
+    assert "epm_x_m: moves" in captured.err and "(per-axis speed limit 0.01 m/s)" in captured.err
+    assert files_in(out) == []

@@ -8,7 +8,12 @@ Every case goes through ``capsule_mpc.cli.main`` as a user would; argparse error
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
+import resource
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -231,6 +236,195 @@ def test_bad_input_exits_2_naming_it_and_writes_nothing(tmp_path, capsys, files,
     assert re.search(message, text), text
     assert "Traceback" not in text
     assert not out.exists() or not any(out.iterdir())
+
+
+def _laughs(levels: int) -> str:
+    """A "billion laughs" scenario: each level a list of ten aliases of the one before."""
+    rows = ["base: paper", 'lol0: &a0 "lol"']
+    rows += [f"lol{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, levels + 1)]
+    return "\n".join(rows) + "\n"
+
+
+def _nested_by_aliases(levels: int) -> str:
+    """Lists 5 deep, each alias level wrapping the one before: shallow text, deep data."""
+    rows = ["base: paper", "d0: &d0 [[[[[1]]]]]"]
+    rows += [f"d{i}: &d{i} [[[[*d{i - 1}]]]]" for i in range(1, levels + 1)]
+    return "\n".join(rows) + "\n"
+
+
+#: Each line of a refusal, and the whole message, at most this long (characters).
+MAX_LINE, MAX_MESSAGE = 500, 4000
+#: Memory a command refusing a hostile file may use in its own process (one without the bounds
+#: grows past 1.5 GB), bytes, and the time it may take, s.
+CHILD_MEMORY, CHILD_TIMEOUT_S = 1 << 30, 30.0
+MAIN = "from capsule_mpc.cli import main; raise SystemExit(main())"
+
+
+def _hostile(case_id: str, command: list[str], message: str, lines: int, child: bool = False, **files: str):
+    """A hostile YAML input: the command, the regex its message matches, how many lines the message
+    has, whether to run it in a child process (memory and time capped), and the files it reads
+    (the config is written as given: no ``base: paper`` is added)."""
+    return pytest.param({FILES[k]: v for k, v in files.items()}, command, message, lines, child, id=case_id)
+
+
+FILES["base"] = "b.yaml"
+HOSTILE = [
+    _hostile(
+        "billion-laughs",
+        _simulate(*CFG),
+        r"c\.yaml: line 6: holds more than 10000 values \(through aliases\)$",
+        1,
+        child=True,
+        config=_laughs(9),
+    ),
+    _hostile(
+        "five-alias-levels",
+        _simulate(*CFG),
+        r"c\.yaml: line 6: holds more than 10000 values \(through aliases\)$",
+        1,
+        config=_laughs(5),
+    ),
+    _hostile(
+        "too-many-aliases",
+        _simulate(*CFG),
+        r"c\.yaml: line 3: more than 100 aliases$",
+        1,
+        config="base: paper\nx: &x 1\ny: [" + ", ".join(["*x"] * 101) + "]\n",
+    ),
+    _hostile(
+        "recursive-alias",
+        _simulate(*CFG),
+        r"c\.yaml: line 2: alias \*a refers to a node that contains it$",
+        1,
+        config="base: paper\nx: &a [1, *a]\n",
+    ),
+    _hostile(
+        "list-nested-5000-deep",
+        _simulate(*CFG),
+        r"c\.yaml: line 2: nested deeper than 20 levels$",
+        1,
+        config="base: paper\nx: " + "[" * 5000 + "]" * 5000 + "\n",
+    ),
+    _hostile(
+        "mapping-nested-3000-deep",
+        _compare(*CFG),
+        r"c\.yaml: line 21: nested deeper than 20 levels$",
+        1,
+        config="base: paper\n" + "".join("  " * i + f"k{i}:\n" for i in range(3000)) + "  " * 3000 + "1\n",
+    ),
+    _hostile(
+        "nested-deep-through-aliases",
+        _simulate(*CFG),
+        r"c\.yaml: line 6: nested deeper than 20 levels \(through aliases\)$",
+        1,
+        config=_nested_by_aliases(6),
+    ),
+    _hostile(
+        "sexagesimal-integer",
+        _simulate(*CFG),
+        r"c\.yaml:\n  mpc\.horizon: must be an integer .*got '1:30'$",
+        2,
+        config="base: paper\nmpc:\n  horizon: 1:30\n",
+    ),
+    _hostile(
+        "sexagesimal-float",
+        _simulate(*CFG),
+        r"c\.yaml:\n  capsule\.mass_kg: must be a number .*got '1:30\.5'$",
+        2,
+        config="base: paper\ncapsule:\n  mass_kg: 1:30.5\n",
+    ),
+    _hostile(
+        "100k-character-value",
+        _simulate(*CFG),
+        r"capsule\.mass_kg: must be a number .*got 'x{30,}\.\.\.x{30,}'$",
+        2,
+        config="base: paper\ncapsule:\n  mass_kg: '" + "x" * 100_000 + "'\n",
+    ),
+    _hostile(
+        "300-unknown-keys",
+        _simulate(*CFG),
+        r"c\.yaml:\n  key0: unknown key .*, got 0\n(  key\d+: .*\n){17}  \.\.\. and 282 more$",
+        20,
+        config="base: paper\n" + "".join(f"key{i}: {i}\n" for i in range(300)),
+    ),
+    _hostile(
+        "not-yaml",
+        _simulate(*CFG),
+        r"c\.yaml: line 3, column 1: not valid YAML: expected ',' or '\]', but got '<stream end>'$",
+        1,
+        config="base: paper\ncapsule: [1, 2\n",
+    ),
+    _hostile(
+        "base-not-a-file-name",
+        _simulate(*CFG),
+        r"c\.yaml: base: must be a file name or 'paper', got \{'a': 1\}$",
+        1,
+        config="base: {a: 1}\n",
+    ),
+    _hostile(
+        "hostile-base-file",
+        _simulate(*CFG),
+        r"b\.yaml: line 2: nested deeper than 20 levels$",
+        1,
+        config="base: b.yaml\n",
+        base="base: paper\nx: " + "[" * 5000 + "]" * 5000 + "\n",
+    ),
+    _hostile(
+        "billion-laughs-learned-model",
+        ["info", *CFG],
+        r"model\.yaml: line 6: holds more than 10000 values \(through aliases\)$",
+        1,
+        child=True,
+        config="base: paper\nfriction:\n  learned: model.yaml\n",
+        model=_laughs(9).replace("base: paper\n", "coefficients: [0.5, 0.03]\n"),
+    ),
+]
+
+
+def _limit_memory() -> None:
+    resource.setrlimit(resource.RLIMIT_AS, (CHILD_MEMORY, CHILD_MEMORY))
+
+
+@pytest.mark.parametrize(("files", "command", "message", "lines", "child"), HOSTILE)
+def test_hostile_yaml_is_refused_in_a_short_message_within_seconds(
+    tmp_path, capsys, files, command, message, lines, child
+):
+    for name, content in files.items():
+        (tmp_path / name).write_text(content)
+    out = tmp_path / "out"
+    argv = [a.format(tmp=tmp_path, out=out) for a in command]
+    t0 = time.perf_counter()
+    if child:  # a regression would hang and eat memory: capped in its own process
+        done = subprocess.run(
+            [sys.executable, "-c", MAIN, *argv], capture_output=True, text=True, timeout=CHILD_TIMEOUT_S,
+            preexec_fn=_limit_memory, env={**os.environ, "COLUMNS": "100"},
+        )  # fmt: skip
+        code, text = done.returncode, done.stderr + done.stdout
+    else:
+        code, text = _exit_code_and_message(argv, capsys)
+    elapsed = time.perf_counter() - t0
+    assert code == 2, text[:2000]
+    assert len(text) <= MAX_MESSAGE, text[:2000]
+    assert text.startswith("capsule-mpc: ") and text.endswith("\n")
+    assert len(text.splitlines()) == lines, text
+    assert all(len(line) <= MAX_LINE for line in text.splitlines()), text
+    assert re.search(message, text.rstrip("\n")), text
+    assert elapsed < CHILD_TIMEOUT_S / 3
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_the_demo_reads_its_learned_model_with_the_same_loader(tmp_path):
+    from capsule_mpc.cli.demo import model_is_current
+
+    log = tmp_path / "log.csv"
+    log.write_text("t_s\n")
+    os.utime(log, (0, 0))
+    model = tmp_path / "learned_friction.yaml"
+    fitted = f"force_model: lookup\nsources: [{log.resolve()}]\n"
+    model.write_text(fitted)
+    assert model_is_current(model, [log])
+    model.write_text(fitted + "x: " + "[" * 5000 + "]" * 5000 + "\n")  # refused: fitted again
+    assert not model_is_current(model, [log])
 
 
 def _sim_speed_main():

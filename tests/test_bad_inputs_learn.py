@@ -172,6 +172,31 @@ def log_without_usable_samples(d, rows, out):
     return argv, [str(p), "cannot fit c(v)", "below_speed_floor"]
 
 
+def log_given_three_times(d, rows, out):
+    p = _write_log(d / "log.csv", rows)
+    argv = _learn("--log", str(p), str(p), str(p), "--out", str(out / "m.yaml"), *FAST)
+    return argv, [f"{p}: the same run log is given more than once; each log counts once"]
+
+
+def log_in_its_folder_and_by_a_link(d, rows, out):
+    p = _write_log(d / "log.csv", rows)
+    link = d.parent / "elsewhere.csv"
+    link.symlink_to(p)
+    argv = _learn("--log", str(d), str(link), "--out", str(out / "m.yaml"), *FAST)
+    return argv, [f"{link}: the same run log is given more than once (also given as {p})"]
+
+
+def samples_without_friction(d, rows, out):
+    """Traction that only pulls the tether: a model of zero friction, which mu0 = 0.22 contradicts."""
+    p = d / "s.csv"
+    speeds = np.linspace(0.005, 0.04, 200)
+    p.write_text(f"{SAMPLES_HEADER}\n" + "".join(f"{v:.6f},0,0.03,0.5\n" for v in speeds))
+    return _learn("--samples", str(p), "--out", str(out / "m.yaml")), [
+        f"{p}: the learned law predicts no friction: mu(v) is at most ",
+        "over its whole range 0.005-0.04 m/s, below 2% of friction.mu0 = 0.22",
+    ]
+
+
 def samples_binary(d, rows, out):
     p = d / "s.csv"
     p.write_bytes(b"\x00\xff" * 200)
@@ -274,6 +299,9 @@ CASES: list[Case] = [
     log_folder_with_binary_csv,
     log_shorter_than_the_filter_window,
     log_without_usable_samples,
+    log_given_three_times,
+    log_in_its_folder_and_by_a_link,
+    samples_without_friction,
     samples_binary,
     samples_missing_column,
     samples_nan_row,

@@ -175,10 +175,27 @@ def test_report_with_repeats_prints_the_spread(report):
     assert report["settings"]["repeats"] == 1 and len(report["cases"][0]["closed_loop_repeats"]) == 1
 
 
-def test_bad_options_exit_2(capsys):
-    assert main(["bench", "--horizons", "1", "--quiet"]) == 2
-    assert "--horizons must each be in [2, 200]" in capsys.readouterr().err
-    assert main(["bench", "--frames", "-1", "--quiet"]) == 2
-    assert "--frames must be >= 0" in capsys.readouterr().err
-    assert main(["bench", "--repeats", "0", "--quiet"]) == 2
-    assert "--repeats must be >= 1" in capsys.readouterr().err
+@pytest.mark.parametrize(
+    ("option", "value", "says"),
+    [
+        ("--horizons", "1", "must be an integer >= 2 and <= 200, got 1"),
+        ("--horizons", "201", "must be an integer >= 2 and <= 200, got 201"),
+        ("--frames", "-1", "must be an integer >= 0, got -1"),
+        ("--repeats", "0", "must be an integer >= 1 and <= 10000 (capsule_mpc.budget.MAX_RUNS), got 0"),
+        (
+            "--repeats",
+            "10001",
+            "must be an integer >= 1 and <= 10000 (capsule_mpc.budget.MAX_RUNS), got 10001",
+        ),
+        ("--seed", "-5", "must be an integer >= 0, got -5"),
+        ("--seed", "x", "must be an integer >= 0, got 'x'"),
+    ],
+)
+def test_bad_options_exit_2_when_parsed(capsys, option, value, says):
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", option, value, "--quiet"])
+    assert exc.value.code == 2
+    assert (
+        capsys.readouterr().err.strip().splitlines()[-1]
+        == f"capsule-mpc bench: error: argument {option}: {says}"
+    )

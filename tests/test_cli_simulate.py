@@ -197,10 +197,12 @@ def test_simulate_mpc_writes_predictions_and_arm_outputs(tmp_path, short_path, q
     assert set(read_manifest(out)["files"]) == names - {MANIFEST_NAME}
     # A follow run into the same folder replaces the mpc run: no stale predictions or arm files.
     follow = ["simulate", "--controller", "follow", "--config", str(quick_config), "--out", str(out)]
-    main([*follow, "--waypoints", str(short_path), "--no-progress"])
+    status = main([*follow, "--waypoints", str(short_path), "--no-progress"])
     after = {p.name for p in out.iterdir()}
     assert after == {"log.csv", "config.yaml", "run.json", "trajectories.png", "errors.png", MANIFEST_NAME}
-    assert read_manifest(out)["command"] == "simulate" and read_manifest(out)["status"] == "complete"
+    manifest = read_manifest(out)
+    assert manifest["command"] == "simulate" and manifest["exit_status"] == status == run_status(out)
+    assert manifest["status"] == ("complete" if status == 0 else "failed")  # a stalled run is no success
 
 
 def test_simulate_refuses_an_out_that_is_a_file_before_running(tmp_path, short_path, capsys):

@@ -1,9 +1,12 @@
 """The ``capsule-mpc`` process: Ctrl-C during CasADi solves (exit 130 with one message, no partial
-output, never a failed solve) and ``--version``."""
+output, never a failed solve), SIGTERM and SIGHUP handled as Ctrl-C (exit 143 and 129, the manifest
+``interrupted``, no worker process left) and ``--version``."""
 
 from __future__ import annotations
 
+import json
 import os
+import pickle
 import re
 import signal
 import subprocess
@@ -19,6 +22,9 @@ import pytest
 import capsule_mpc
 from capsule_mpc.cli import main
 from capsule_mpc.interrupt import (
+    TERMINATING_SIGNALS,
+    Interrupted,
+    exit_status,
     interrupted,
     interruptible,
     raise_if_interrupted,
@@ -26,6 +32,7 @@ from capsule_mpc.interrupt import (
     solver_call,
 )
 from capsule_mpc.mpc.solver import MPCSolver
+from capsule_mpc.outputs import LOCK_NAME, read_manifest
 
 REPO = Path(__file__).resolve().parents[1]
 RECTANGLE = REPO / "configs" / "rectangle.yaml"
@@ -138,6 +145,32 @@ def test_blocks_nest_and_a_callers_handler_is_left_alone():
     raise_if_interrupted()  # nothing pending outside a block
 
 
+def test_sigterm_and_sighup_stop_a_command_block_as_ctrl_c_does_naming_the_signal():
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        with pytest.raises(Interrupted) as info, interruptible(TERMINATING_SIGNALS):
+            with solver_call():
+                os.kill(os.getpid(), signum)
+                time.sleep(0.05)  # recorded, not raised, as SIGINT is
+            pytest.fail("not interrupted")
+        assert info.value.signum == signum and exit_status(info.value) == 128 + signum
+        assert pickle.loads(pickle.dumps(info.value)).signum == signum  # e.g. across processes
+        assert signal.getsignal(signum) == signal.SIG_DFL  # restored
+    assert exit_status(KeyboardInterrupt()) == 130
+
+
+def test_library_blocks_leave_sigterm_alone_and_an_ignored_sighup_stays_ignored():
+    with interruptible():  # library use: SIGINT only
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)  # as under nohup
+    try:
+        with interruptible(TERMINATING_SIGNALS):
+            assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+            assert signal.getsignal(signal.SIGTERM) != signal.SIG_DFL
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+
+
 def test_a_long_call_in_a_worker_thread_yields_to_ctrl_c():
     assert run_interruptibly(sum, [1, 2, 3]) == 6  # outside a block: a plain call
     with interruptible():
@@ -191,10 +224,15 @@ SLOW_IPOPT = (
 
 
 def _run_and_interrupt(
-    args: list[str], marker: re.Pattern[bytes], cwd: Path, delay_s: float = 0.0, setup: str = ""
+    args: list[str],
+    marker: re.Pattern[bytes],
+    cwd: Path,
+    delay_s: float = 0.0,
+    setup: str = "",
+    signum: int = signal.SIGINT,
 ) -> tuple[int, str, str, float]:
-    """Start ``capsule-mpc ARGS`` (after the Python ``setup``), send SIGINT ``delay_s`` after
-    ``marker`` is on stderr; (status, stdout, stderr, seconds from SIGINT to exit)."""
+    """Start ``capsule-mpc ARGS`` (after the Python ``setup``), send ``signum`` ``delay_s`` after
+    ``marker`` is on stderr; (status, stdout, stderr, seconds from the signal to exit)."""
     env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))
     code = setup + "import sys; from capsule_mpc.cli import main; sys.exit(main())"
     proc = subprocess.Popen(
@@ -219,7 +257,7 @@ def _run_and_interrupt(
             time.sleep(0.02)
         time.sleep(delay_s)
         sent = time.monotonic()
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         status = proc.wait(timeout=EXIT_TIMEOUT_S)
         took = time.monotonic() - sent
     finally:
@@ -240,14 +278,20 @@ def _ends_with_the_message(lines: list[str]) -> bool:
     return lines[-1].endswith("capsule-mpc: interrupted")
 
 
-def test_plan_interrupted_during_ipopt_exits_130_and_writes_nothing(tmp_path):
+@pytest.mark.parametrize(
+    ("signum", "message"),
+    [(signal.SIGINT, "capsule-mpc: interrupted"), (signal.SIGTERM, "capsule-mpc: interrupted by SIGTERM")],
+)
+def test_plan_interrupted_during_ipopt_exits_128_plus_n_and_writes_nothing(tmp_path, signum, message):
     (tmp_path / "wp.csv").write_text(SHORT_PATH)
     out = tmp_path / "plan"
     args = ["plan", "--config", str(RECTANGLE), "--waypoints", "wp.csv", "--out", str(out)]
-    status, stdout, err, took = _run_and_interrupt(args, IPOPT_RUNNING, tmp_path, setup=SLOW_IPOPT)
-    assert status == 130, err
+    status, stdout, err, took = _run_and_interrupt(
+        args, IPOPT_RUNNING, tmp_path, setup=SLOW_IPOPT, signum=signum
+    )
+    assert status == 128 + signum, err
     lines = _last_lines(err)
-    assert _ends_with_the_message(lines)
+    assert lines[-1].endswith(message)
     assert not any("KeyboardInterrupt" in line or "Traceback" in line or "failed" in line for line in lines)
     assert stdout == ""  # no plan summary: nothing was solved
     assert took < EXIT_TIMEOUT_S
@@ -277,6 +321,70 @@ def test_compare_interrupted_in_the_planner_stage_records_nothing(tmp_path):
     assert "failed" not in err and "error" not in stdout.lower()
     assert stdout == ""  # no table: no result, failed or not, was recorded
     assert sorted(p.relative_to(out) for p in out.rglob("*")) == []  # the follow run was not written either
+
+
+def _alive(procs: list) -> list:
+    """The processes of ``procs`` still running (zombies waiting to be reaped are gone)."""
+    import psutil
+
+    alive = []
+    for p in procs:
+        try:
+            if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
+                alive.append(p)
+        except psutil.NoSuchProcess:
+            pass
+    return alive
+
+
+@pytest.mark.parametrize(
+    ("signum", "executor"),
+    [(signal.SIGTERM, "process"), (signal.SIGHUP, "process"), (signal.SIGTERM, "dask")],
+    ids=["sigterm-process-pool", "sighup-process-pool", "sigterm-dask"],
+)
+def test_a_sweep_stopped_by_a_signal_exits_128_plus_n_and_leaves_no_process(tmp_path, signum, executor):
+    """A signal to the ``capsule-mpc`` process alone (as ``kill`` sends it), once runs are written."""
+    psutil = pytest.importorskip("psutil")
+    (tmp_path / "wp.csv").write_text(SHORT_PATH)
+    out = tmp_path / "sw"
+    args = ["sweep", "--config", str(RECTANGLE), "--waypoints", "wp.csv", "--plant", "ideal", "--controllers",
+            "follow", "--runs", "40", "--workers", "2", "--executor", executor, "--no-progress",
+            "--out", str(out)]  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))
+    code = "import sys; from capsule_mpc.cli import main; sys.exit(main())"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, *args],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        deadline = time.monotonic() + 4 * START_TIMEOUT_S
+        while not (out / "runs").is_dir():
+            assert proc.poll() is None, proc.stderr.read().decode()[-2000:]  # type: ignore[union-attr]
+            assert time.monotonic() < deadline, "no run finished"
+            time.sleep(0.05)
+        children = psutil.Process(proc.pid).children(recursive=True)
+        assert len(children) >= 2  # the workers (and the pool's resource tracker or Dask's nannies)
+        proc.send_signal(signum)
+        status = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = proc.stderr.read().decode()  # type: ignore[union-attr]
+    assert status == 128 + signum, err
+    assert err.strip().splitlines()[-1] == f"capsule-mpc: interrupted by {signal.Signals(signum).name}"
+    manifest = read_manifest(out)
+    assert manifest["status"] == "interrupted" and manifest["exit_status"] == 128 + signum
+    assert not (out / LOCK_NAME).exists()
+    assert not (out / "summary.json").exists()
+    for run in (out / "runs").iterdir():  # complete files only
+        assert json.loads(run.read_text())["controllers"]["follow"]
+    deadline = time.monotonic() + 15
+    while _alive(children) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _alive(children) == [], [p.pid for p in _alive(children)]
 
 
 def test_version_prints_the_installed_package_version(capsys):

@@ -204,3 +204,66 @@ def test_a_speed_the_epm_cannot_follow_is_refused(scenario, speed):
     configured = _scenario_with(scenario, path={"speed_mps": speed})
     with pytest.raises(ConfigError, match=r"^path\.speed_mps: must be in \(0, 0\.0721\]"):
         path_from_scenario(configured)
+
+
+# --- projection onto long paths in linear memory ------------------------------------------------------
+
+
+def _project_all_pairs(path, pts):
+    """Every point against every segment (N x M arrays), in the same arithmetic: the reference."""
+    a, d = path.vertices_m[:-1], np.diff(path.vertices_m, axis=0)
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(d[:, 0], d[:, 1]))])
+    d = d / np.hypot(d[:, 0], d[:, 1])[:, None]
+    seg_len = np.diff(arc)
+    along = np.clip(np.einsum("nmk,mk->nm", pts[:, None, :] - a[None], d), 0.0, seg_len[None])
+    closest = a[None] + along[..., None] * d[None]
+    dist = np.hypot(pts[:, None, 0] - closest[..., 0], pts[:, None, 1] - closest[..., 1])
+    best = np.argmin(dist, axis=1)  # the first of equally close segments
+    rows = np.arange(len(pts))
+    return dist[rows, best], arc[best] + along[rows, best]
+
+
+def _long_paths():
+    rng = np.random.default_rng(3)
+    th = np.linspace(0.0, 12 * np.pi, 2500)
+    return {
+        "spiral passing near itself": ReferencePath(
+            np.column_stack([th * np.cos(th), th * np.sin(th)]) * 2e-3, False, 0.02
+        ),
+        "random walk, closed": ReferencePath(np.cumsum(rng.normal(0, 1e-3, (3000, 2)), axis=0), True, 0.02),
+        "long and short segments": ReferencePath(rng.uniform(-0.1, 0.1, (400, 2)), False, 0.02),
+        "rectangle": rectangle(speed_mps=0.02),
+    }
+
+
+@pytest.mark.parametrize("name", list(_long_paths()))
+def test_project_matches_every_pair_on_long_paths(name):
+    """More pairs than one batch: the k-d tree of path pieces finds the same segment and arc length
+    as comparing all pairs, ties (vertices, the closed path's start) included."""
+    path = _long_paths()[name]
+    rng = np.random.default_rng(4)
+    on = path.point_at_arc(rng.uniform(0, path.length_m, 1500)) + rng.normal(0, 2e-3, (1500, 2))
+    pts = np.vstack([on, rng.uniform(-0.2, 0.2, (300, 2)), path.vertices_m[:100]])
+    assert len(pts) * (len(path.vertices_m) - 1) > 1 << 18 or name == "rectangle"
+    dist, arc = path.project(pts)
+    ref_dist, ref_arc = _project_all_pairs(path, pts)
+    np.testing.assert_array_equal(dist, ref_dist)
+    np.testing.assert_array_equal(arc, ref_arc)
+
+
+def test_project_of_many_frames_onto_many_waypoints_stays_small():
+    """10^5 frames on a 5000-point path: all pairs would need ~40 GB, the projection a few MB."""
+    import tracemalloc
+
+    th = np.linspace(0.0, 2 * np.pi, 5000, endpoint=False)
+    path = ReferencePath(np.column_stack([0.1 * np.cos(th), 0.08 * np.sin(th)]), True, 0.02)
+    rng = np.random.default_rng(5)
+    frames = path.point_at_arc(rng.uniform(0, path.length_m, 100_000)) + rng.normal(0, 1e-3, (100_000, 2))
+    tracemalloc.start()
+    try:
+        dist, _ = path.project(frames)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 200e6, peak
+    assert dist.max() < 6e-3  # the frames lie within a few sigma of the path

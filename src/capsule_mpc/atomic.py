@@ -2,16 +2,58 @@
 
 An interrupted run leaves either the old file or the new one, never half a file. One
 helper for every writer in the package (CSV logs, YAML/JSON, ``.npz`` tables, figures).
+
+Every file renamed into place is also reported to the :func:`recording_writes` blocks that
+cover its folder: that is how a command's output folder knows which files the command wrote
+(:func:`capsule_mpc.outputs.output_folder`), and never claims a file someone else put there
+meanwhile. Text is always UTF-8, whatever the locale.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_text_atomic"]
+__all__ = ["ENCODING", "atomic_path", "recording_writes", "write_text_atomic"]
+
+#: The encoding of every text file the package reads or writes.
+ENCODING = "utf-8"
+
+#: The active :func:`recording_writes` blocks: (resolved folder, the files written under it).
+_recorders: list[tuple[Path, set[Path]]] = []
+_recorders_lock = threading.Lock()
+
+
+def _record(target: Path) -> None:
+    """Report a file just written to every block whose folder holds it."""
+    if not _recorders:
+        return
+    path = target.parent.resolve() / target.name  # the file itself, even if a link pointed there
+    with _recorders_lock:
+        for root, files in _recorders:
+            if root in path.parents:
+                files.add(path)
+
+
+@contextmanager
+def recording_writes(folder: str | Path) -> Iterator[set[Path]]:
+    """Collect, in the yielded set, every file written under ``folder`` while the block runs.
+
+    A file counts when :func:`atomic_path` (and so :func:`write_text_atomic`) renames it into
+    place, from any thread of this process; the set holds resolved paths. Blocks nest: a file is
+    reported to every block whose folder holds it.
+    """
+    entry = (Path(folder).resolve(), set[Path]())
+    with _recorders_lock:
+        _recorders.append(entry)
+    try:
+        yield entry[1]
+    finally:
+        with _recorders_lock:
+            _recorders.remove(entry)
 
 
 @contextmanager
@@ -21,7 +63,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     The temporary name keeps the suffix of ``path`` (NumPy and matplotlib infer the format
     from it) and lies in the same folder (same file system, so the rename is atomic). The
     parent folder is created. On an exception the temporary file is removed and ``path``
-    is left untouched.
+    is left untouched. The written file is reported to the :func:`recording_writes` blocks
+    that cover it.
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -29,13 +72,14 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp
         tmp.replace(target)
+        _record(target)
     finally:
         tmp.unlink(missing_ok=True)
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:
-    """Write ``text`` to ``path`` atomically (flushed to disk before the rename); returns the path."""
-    with atomic_path(path) as tmp, tmp.open("w", newline="") as fh:
+    """Write ``text`` to ``path`` atomically in UTF-8 (flushed to disk before the rename); the path."""
+    with atomic_path(path) as tmp, tmp.open("w", encoding=ENCODING, newline="") as fh:
         fh.write(text)
         fh.flush()
         os.fsync(fh.fileno())

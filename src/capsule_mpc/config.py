@@ -6,10 +6,12 @@ each field's description. A scenario file may start from another one with
 and override any subset of fields; the merge is recursive over mappings.
 
 Errors name the field path and the allowed range, e.g.
-``capsule.mass_kg: must be > 0, got -0.02``. Values are not coerced: a number field takes a
-number (not ``true`` or ``"0.02"``), an integer field an integer, a flag ``true``/``false``; a
-repeated key is refused with its line; ``1e-5`` is a number (YAML 1.2), and a UTF-8 byte-order
-mark is allowed.
+``capsule.mass_kg: must be > 0, got -0.02``; a value is shown in at most 80 characters and every
+line of a message is bounded. Values are not coerced: a number field takes a number (not
+``true`` or ``"0.02"``), an integer field an integer, a flag ``true``/``false``; a repeated key
+is refused with its line; ``1e-5`` is a number (YAML 1.2), ``1:30`` a string (not YAML 1.1's
+base-60 90), and a UTF-8 byte-order mark is allowed. A file nested deeper than 20 levels, with
+more than 100 aliases or expanding to more than 10,000 values is refused with its line.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import itertools
 import math
 import numbers
 import re
+import reprlib
 from collections.abc import Hashable
 from importlib import resources
 from pathlib import Path
@@ -63,6 +66,7 @@ __all__ = [
     "dump_config",
     "load_config",
     "packaged_config_path",
+    "read_yaml",
     "stage_end_times_s",
 ]
 
@@ -72,8 +76,38 @@ PAPER_C_COEFFICIENTS: tuple[float, ...] = (-1.189e5, 1.173e4, -404.7, 7.44, 0.03
 PAPER_C_VALIDITY_MPS: tuple[float, float] = (0.005, 0.04)
 
 
+#: Longest line of a :class:`ConfigError` message, and most lines, characters.
+_MAX_LINE, _MAX_LINES = 500, 20
+#: Longest value shown in a message, characters.
+_MAX_SHOWN = 80
+#: ``repr`` of a value in a message: nested containers and long strings elided with "...".
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict = 3, 8, 8, 4
+_REPR.maxstring = _REPR.maxother = _MAX_SHOWN - 4
+
+
 class ConfigError(ValueError):
-    """A scenario file or value is invalid; the message names the field and the allowed range."""
+    """A scenario file or value is invalid; the message names the field and the allowed range.
+
+    The message is bounded: a line longer than 500 characters ends in "...", and lines past the
+    20th are replaced by their count.
+    """
+
+    def __init__(self, message: str) -> None:
+        lines = [_cut(line, _MAX_LINE) for line in str(message).splitlines() or [""]]
+        if len(lines) > _MAX_LINES:
+            lines = [*lines[: _MAX_LINES - 1], f"  ... and {len(lines) - _MAX_LINES + 1} more"]
+        super().__init__("\n".join(lines))
+
+
+def _cut(text: str, limit: int) -> str:
+    """``text``, ending in "..." after ``limit`` - 3 characters if it is longer than ``limit``."""
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _shown(value: Any) -> str:
+    """``value``'s repr for a message, at most :data:`_MAX_SHOWN` characters."""
+    return _cut(_REPR.repr(value), _MAX_SHOWN)
 
 
 def _number(value: Any) -> Any:
@@ -362,7 +396,10 @@ class PathConfig(_Strict):
         description=(
             "Nominal speed v along the path, m/s, (0, 0.1], and at most what the EPM can follow on the "
             "path with speed to spare (capsule_mpc.paths.max_path_speed: 0.072 m/s on an axis-aligned "
-            "path with the default limits). Paper: 0.02."
+            "path with the default limits). At least what keeps a run within an hour of simulated time "
+            "(sim.settle_s + 1.25 L / v + sim.tail_s <= 3600 s: 0.00011 m/s on the 0.32 m rectangle) and "
+            "its log, plan and arm setpoints within half the memory available (capsule_mpc.budget); "
+            "refused with the figures before any work otherwise. Paper: 0.02."
         ),
     )
     rectangle_size_m: tuple[Number, Number] = Field(
@@ -372,7 +409,11 @@ class PathConfig(_Strict):
         (0.0, 0.0), description="Plate point the path is centred on (x, y), m."
     )
     waypoints_file: Path | None = Field(
-        None, description="CSV with header x_m,y_m (kind: waypoints); relative to the config file."
+        None,
+        description=(
+            "CSV with header x_m,y_m (kind: waypoints), at most 10000 waypoints "
+            "(capsule_mpc.budget.MAX_WAYPOINTS); relative to the config file."
+        ),
     )
 
     @field_validator("rectangle_size_m")
@@ -1437,7 +1478,7 @@ class Scenario(_Strict):
         path = learned
         if not path.is_absolute() and self.source_path is not None:
             path = self.source_path.parent / path
-        data = _read_yaml(path)
+        data = read_yaml(path)
         return _validate(LearnedFrictionModel, data, f"friction.learned ({path})")
 
 
@@ -1457,20 +1498,69 @@ def packaged_config_path(name: str = "paper") -> Path:
     return Path(str(ref))
 
 
-class _DuplicateKeyError(yaml.YAMLError):
-    """A mapping repeats a key (PyYAML would silently keep the last value)."""
+class _LoadError(yaml.YAMLError):
+    """A YAML file this package refuses (a message that starts with the line)."""
 
-    def __init__(self, key: Any, first_line: int, line: int) -> None:
-        super().__init__(f"line {line}: duplicate key {key!r} (first given at line {first_line})")
+
+#: Deepest nesting of a YAML file (a scenario nests 5 levels), most aliases, and most values
+#: (scalars, lists and mappings, an alias counting what it repeats; a full scenario has ~350).
+_MAX_DEPTH, _MAX_ALIASES, _MAX_VALUES = 20, 100, 10_000
+_INT, _FLOAT = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
 
 
 class _ScenarioLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys and reads YAML 1.2 floats such as ``1e-5``.
+    """SafeLoader for files given to the package: bounded, strict, and reading numbers as YAML 1.2.
 
-    PyYAML follows YAML 1.1, where ``1e-5`` and ``-1.189e5`` (no dot, or no exponent sign) are
-    strings; the number fields take no strings, so they are read as numbers here, as YAML 1.2
-    (and every other YAML library) does.
+    * Nesting, aliases and the values they expand to are bounded (:data:`_MAX_DEPTH`,
+      :data:`_MAX_ALIASES`, :data:`_MAX_VALUES`): a "billion laughs" file or a list nested
+      thousands deep is refused at its line, before anything is built from it.
+    * Duplicate keys are refused (PyYAML would silently keep the last value).
+    * ``1e-5`` and ``-1.189e5`` are floats (strings in PyYAML's YAML 1.1); ``1:30`` is a string,
+      not YAML 1.1's base-60 integer 90 (nor ``1:30.5`` a base-60 float).
     """
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+        self._aliases = 0
+        #: Values (node count, an alias counting its whole node) and depth of each composed node.
+        self._extent: dict[int, tuple[int, int]] = {}
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node | None:
+        event = self.peek_event()
+        line = event.start_mark.line + 1
+        if isinstance(event, yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > _MAX_ALIASES:
+                raise _LoadError(f"line {line}: more than {_MAX_ALIASES} aliases")
+            node = super().compose_node(parent, index)
+            if id(node) not in self._extent:
+                raise _LoadError(f"line {line}: alias *{event.anchor} refers to a node that contains it")
+            return node
+        self._depth += 1
+        if self._depth > _MAX_DEPTH:
+            raise _LoadError(f"line {line}: nested deeper than {_MAX_DEPTH} levels")
+        try:
+            node = super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+        if node is None:
+            return None
+        children: list[yaml.Node] = []
+        if isinstance(node, yaml.SequenceNode):
+            children = node.value
+        elif isinstance(node, yaml.MappingNode):
+            children = [item for pair in node.value for item in pair]
+        extents = [self._extent[id(child)] for child in children]
+        values = 1 + sum(n for n, _ in extents)
+        depth = 1 + max((d for _, d in extents), default=0)
+        if values > _MAX_VALUES:
+            how = " (through aliases)" if self._aliases else ""
+            raise _LoadError(f"line {line}: holds more than {_MAX_VALUES} values{how}")
+        if depth > _MAX_DEPTH:
+            raise _LoadError(f"line {line}: nested deeper than {_MAX_DEPTH} levels (through aliases)")
+        self._extent[id(node)] = (values, depth)
+        return node
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Hashable, Any]:
         seen: dict[Any, int] = {}
@@ -1484,19 +1574,52 @@ class _ScenarioLoader(yaml.SafeLoader):
                 continue
             line = key_node.start_mark.line + 1
             if first is not None:
-                raise _DuplicateKeyError(key, first, line)
+                raise _LoadError(f"line {line}: duplicate key {_shown(key)} (first given at line {first})")
             seen[key] = line
         return super().construct_mapping(node, deep=deep)
 
 
+# PyYAML's int and float resolvers without their base-60 forms, and the YAML 1.2 exponent floats.
+_ScenarioLoader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers if tag not in (_INT, _FLOAT)]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
 _ScenarioLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
+    _INT,
+    re.compile(r"^(?:[-+]?0b[0-1_]+|[-+]?0[0-7_]+|[-+]?(?:0|[1-9][0-9_]*)|[-+]?0x[0-9a-fA-F_]+)$"),
+    list("-+0123456789"),
+)
+_ScenarioLoader.add_implicit_resolver(
+    _FLOAT,
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+][0-9]+)?
+        |\.[0-9][0-9_]*(?:[eE][-+][0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+_ScenarioLoader.add_implicit_resolver(
+    _FLOAT,
     re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
     list("-+0123456789."),
 )
 
 
-def _read_yaml(path: Path) -> dict[str, Any]:
+def read_yaml(path: Path) -> dict[str, Any]:
+    """Read a YAML mapping that was given to the package (a scenario, a learned friction model).
+
+    The loader (a ``yaml.SafeLoader``) bounds nesting, aliases and what they expand to, refuses
+    duplicate keys, reads ``1e-5`` as a number and ``1:30`` as a string (see the module
+    docstring). An empty file is an empty mapping.
+
+    Raises
+    ------
+    ConfigError
+        One line naming ``path`` (and the line, where there is one): the file cannot be read, is
+        not UTF-8 text, not valid YAML, beyond the bounds, or not a mapping.
+    """
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -1508,10 +1631,15 @@ def _read_yaml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"cannot read config {path}: {exc}") from exc
     try:
         data = yaml.load(text, Loader=_ScenarioLoader)  # a SafeLoader subclass: no arbitrary objects
-    except _DuplicateKeyError as exc:
+    except _LoadError as exc:
         raise ConfigError(f"{path}: {exc}") from None
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f" line {mark.line + 1}, column {mark.column + 1}:" if mark is not None else ""
+        what = " ".join(str(exc.problem or exc.context or "").split())
+        raise ConfigError(f"{path}:{where} not valid YAML: {what}") from None
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+        raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -1533,10 +1661,12 @@ def _resolve_base(path: Path, data: dict[str, Any], depth: int = 0) -> dict[str,
     base = data.pop("base", None)
     if base is None:
         return data
+    if not isinstance(base, str):
+        raise ConfigError(f"{path}: base: must be a file name or 'paper', got {_shown(base)}")
     if depth > 8:
         raise ConfigError(f"{path}: 'base' chain deeper than 8 files (a cycle?)")
-    base_path = packaged_config_path(base) if base in ("paper",) else path.parent / str(base)
-    base_data = _resolve_base(base_path, _read_yaml(base_path), depth + 1)
+    base_path = packaged_config_path(base) if base in ("paper",) else path.parent / base
+    base_data = _resolve_base(base_path, read_yaml(base_path), depth + 1)
     return _deep_merge(base_data, data)
 
 
@@ -1551,7 +1681,7 @@ _RANGE_TEXT = {
 def _format_errors(exc: ValidationError, where: str) -> str:
     lines = []
     for err in exc.errors():
-        loc = ".".join(str(p) for p in err["loc"]) or "<top>"
+        loc = _cut(".".join(str(p) for p in err["loc"]), _MAX_SHOWN) or "<top>"
         bound = _RANGE_TEXT.get(err["type"])
         if bound is not None:
             msg = f"{bound[0]} {err.get('ctx', {}).get(bound[1])!s:.12}".replace(".0 ", " ")
@@ -1569,7 +1699,7 @@ def _format_errors(exc: ValidationError, where: str) -> str:
         if isinstance(err.get("input"), dict):  # a rule across fields: the message names them
             lines.append(msg if loc == "<top>" else f"{loc}: {msg}")
         else:
-            lines.append(f"{loc}: {msg}, got {err.get('input')!r}")
+            lines.append(f"{loc}: {msg}, got {_shown(err.get('input'))}")
     return f"invalid {where}:\n  " + "\n  ".join(lines)
 
 
@@ -1600,7 +1730,7 @@ def load_config(path: str | Path | None = None) -> Scenario:
         every offending field with its allowed range.
     """
     path = packaged_config_path("paper") if path is None else Path(path)
-    data = _resolve_base(path, _read_yaml(path))
+    data = _resolve_base(path, read_yaml(path))
     scenario: Scenario = _validate(Scenario, data, f"config {path}")
     scenario.source_path = path.resolve()
     return scenario
@@ -1626,5 +1756,5 @@ def dump_config(scenario: Scenario, path: str | Path | None = None) -> str:
         )
     text = yaml.safe_dump(data, sort_keys=False)
     if path is not None:
-        Path(path).write_text(text)
+        Path(path).write_text(text, encoding="utf-8")
     return text

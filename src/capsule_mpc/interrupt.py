@@ -1,4 +1,4 @@
-"""Ctrl-C that survives CasADi: a SIGINT flag, checked after every solver call.
+"""Ctrl-C (and SIGTERM, SIGHUP) that survives CasADi: a signal flag, checked after every solver call.
 
 CasADi polls for signals inside its solvers (IPOPT's intermediate callback, ``sqpmethod``).
 When Python reports a pending ``KeyboardInterrupt`` there, CasADi catches it in C++, prints
@@ -22,57 +22,100 @@ runs it in a worker thread while the main thread waits, ready for the signal.
 
 Leaving an :func:`interruptible` block after SIGINT always raises ``KeyboardInterrupt``, chained
 to any exception the interrupt caused inside it. Blocks nest; only the outermost one installs
-and restores the handler: ``capsule-mpc``'s ``main`` wraps a whole command. Outside any block
-(library use) Python's own handler is left in place, and CasADi may swallow Ctrl-C as above.
+and restores the handler: ``capsule-mpc``'s ``main`` wraps a whole command, and there SIGTERM and
+SIGHUP (:data:`TERMINATING_SIGNALS`) are handled as SIGINT is, so that a command that is asked to
+stop ends as an interrupted one: complete files, its manifest saying ``interrupted``, its folder
+unlocked, its worker processes stopped, exit status 128 + the signal's number
+(:func:`exit_status`). The ``KeyboardInterrupt`` raised is an :class:`Interrupted`, which names the
+signal. Outside any block (library use) Python's own handlers are left in place, and CasADi may
+swallow Ctrl-C as above.
 """
 
 from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from types import FrameType
 from typing import Any, TypeVar
 
-__all__ = ["interrupted", "interruptible", "raise_if_interrupted", "run_interruptibly", "solver_call"]
+__all__ = [
+    "TERMINATING_SIGNALS",
+    "Interrupted",
+    "exit_status",
+    "interrupted",
+    "interruptible",
+    "raise_if_interrupted",
+    "run_interruptibly",
+    "solver_call",
+]
 
 T = TypeVar("T")
 #: How often the main thread wakes while :func:`run_interruptibly` waits, s (the reaction time to Ctrl-C).
 _WAIT_S = 0.05
 
-#: Whether a SIGINT arrived inside the outermost :func:`interruptible` block.
+#: The signals that stop a ``capsule-mpc`` command as Ctrl-C does (those the platform has).
+TERMINATING_SIGNALS: tuple[signal.Signals, ...] = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
+
+#: Whether a signal arrived inside the outermost :func:`interruptible` block.
 _pending = False
-#: Whether a block has installed :func:`_on_sigint` (the outermost one restores the old handler).
+#: The first signal that arrived there (what :class:`Interrupted` reports).
+_signum: int = signal.SIGINT
+#: Whether a block has installed :func:`_on_signal` (the outermost one restores the old handlers).
 _installed = False
-#: Whether a :func:`solver_call` is running (SIGINT is then recorded, not raised).
+#: The handlers the outermost block replaced, to restore on leaving it.
+_replaced: dict[int, Any] = {}
+#: Whether a :func:`solver_call` is running (a signal is then recorded, not raised).
 _deferred = False
 
 
-def _on_sigint(signum: int, frame: FrameType | None) -> None:
-    """Record the interrupt; raise ``KeyboardInterrupt`` unless a solver call runs (the first time)."""
-    global _pending
+class Interrupted(KeyboardInterrupt):
+    """The ``KeyboardInterrupt`` of this module: says which signal stopped the work (``signum``)."""
+
+    def __init__(self, signum: int = signal.SIGINT) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = int(signum)
+
+    def __reduce__(self) -> tuple[type[Interrupted], tuple[int]]:
+        return type(self), (self.signum,)
+
+
+def exit_status(exc: BaseException) -> int:
+    """The exit status of a process stopped by ``exc``: 128 + its signal's number (130 for a
+    ``KeyboardInterrupt`` that names none), as a shell reports a command a signal ended."""
+    return 128 + int(getattr(exc, "signum", signal.SIGINT))
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    """Record the signal; raise :class:`Interrupted` unless a solver call runs (the first time)."""
+    global _pending, _signum
     again = _pending
+    if not again:
+        _signum = signum
     _pending = True
     if again or not _deferred:
-        raise KeyboardInterrupt
+        raise Interrupted(_signum)
 
 
 def interrupted() -> bool:
-    """Whether Ctrl-C (SIGINT) was pressed inside the :func:`interruptible` block running now."""
+    """Whether Ctrl-C (or another handled signal) arrived in the :func:`interruptible` block running now."""
     return _pending
 
 
 def raise_if_interrupted() -> None:
-    """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed, e.g. during a solver call that swallowed it.
+    """Raise :class:`Interrupted` if Ctrl-C was pressed (or a handled signal arrived), e.g. during a
+    solver call that swallowed it.
 
     Raises
     ------
-    KeyboardInterrupt
+    Interrupted
         If :func:`interrupted`.
     """
     if _pending:
-        raise KeyboardInterrupt
+        raise Interrupted(_signum)
 
 
 def run_interruptibly(fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
@@ -119,8 +162,8 @@ def solver_call() -> Iterator[None]:
 
     Raises
     ------
-    KeyboardInterrupt
-        If SIGINT arrived before the call returned (inside :func:`interruptible`).
+    Interrupted
+        If a handled signal arrived before the call returned (inside :func:`interruptible`).
     """
     global _deferred
     outer = _deferred
@@ -132,42 +175,58 @@ def solver_call() -> Iterator[None]:
     raise_if_interrupted()
 
 
+def _replaceable(signum: int) -> bool:
+    """Whether ``signum`` has Python's default disposition (a handler the caller installed, or an
+    ignored signal such as SIGHUP under ``nohup``, is left alone)."""
+    handler = signal.getsignal(signum)
+    if signum == signal.SIGINT:
+        return handler is signal.default_int_handler
+    return handler == signal.SIG_DFL
+
+
 @contextmanager
-def interruptible() -> Iterator[None]:
+def interruptible(signals: Sequence[int] = (signal.SIGINT,)) -> Iterator[None]:
     """A block in which Ctrl-C always ends in ``KeyboardInterrupt``, even if a solver swallowed it.
 
-    The outermost block installs this module's SIGINT handler (only in the main thread, and
-    only over Python's default handler: a handler the caller installed is left alone) and
-    restores the default on exit. On leaving the block with the interrupt recorded,
-    ``KeyboardInterrupt`` is raised: from an exception the block raised (the interrupt's
-    consequence, e.g. a ``SystemError`` from CasADi) or instead of a normal exit.
+    The outermost block installs this module's handler for ``signals`` (only in the main thread,
+    and only over Python's default handling of each: a handler the caller installed, or an
+    ignored signal, is left alone) and restores them on exit. On leaving the block with a signal
+    recorded, :class:`Interrupted` is raised: from an exception the block raised (the
+    interrupt's consequence, e.g. a ``SystemError`` from CasADi) or instead of a normal exit.
+
+    Parameters
+    ----------
+    signals : sequence of int
+        The signals handled (default SIGINT only; ``capsule-mpc`` passes
+        :data:`TERMINATING_SIGNALS`). Ignored in a nested block.
 
     Raises
     ------
-    KeyboardInterrupt
-        If SIGINT arrived inside the block.
+    Interrupted
+        If one of the signals arrived inside the block.
     """
-    global _installed, _pending
-    outermost = (
-        not _installed
-        and threading.current_thread() is threading.main_thread()
-        and signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    )
+    global _installed, _pending, _signum
+    outermost = not _installed and threading.current_thread() is threading.main_thread()
     if outermost:
-        _pending = False
-        signal.signal(signal.SIGINT, _on_sigint)
-        _installed = True
+        _pending, _signum = False, signal.SIGINT
+        for signum in signals:
+            if _replaceable(signum):
+                _replaced[signum] = signal.signal(signum, _on_signal)
+        _installed = bool(_replaced)
+        outermost = _installed
     try:
         yield
     except Exception as exc:
         if _pending:
-            raise KeyboardInterrupt from exc
+            raise Interrupted(_signum) from exc
         raise
     else:
         if _pending:
-            raise KeyboardInterrupt
+            raise Interrupted(_signum)
     finally:
         if outermost:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+            for signum, handler in _replaced.items():
+                signal.signal(signum, handler)
+            _replaced.clear()
             _installed = False
-            _pending = False
+            _pending, _signum = False, signal.SIGINT

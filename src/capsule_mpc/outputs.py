@@ -2,14 +2,30 @@
 
 A command that writes into ``--out`` enters :func:`output_folder`, which
 
-1. refuses a path that is a file or cannot be created or written (:class:`OutputError`, exit 2);
+1. refuses, before it writes anything (:class:`OutputError`, exit 2, one line saying why):
+
+   * a path that is a file, or that cannot be created or written (e.g. a name too long);
+   * the working directory (``--out .`` or ``--out ''``) or a folder holding it, and a folder in
+     the ``capsule_mpc`` package: outputs belong in a folder of their own;
+   * a folder holding one of the command's input files (``--config``, ``--waypoints``,
+     ``--plan``): the command would remove or overwrite its own input;
+   * a folder holding files named like the package's outputs (:data:`OUTPUT_NAMES`: an older
+     run's ``predictions.npz``, a ``config.yaml`` of one's own) that no manifest there lists:
+     they are not the package's to remove, and the new run would overwrite them or leave them
+     mixed with its own files (a sweep resuming its own work and the caching commands,
+     ``demonstrate`` and ``demo``, are not refused);
+
 2. takes a lock file (``.capsule-mpc.lock``, created exclusively): a second command into the same
    folder is refused while the first runs; a lock left by a process that no longer exists on
-   this host is taken over with a warning;
+   this host is taken over, with a one-line warning on stderr;
 3. removes what the previous command there produced, as listed in its manifest, so a folder never
    mixes the outputs of two runs (files the user put there are never touched);
 4. on exit writes ``manifest.json``: the command, its arguments, the start and end times, how it
-   ended (``complete``, ``failed`` or ``interrupted``) and every file it wrote or replaced (a
+   ended (``status``: ``complete`` when its exit status is 0, else ``failed`` or
+   ``interrupted``), its exit status (``exit_status``: the one the command set on the
+   :class:`OutputFolder`, 1 for an error it did not handle, 128 + N for signal N) and the files it
+   wrote: those renamed into place by :mod:`capsule_mpc.atomic` while it ran, so a file someone
+   else creates in the folder meanwhile is never claimed, nor removed by the next command (a
    command that failed or was interrupted before writing anything leaves no manifest);
 5. if the command refused its input (:class:`~capsule_mpc.config.ConfigError`, or the command's
    own refusals) after the folder was prepared, removes what it wrote and the folder too if it
@@ -21,26 +37,30 @@ complete files only, and the manifest says it was interrupted.
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import os
 import socket
 import sys
 import time
-import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-from .atomic import write_text_atomic
+from .atomic import ENCODING, recording_writes, write_text_atomic
 from .config import ConfigError
+from .interrupt import exit_status
 
 __all__ = [
     "LOCK_NAME",
     "MANIFEST_NAME",
+    "OUTPUT_NAMES",
     "OutputError",
+    "OutputFolder",
     "output_file_problem",
     "output_folder",
     "read_manifest",
+    "shown_path",
     "write_report_file",
 ]
 
@@ -48,12 +68,52 @@ __all__ = [
 MANIFEST_NAME = "manifest.json"
 #: The lock file present while a command writes into the folder.
 LOCK_NAME = ".capsule-mpc.lock"
-
-_Snapshot = dict[str, tuple[int, int]]
+#: The names (``fnmatch`` patterns) of the files the commands write into their folders, at any
+#: depth: such a file that no manifest lists makes a folder refused (module docstring).
+OUTPUT_NAMES = (
+    # simulate, and every run of compare
+    "log.csv", "config.yaml", "run.json", "predictions.npz",
+    "trajectories.png", "errors.png", "mpc_prediction.png",
+    # the arm export of arm-export, plan and simulate
+    "epm_trajectory.csv", "joint_trajectory.csv", "joint_trajectory.yaml", "joint_trajectory.png",
+    "arm_summary.json",
+    # plan
+    "epm_plan.csv", "plan.json", "plan.png",
+    # compare and sweep
+    "summary.json", "summary.md", "metrics.png", "distribution_*.png", "sweep.json", "seed_*.json",
+    # demonstrate and demo
+    "demonstrations.json", "demonstration.json", "learned_friction.yaml", "scenario.yaml",
+    "friction_*.png",
+)  # fmt: skip
+#: How deep below the folder :data:`OUTPUT_NAMES` are looked for (compare --runs writes
+#: ``runs/seed_<S>/<controller>/log.csv``).
+_OUTPUT_DEPTH = 3
+#: Exit status of a command stopped by an error it did not handle (as Python's own).
+_EXIT_ERROR = 1
 
 
 class OutputError(ConfigError):
-    """An output folder that cannot be used (a file, not writable, or in use by another command)."""
+    """An output folder that cannot be used (a file, not writable, in use by another command, or
+    a folder the command must not write into)."""
+
+
+class OutputFolder:
+    """The folder :func:`output_folder` prepared, and how the command that writes into it ends.
+
+    Attributes
+    ----------
+    path : Path
+        The folder (as given, not resolved).
+    status : int
+        The command's exit status, recorded in the manifest: 0 (the default) means the work was
+        done (``complete``); a command that ends with another status sets it before leaving the
+        block (``failed``). When an exception leaves the block, the status set is recorded if not
+        0 (a command that turns that error into its own exit status), else 1.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.status = 0
 
 
 def output_file_problem(out: Path, example_name: str) -> str | None:
@@ -86,7 +146,7 @@ def write_report_file(out: Path, text: str, prog: str) -> int:
 def read_manifest(folder: str | Path) -> dict | None:
     """The manifest the last command left in ``folder``; ``None`` if there is none or it is unreadable."""
     try:
-        data = json.loads((Path(folder) / MANIFEST_NAME).read_text(encoding="utf-8"))
+        data = json.loads((Path(folder) / MANIFEST_NAME).read_text(encoding=ENCODING))
     except (OSError, ValueError):
         return None
     return data if isinstance(data, dict) else None
@@ -117,14 +177,15 @@ def _acquire_lock(folder: Path, command: str) -> Path:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             try:
-                held = json.loads(lock.read_text(encoding="utf-8"))
+                held = json.loads(lock.read_text(encoding=ENCODING))
                 pid, host = int(held["pid"]), str(held["host"])
             except (OSError, ValueError, KeyError, TypeError):
                 held, pid, host = {}, -1, ""
             if host == socket.gethostname() and pid > 0 and not _pid_alive(pid):
-                warnings.warn(
-                    f"--out: {folder} was locked by process {pid}, which no longer runs; taking the lock",
-                    stacklevel=3,
+                print(
+                    f"capsule-mpc {command}: warning: --out: {folder} was locked by process {pid}, which "
+                    "no longer runs; taking the lock",
+                    file=sys.stderr,
                 )
                 lock.unlink(missing_ok=True)
                 continue
@@ -135,7 +196,7 @@ def _acquire_lock(folder: Path, command: str) -> Path:
             ) from None
         except OSError as exc:
             raise OutputError(f"--out: cannot write into {folder}: {exc.strerror}") from None
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        with os.fdopen(fd, "w", encoding=ENCODING) as fh:
             json.dump(info, fh)
         return lock
     raise OutputError(f"--out: could not take the lock {lock}")  # pragma: no cover - a race lost twice
@@ -153,7 +214,7 @@ def _remove_files(folder: Path, rels: Sequence[str]) -> None:
     parents: set[Path] = set()
     for rel in rels:
         path = _inside(folder, rel)
-        if path is not None and path.is_file():
+        if path is not None and path.is_file() and path.name not in (LOCK_NAME, MANIFEST_NAME):
             path.unlink()
             parents.update(p for p in path.parents if folder.resolve() in p.parents)
     for parent in sorted(parents, key=lambda p: len(p.parts), reverse=True):
@@ -161,18 +222,132 @@ def _remove_files(folder: Path, rels: Sequence[str]) -> None:
             parent.rmdir()
 
 
-def _snapshot(folder: Path) -> _Snapshot:
-    """Every file under ``folder`` (relative path -> modification time, size), lock and manifest excluded."""
-    out: _Snapshot = {}
-    for path in folder.rglob("*"):
-        if path.is_file() and path.name not in (LOCK_NAME, MANIFEST_NAME):
-            st = path.stat()
-            out[path.relative_to(folder).as_posix()] = (st.st_mtime_ns, st.st_size)
-    return out
+def shown_path(path: str | Path) -> str:
+    """``path`` for a one-line message: ``''`` for an empty one, a very long one shortened."""
+    text = str(path)
+    if not text:
+        return "''"
+    return text if len(text) <= 100 else f"{text[:60]}...{text[-20:]} ({len(text)} characters)"
 
 
-def _written_since(folder: Path, before: _Snapshot) -> list[str]:
-    return sorted(rel for rel, sig in _snapshot(folder).items() if before.get(rel) != sig)
+def _holds(folder: Path, path: Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies inside it (both resolved)."""
+    return path == folder or folder in path.parents
+
+
+def _misplaced(folder: Path, shown: str, inputs: Mapping[str, str | Path | None]) -> str | None:
+    """Why ``folder`` (resolved) must not take a command's outputs, or None."""
+    import capsule_mpc
+
+    cwd = Path.cwd().resolve()
+    if folder == cwd:
+        return f"--out: {shown} is the working directory; give the outputs a folder of their own"
+    if folder in cwd.parents:
+        return f"--out: {shown} holds the working directory ({cwd}); give the outputs a folder of their own"
+    package = Path(capsule_mpc.__file__).resolve().parent
+    if _holds(package, folder):
+        return f"--out: {shown} is in the capsule_mpc package ({package}); write the outputs elsewhere"
+    for option, given in inputs.items():
+        if given is not None and str(given) and _holds(folder, Path(given).resolve()):
+            return (
+                f"--out: {shown} holds {option} {given}, an input of this command, which it could remove "
+                "or overwrite; give another folder"
+            )
+    return None
+
+
+def _check_unlisted(folder: Path, shown: str) -> None:
+    """Refuse a folder holding files named like :data:`OUTPUT_NAMES` that its manifest does not list."""
+    unlisted = _unlisted_outputs(folder, _listed(folder))
+    if unlisted:
+        more = f" and {len(unlisted) - 1} more" if len(unlisted) > 1 else ""
+        raise OutputError(
+            f"--out: {shown} holds {unlisted[0]}{more}, named like this package's outputs but listed in "
+            "no manifest there; they would be overwritten or mixed with the new files: move them away "
+            "or give another folder"
+        )
+
+
+def _unlisted_outputs(folder: Path, listed: Sequence[str]) -> list[str]:
+    """The files under ``folder`` named like :data:`OUTPUT_NAMES` that ``listed`` does not hold."""
+    known = set(listed)
+    found: list[str] = []
+    root_depth = len(folder.parts)
+    for here, dirs, files in os.walk(folder):
+        depth = len(Path(here).parts) - root_depth
+        if depth >= _OUTPUT_DEPTH:
+            dirs.clear()
+        dirs.sort()
+        for name in sorted(files):
+            rel = (Path(here) / name).relative_to(folder).as_posix()
+            if rel not in known and any(fnmatch.fnmatchcase(name, p) for p in OUTPUT_NAMES):
+                found.append(rel)
+    return found
+
+
+def _prepare(path: str | Path, inputs: Mapping[str, str | Path | None]) -> tuple[Path, bool]:
+    """Check and create the folder; (the folder, whether this call created it).
+
+    Raises
+    ------
+    OutputError
+        See :func:`output_folder`.
+    """
+    folder, shown = Path(path), shown_path(path)
+    try:
+        if folder.exists() and not folder.is_dir():
+            raise OutputError(f"--out: {shown} exists and is not a folder")
+        problem = _misplaced(folder.resolve(), shown, inputs)
+        if problem:
+            raise OutputError(problem)
+        created = not folder.exists()
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"--out: cannot create {shown}: {exc.strerror or exc}") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        if created:
+            folder.rmdir()
+        raise OutputError(f"--out: {shown} is not writable")
+    return folder, created
+
+
+def _relative(folder: Path, files: set[Path]) -> list[str]:
+    """The files written under ``folder`` that are still there, as paths relative to it."""
+    root = folder.resolve()
+    return sorted(
+        f.relative_to(root).as_posix()
+        for f in files
+        if f.name not in (LOCK_NAME, MANIFEST_NAME) and f.is_file() and root in f.parents
+    )
+
+
+def _write_manifest(
+    folder: Path,
+    command: str,
+    argv: Sequence[str] | None,
+    started: float,
+    outcome: tuple[str, int],
+    written: list[str],
+    kept: list[str],
+) -> None:
+    """Write the manifest of a command that ended with ``outcome`` (status, exit status)."""
+    status, code = outcome
+    if written or status == "complete":  # the earlier work resumed is part of this result
+        written = sorted(
+            set(written) | {f for f in kept if (k := _inside(folder, f)) is not None and k.is_file()}
+        )
+    # A command stopped before it wrote anything leaves nothing, not a manifest of nothing.
+    if status == "complete" or written:
+        manifest = {
+            "command": command,
+            "argv": list(sys.argv[1:] if argv is None else argv),
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(started)),
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "status": status,
+            "exit_status": code,
+            "files": written,
+        }
+        write_text_atomic(folder / MANIFEST_NAME, json.dumps(manifest, indent=2) + "\n")
 
 
 @contextmanager
@@ -184,7 +359,8 @@ def output_folder(
     argv: Sequence[str] | None = None,
     refusals: tuple[type[BaseException], ...] = (ConfigError,),
     resume: bool = False,
-) -> Iterator[Path]:
+    inputs: Mapping[str, str | Path | None] | None = None,
+) -> Iterator[OutputFolder]:
     """Prepare ``path`` for ``command``'s outputs and yield it; see the module docstring.
 
     Parameters
@@ -206,62 +382,55 @@ def output_folder(
         The command continues its own earlier, unfinished work in ``path`` (``sweep``): with
         ``replace_previous`` False, the manifest lists the files the previous manifest listed
         that are still there as well as those written now.
+    inputs : mapping of str to path, optional
+        The command's input files by option (``{"--config": ..., "--waypoints": ...}``; None
+        for an option not given): a folder holding one is refused.
+
+    Yields
+    ------
+    OutputFolder
+        The folder (``.path``); the command sets ``.status`` to its exit status if not 0.
 
     Raises
     ------
     OutputError
-        ``path`` is a file, cannot be created or written, or another command holds its lock.
+        ``path`` cannot or must not be used (module docstring), or another command holds its lock.
     """
-    folder = Path(path)
-    if folder.exists() and not folder.is_dir():
-        raise OutputError(f"--out: {folder} exists and is not a folder")
-    created = not folder.exists()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"--out: cannot create {folder}: {exc.strerror}") from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        if created:
-            folder.rmdir()
-        raise OutputError(f"--out: {folder} is not writable")
+    folder, created = _prepare(path, inputs or {})
     lock = _acquire_lock(folder, command)
     try:
+        if replace_previous and not resume and not created:
+            _check_unlisted(folder, shown_path(path))
         if replace_previous:
             _remove_files(folder, _listed(folder))
         kept = _listed(folder) if resume else []
-        before = _snapshot(folder)
         started = time.time()
-        status: str | None = "failed"
+        handle = OutputFolder(folder)
+        outcome: tuple[str, int] | None = ("failed", _EXIT_ERROR)
+        written: list[str] = []
         try:
-            yield folder
-            status = "complete"
-        except KeyboardInterrupt:
-            status = "interrupted"
-            raise
-        except refusals:
-            # Bad input found after the folder was prepared: leave nothing behind.
-            _remove_files(folder, _written_since(folder, before))
-            if replace_previous:  # the previous run's files are gone: its manifest too
-                (folder / MANIFEST_NAME).unlink(missing_ok=True)
-            status = None
-            raise
+            with recording_writes(folder) as files:
+                try:
+                    yield handle
+                    outcome = ("complete" if handle.status == 0 else "failed", handle.status)
+                except KeyboardInterrupt as exc:
+                    outcome = ("interrupted", exit_status(exc))
+                    raise
+                except refusals:
+                    # Bad input found after the folder was prepared: leave nothing behind.
+                    _remove_files(folder, _relative(folder, files))
+                    if replace_previous:  # the previous run's files are gone: its manifest too
+                        (folder / MANIFEST_NAME).unlink(missing_ok=True)
+                    outcome = None
+                    raise
+                except BaseException:  # an error the command did not handle here
+                    outcome = ("failed", handle.status or _EXIT_ERROR)
+                    raise
+                finally:
+                    written = _relative(folder, files) if outcome is not None else []
         finally:
-            written = _written_since(folder, before) if status is not None else []
-            if written or status == "complete":  # the earlier work resumed is part of this result
-                written = sorted(
-                    set(written) | {f for f in kept if (k := _inside(folder, f)) is not None and k.is_file()}
-                )
-            # A command stopped before it wrote anything leaves nothing, not a manifest of nothing.
-            if status == "complete" or written:
-                manifest = {
-                    "command": command,
-                    "argv": list(sys.argv[1:] if argv is None else argv),
-                    "started": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(started)),
-                    "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                    "status": status,
-                    "files": written,
-                }
-                write_text_atomic(folder / MANIFEST_NAME, json.dumps(manifest, indent=2) + "\n")
+            if outcome is not None:
+                _write_manifest(folder, command, argv, started, outcome, written, kept)
     finally:
         lock.unlink(missing_ok=True)
         if created and folder.is_dir() and not any(folder.iterdir()):

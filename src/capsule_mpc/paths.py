@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .budget import MAX_SPEED_MPS, MAX_WAYPOINTS, format_bytes
 from .config import ConfigError, Scenario
 
 __all__ = [
@@ -48,6 +49,10 @@ PIPE_BEND_RADIUS_M = 0.015
 _BEND_SEGMENTS = 8
 #: Rounding allowance when checking generated path points against the plate and the workspace, m.
 _EDGE_TOL_M = 1e-12
+#: Longest line of a waypoint file counted when its size is checked against MAX_WAYPOINTS, bytes.
+_MAX_WAYPOINT_LINE_BYTES = 256
+#: Point-segment pairs :meth:`ReferencePath.project` evaluates at once (about 100 bytes each).
+_PROJECT_PAIRS = 1 << 18
 
 
 def _as_points(points: Any, name: str) -> np.ndarray:
@@ -78,6 +83,7 @@ class ReferencePath:
     _vertices: np.ndarray = field(init=False, repr=False, compare=False)
     _arc_m: np.ndarray = field(init=False, repr=False, compare=False)
     _directions: np.ndarray = field(init=False, repr=False, compare=False)
+    _tree: Any = field(init=False, repr=False, compare=False, default=None)
 
     def __post_init__(self) -> None:
         pts = _as_points(self.waypoints_m, "waypoints_m").copy()
@@ -152,18 +158,73 @@ class ReferencePath:
         return np.asarray(vel)
 
     def project(self, points_m: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Closest point on the polyline to each point: (distance (N,), arc length (N,)), m."""
+        """Closest point on the polyline to each point: (distance (N,), arc length (N,)), m.
+
+        Where two segments are equally close the earlier one counts. The memory used grows
+        linearly with the points and the segments: a few points against a few segments are
+        compared all with all; otherwise the segments are found through a k-d tree of points
+        along the path (:data:`_PROJECT_PAIRS` candidate pairs at a time), with the same result.
+        """
         pts = _as_points(np.atleast_2d(np.asarray(points_m, dtype=float)), "points")
-        a = self._vertices[:-1]
-        d = self._directions
-        seg_len = np.diff(self._arc_m)
-        rel = pts[:, None, :] - a[None, :, :]
-        along = np.clip(np.einsum("nmk,mk->nm", rel, d), 0.0, seg_len[None, :])
-        closest = a[None, :, :] + along[..., None] * d[None, :, :]
-        dist = np.hypot(pts[:, None, 0] - closest[..., 0], pts[:, None, 1] - closest[..., 1])
-        best = np.argmin(dist, axis=1)
-        rows = np.arange(len(pts))
-        return dist[rows, best], self._arc_m[best] + along[rows, best]
+        n_seg = len(self._directions)
+        if len(pts) * n_seg <= _PROJECT_PAIRS:
+            return self._closest(
+                pts, np.repeat(np.arange(len(pts)), n_seg), np.tile(np.arange(n_seg), len(pts))
+            )
+        tree, piece_segment, radius = self._piece_tree()
+        dist = np.empty(len(pts))
+        arc = np.empty(len(pts))
+        start = 0
+        while start < len(pts):  # chunks of points whose candidates fit _PROJECT_PAIRS
+            chunk = pts[start : start + _PROJECT_PAIRS // 64]
+            nearest, _ = tree.query(chunk)
+            reach = nearest + radius * (1 + 1e-9) + 1e-12
+            counts = tree.query_ball_point(chunk, reach, return_length=True)
+            stop = max(1, int(np.searchsorted(np.cumsum(counts), _PROJECT_PAIRS, side="right")))
+            pieces = tree.query_ball_point(chunk[:stop], reach[:stop])
+            lengths = [len(p) for p in pieces]
+            rows = np.repeat(np.arange(stop), lengths)
+            segments = piece_segment[np.concatenate(pieces).astype(int)]
+            dist[start : start + stop], arc[start : start + stop] = self._closest(
+                chunk[:stop], rows, segments
+            )
+            start += stop
+        return dist, arc
+
+    def _closest(
+        self, pts: np.ndarray, rows: np.ndarray, segments: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Distance and arc length of the closest point of each point ``pts[i]`` among the segments
+        paired with it (``rows == i``; every point has at least one; ties: the lowest segment)."""
+        a = self._vertices[:-1][segments]
+        d = self._directions[segments]
+        seg_len = np.diff(self._arc_m)[segments]
+        rel = pts[rows] - a
+        along = np.clip(rel[:, 0] * d[:, 0] + rel[:, 1] * d[:, 1], 0.0, seg_len)
+        closest = a + along[:, None] * d
+        dist = np.hypot(pts[rows, 0] - closest[:, 0], pts[rows, 1] - closest[:, 1])
+        order = np.lexsort((segments, dist, rows))  # by point, then distance, then segment
+        first = order[np.flatnonzero(np.diff(rows[order], prepend=-1))]
+        return dist[first], self._arc_m[segments[first]] + along[first]
+
+    def _piece_tree(self) -> tuple[Any, np.ndarray, float]:
+        """A k-d tree of the midpoints of pieces of the segments (about two per segment, each at
+        most the mean segment length), each piece's segment, and the longest half piece, m.
+
+        A point's closest point on the path lies on a piece whose midpoint is within that half
+        length of it, so within the distance to the nearest midpoint plus that half length."""
+        if self._tree is None:
+            from scipy.spatial import cKDTree
+
+            seg_len = np.diff(self._arc_m)
+            pieces = np.maximum(1, np.ceil(seg_len / (self.length_m / len(seg_len)))).astype(int)
+            segment = np.repeat(np.arange(len(seg_len)), pieces)
+            k = np.arange(len(segment)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+            offset = (k + 0.5) / pieces[segment] * seg_len[segment]
+            mid = self._vertices[:-1][segment] + offset[:, None] * self._directions[segment]
+            tree = (cKDTree(mid), segment, float(np.max(seg_len / pieces)) / 2)
+            object.__setattr__(self, "_tree", tree)
+        return self._tree
 
     def distance_to(self, points_m: Any) -> np.ndarray:
         """Cross-track distance (N,) from each point (N, 2) to the polyline, m."""
@@ -259,9 +320,20 @@ def from_waypoints_file(
     ConfigError
         Naming the file and the row (1-based line number in the file): missing/bad header, a row
         without two numbers, a non-finite value, a point outside the workspace, a zero-length
-        segment, or fewer than 2 points.
+        segment, fewer than 2 points, or more than :data:`capsule_mpc.budget.MAX_WAYPOINTS` (a
+        file larger than 256 bytes per waypoint is refused unread).
     """
     path = Path(path)
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise ConfigError(f"waypoints file {path}: cannot read: {exc}") from exc
+    if size > MAX_WAYPOINTS * _MAX_WAYPOINT_LINE_BYTES:
+        raise ConfigError(
+            f"waypoints file {path}: {format_bytes(size)}, more than {MAX_WAYPOINTS} waypoints can take "
+            f"({format_bytes(MAX_WAYPOINTS * _MAX_WAYPOINT_LINE_BYTES)}); a path has at most {MAX_WAYPOINTS} "
+            "waypoints (capsule_mpc.budget.MAX_WAYPOINTS)"
+        )
     try:
         text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (Excel's "CSV UTF-8") is read
     except UnicodeDecodeError as exc:
@@ -271,16 +343,22 @@ def from_waypoints_file(
         ) from None
     except OSError as exc:
         raise ConfigError(f"waypoints file {path}: cannot read: {exc}") from exc
-    rows = list(csv.reader(text.splitlines()))
-    if not rows or [c.strip() for c in rows[0]] != ["x_m", "y_m"]:
-        got = rows[0] if rows else "an empty file"
+    rows = csv.reader(text.splitlines())
+    header = next(rows, None)
+    if header is None or [c.strip() for c in header] != ["x_m", "y_m"]:
+        got = header if header is not None else "an empty file"
         raise ConfigError(f"waypoints file {path}: line 1: header must be 'x_m,y_m', got {got!r}")
     (x_lo, y_lo), (x_hi, y_hi) = workspace
     points: list[tuple[float, float]] = []
     lines: list[int] = []
-    for line, row in enumerate(rows[1:], start=2):
+    for line, row in enumerate(rows, start=2):
         if not row or all(not c.strip() for c in row):
             continue
+        if len(points) == MAX_WAYPOINTS:
+            raise ConfigError(
+                f"waypoints file {path}: line {line}: more than {MAX_WAYPOINTS} waypoints; a path has at "
+                f"most {MAX_WAYPOINTS} (capsule_mpc.budget.MAX_WAYPOINTS)"
+            )
         if len(row) != 2:
             raise ConfigError(f"waypoints file {path}: line {line}: need 2 values x_m,y_m, got {row!r}")
         try:
@@ -334,8 +412,8 @@ def path_from_scenario(
     """
     cfg = scenario.path
     v = cfg.speed_mps if speed is None else float(speed)
-    if not (math.isfinite(v) and 0 < v <= 0.1):
-        raise ConfigError(f"speed: must be in (0, 0.1] m/s, got {speed}")
+    if not (math.isfinite(v) and 0 < v <= MAX_SPEED_MPS):
+        raise ConfigError(f"speed: must be in (0, {MAX_SPEED_MPS:g}] m/s, got {speed}")
     if waypoints is not None:
         path = from_waypoints_file(waypoints, v, scenario_workspace(scenario))
     elif cfg.kind == "rectangle":

@@ -4,7 +4,7 @@ a corner.
 
 The figures of runs take run logs (column name -> array, see :mod:`capsule_mpc.sim.log`)
 keyed by controller name (:func:`plot_metrics`: metrics dicts); each draws with the Agg
-backend and writes a PNG.
+backend and writes a PNG, atomically (:func:`capsule_mpc.atomic.atomic_path`: complete or absent).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from .atomic import atomic_path
 from .metrics import prediction_errors, stack_predictions
 from .paths import ReferencePath
 
@@ -81,9 +82,11 @@ def _pyplot() -> Any:
 
 def _save(fig: Any, out: str | Path) -> Path:
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
-    _pyplot().close(fig)
+    try:
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, dpi=120)
+    finally:
+        _pyplot().close(fig)
     return out
 
 

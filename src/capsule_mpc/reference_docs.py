@@ -116,6 +116,6 @@ def write_reference_docs(out_dir: Path) -> list[Path]:
         import os
 
         os.environ["COLUMNS"] = "100"
-        paths[0].write_text(config_reference())
-        paths[1].write_text(cli_reference())
+        paths[0].write_text(config_reference(), encoding="utf-8")
+        paths[1].write_text(cli_reference(), encoding="utf-8")
     return paths

@@ -7,7 +7,9 @@ Every row of the plan (:func:`check_epm_plan`, before anything is computed), fir
 named by its 1-based data row (the first row after a CSV header is 1) and field:
 
 * at least two rows; every value finite;
-* ``t_s`` strictly increasing (no duplicate time);
+* ``t_s`` strictly increasing (no duplicate time), and no row more than
+  :data:`capsule_mpc.budget.MAX_SIM_TIME_S` after the first (the arm's smoother plans each
+  step between rows as one motion, which cannot last much longer);
 * each step between consecutive rows within the per-axis speed limit at that time step
   (|dp| <= v_max dt, plus :data:`ROUNDING_M`): no arm can be faster;
 * each change of the plan's speed within the acceleration limit, the plan's rows allowed
@@ -38,6 +40,7 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
+from ..budget import MAX_SIM_TIME_S
 from ..config import Scenario
 from .errors import ExportCheckError, PlanError
 from .kinematics import ArmKinematics, JointTrajectory
@@ -116,6 +119,20 @@ def _time_failure(t: np.ndarray) -> _Failure | None:
         1,
         0,
         f"must be > {t[k - 1]:g} s of data row {k} (times strictly increasing), got {t[k]:g} ({kind})",
+    )
+
+
+def _span_failure(t: np.ndarray) -> _Failure | None:
+    with np.errstate(invalid="ignore"):
+        k = _first(t - t[0] > MAX_SIM_TIME_S)
+    if k is None:
+        return None
+    return _Failure(
+        k,
+        1,
+        0,
+        f"is {t[k] - t[0]:.3g} s after data row 1 (t_s = {t[0]:g}); a plan spans at most "
+        f"{MAX_SIM_TIME_S:g} s (capsule_mpc.budget.MAX_SIM_TIME_S)",
     )
 
 
@@ -250,6 +267,7 @@ def check_epm_plan(
         failures = [
             _finite_failure(t, p),
             _time_failure(t),
+            _span_failure(t),
             _speed_failure(t, p, limits.velocity_mps),
             _accel_failure(t, p, limits.acceleration_mps2, max_deviation_m),
             _workspace_failure(p, *_workspace(scenario)),

@@ -37,6 +37,7 @@ import numpy as np
 import yaml
 
 from ..atomic import atomic_path
+from ..budget import MAX_PLAN_ROWS
 from ..config import Scenario
 from .checks import ExportCheck, check_epm_plan, default_max_deviation_m, verify_arm_trajectory
 from .kinematics import ArmKinematics, JointTrajectory, solve_trajectory
@@ -92,7 +93,7 @@ def _float_text(x: float) -> str:
 
 def _atomic_write(path: Path, writer: Callable[[IO[str]], None]) -> Path:
     """Write a text file through ``writer(file)`` into a temp file beside ``path``, then rename it."""
-    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
+    with atomic_path(path) as tmp, tmp.open("w", encoding="utf-8", newline="") as f:
         writer(f)
     return path
 
@@ -443,7 +444,7 @@ def export_arm_trajectory(
     check_epm_plan(scenario, t, p, tolerance)
     keep = thin_waypoints(t, arm.plan_waypoint_rate_hz or scenario.camera.rate_hz)
     limits = CartesianLimits.from_scenario(scenario)
-    cart = smooth_waypoints(t[keep], p[keep], limits, arm.arm_rate_hz, arm.plan_lookahead_s)
+    cart = smooth_waypoints(t[keep], p[keep], limits, arm.arm_rate_hz, arm.plan_lookahead_s, rows=keep + 1)
     kin = ArmKinematics(arm)
     joints = solve_trajectory(kin, cart.t_s, cart.position_m, cart.velocity_mps)
     check = verify_arm_trajectory(scenario, kin, t, p, cart, joints, tolerance)
@@ -513,50 +514,58 @@ def read_epm_plan_csv(
     Raises
     ------
     ValueError
-        Not UTF-8 text, missing columns, or a value that is not a number (the file, the 1-based
-        data row, its line and the column are named).
+        Not UTF-8 text, missing columns, a value that is not a number (the file, the 1-based
+        data row, its line and the column are named), or more than
+        :data:`capsule_mpc.budget.MAX_PLAN_ROWS` data rows.
     """
     path = Path(path)
+    times: list[float] = []
+    points: list[list[float]] = []
     try:
         with path.open(newline="", encoding="utf-8-sig") as f:
             reader = csv.DictReader(f)
             fields = reader.fieldnames or []
-            rows = [(reader.line_num, row) for row in reader]
+            t_col = next((c for c in ("t_s", "t") if c in fields), None)
+            pos_cols = next((cols for cols in _PLAN_POSITION_COLUMNS if all(c in fields for c in cols)), None)
+            if t_col is None or pos_cols is None:
+                raise ValueError(
+                    f"{path}: needs a time column (t_s) and EPM position columns (epm_x_m, epm_y_m"
+                    f"[, epm_z_m]); has {fields}"
+                )
+            if len(pos_cols) == 2 and default_height_m is None:
+                raise ValueError(f"{path}: has no z column ({pos_cols}) and no default height was given")
+            for i, row in enumerate(reader):  # parsed as read: a long plan is never held as text
+                if i == MAX_PLAN_ROWS:
+                    raise ValueError(
+                        f"{path}: data row {i + 1} (line {reader.line_num}): more than {MAX_PLAN_ROWS} data "
+                        f"rows; a plan has at most {MAX_PLAN_ROWS} (capsule_mpc.budget.MAX_PLAN_ROWS)"
+                    )
+                values = []
+                for col in (t_col, *pos_cols):
+                    try:
+                        values.append(float(row[col]))
+                    except (TypeError, ValueError):
+                        raise ValueError(
+                            f"{path}: data row {i + 1} (line {reader.line_num}), {col}: not a number, "
+                            f"got {row[col]!r}"
+                        ) from None
+                times.append(values[0])
+                points.append(
+                    values[1:] if len(values) == 4 else [*values[1:], float(default_height_m or 0.0)]
+                )
     except UnicodeDecodeError as exc:
         raise ValueError(
             f"{path}: not a UTF-8 text CSV ({exc.reason} at byte {exc.start}); expected a header "
             "t_s,epm_x_m,epm_y_m[,epm_z_m] and one row of numbers per line"
         ) from None
-    t_col = next((c for c in ("t_s", "t") if c in fields), None)
-    pos_cols = next((cols for cols in _PLAN_POSITION_COLUMNS if all(c in fields for c in cols)), None)
-    if t_col is None or pos_cols is None:
-        raise ValueError(
-            f"{path}: needs a time column (t_s) and EPM position columns (epm_x_m, epm_y_m[, epm_z_m]); "
-            f"has {fields}"
-        )
-    if len(pos_cols) == 2 and default_height_m is None:
-        raise ValueError(f"{path}: has no z column ({pos_cols}) and no default height was given")
-    t = np.empty(len(rows))
-    p = np.empty((len(rows), 3))
-    for i, (line, row) in enumerate(rows):
-        xyz = []
-        for col in (t_col, *pos_cols):
-            try:
-                xyz.append(float(row[col]))
-            except (TypeError, ValueError):
-                raise ValueError(
-                    f"{path}: data row {i + 1} (line {line}), {col}: not a number, got {row[col]!r}"
-                ) from None
-        t[i] = xyz[0]
-        p[i] = xyz[1:] if len(xyz) == 4 else [*xyz[1:], default_height_m]
-    return t, p
+    return np.array(times, dtype=float), np.array(points, dtype=float).reshape(-1, 3)
 
 
 def read_joint_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
     """``joint_trajectory.csv`` as arrays: ``t_s`` (N,), ``q_rad`` (N, 6), ``dq_radps`` (N, 6)."""
-    with Path(path).open() as f:
+    with Path(path).open(encoding="utf-8") as f:
         header = f.readline().strip().split(",")
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8")
     q_idx = [i for i, c in enumerate(header) if c.startswith("q")]
     dq_idx = [i for i, c in enumerate(header) if c.startswith("dq")]
     return {"t_s": data[:, 0], "q_rad": data[:, q_idx], "dq_radps": data[:, dq_idx]}
@@ -565,6 +574,6 @@ def read_joint_trajectory_csv(path: str | Path) -> dict[str, np.ndarray]:
 def read_joint_trajectory_yaml(path: str | Path) -> dict[str, Any]:
     """Parse ``joint_trajectory.yaml`` (uses libyaml's C loader when available)."""
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-    with Path(path).open() as f:
+    with Path(path).open(encoding="utf-8") as f:
         data: dict[str, Any] = yaml.load(f, Loader=loader)
     return data

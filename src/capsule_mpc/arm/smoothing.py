@@ -20,6 +20,7 @@ bounded by the limit.
 from __future__ import annotations
 
 import math
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -40,6 +41,17 @@ __all__ = [
 
 #: Ruckig results that mean a valid trajectory was computed.
 _OK = (ruckig.Result.Working, ruckig.Result.Finished)
+#: Ruckig's error results in words (its Python binding does not name all of them: it raises
+#: ``ValueError("-101 is not a valid Result.")`` instead).
+_RUCKIG_ERRORS = {
+    -1: "an unclassified error",
+    -100: "an input it cannot use (a non-finite value or a target beyond the limits)",
+    -101: "a motion that would last longer than its numerical limit (about 7600 s)",
+    -102: "a target beyond its position limits",
+    -104: "a zero limit",
+    -110: "no solution for the motion's duration (numerical failure)",
+    -111: "no solution for the axes' synchronisation (numerical failure)",
+}
 #: Target states are kept this fraction inside the limits, so Ruckig's input check never trips
 #: on rounding (dimensionless).
 _TARGET_MARGIN = 1.0 - 1e-9
@@ -440,8 +452,11 @@ def _plan_segment(
     target: tuple[list[float], list[float], list[float]],
     min_duration_s: float,
     t_target_s: float,
+    rows: tuple[int, int] | None = None,
 ) -> bool:
     """One state-to-state Ruckig trajectory into ``traj``; False if the motion is negligible.
+
+    ``rows`` (the 1-based plan rows the motion goes from and to) are named if Ruckig fails.
 
     An axis whose current state equals the target up to rounding is set exactly to it: with a
     time-synchronised duration, Ruckig would otherwise turn a 1e-15 mismatch into a jerk-limited
@@ -456,15 +471,32 @@ def _plan_segment(
     inp.target_position, inp.target_velocity, inp.target_acceleration = target
     inp.minimum_duration = min_duration_s if min_duration_s > 0 else None
     try:
-        res = otg.calculate(inp, traj)
-    except ruckig.RuckigError as exc:
+        res: object = otg.calculate(inp, traj)
+    except (ruckig.RuckigError, ValueError) as exc:  # ValueError: a result the binding cannot name
         res = exc
     if res in _OK:
         return True
     gap = np.abs(np.subtract(state, target)).max()
     if gap < _NEGLIGIBLE_STATE_GAP:
         return False  # already there up to rounding: Ruckig may fail on a zero-length motion
-    raise SmoothingError(t_target_s, np.array(target[0]), f"Ruckig calculate failed: {res}")
+    motion = f"the motion from data row {rows[0]} to data row {rows[1]}" if rows else "the motion"
+    raise SmoothingError(
+        t_target_s,
+        np.array(target[0]),
+        f"cannot plan {motion} ({min_duration_s:.4g} s at least): {_ruckig_reason(res)}",
+    )
+
+
+def _ruckig_reason(res: object) -> str:
+    """What a failed Ruckig calculation returned or raised, in words, with Ruckig's own code."""
+    if isinstance(res, ruckig.Result):
+        code = int(res.value)
+    else:
+        found = re.match(r"\s*(-?\d+) is not a valid Result", str(res))
+        if found is None:
+            return f"Ruckig failed: {' '.join(str(res).split())}"
+        code = int(found.group(1))
+    return f"Ruckig reports {_RUCKIG_ERRORS.get(code, 'an unknown error')} (result {code})"
 
 
 def smooth_waypoints(
@@ -473,6 +505,7 @@ def smooth_waypoints(
     limits: CartesianLimits,
     rate_hz: float,
     lookahead_s: float = DEFAULT_LOOKAHEAD_S,
+    rows: np.ndarray | None = None,
 ) -> CartesianTrajectory:
     """Jerk-limited arm-rate setpoints along a plan's waypoints (Ruckig position interface).
 
@@ -499,6 +532,9 @@ def smooth_waypoints(
     lookahead_s : float, optional
         How far ahead on the plan the target is when the next waypoint cannot be reached on time,
         s, >= 0 (0: always the next waypoint). Default 0.2 s.
+    rows : array_like of int (M,), optional
+        The waypoints' 1-based rows in the plan they were taken from, named if Ruckig fails
+        (default 1..M).
 
     Returns
     -------
@@ -521,6 +557,7 @@ def smooth_waypoints(
         raise ValueError(f"lookahead_s: must be a finite number >= 0, got {lookahead_s}")
     v_tgt, a_tgt, clipped = _waypoint_targets(t, p, limits)
     n = t.shape[0]
+    row = np.arange(1, n + 1) if rows is None else np.asarray(rows, dtype=int)
     # Index of the target of each waypoint interval: the first waypoint lookahead_s ahead.
     ahead = np.searchsorted(t, t + lookahead_s - 1e-12, side="left")
     ahead = np.clip(np.maximum(ahead, np.arange(n) + 1), 0, n - 1)
@@ -540,13 +577,15 @@ def smooth_waypoints(
         # else the plan's state lookahead_s ahead (rounds what the limits cannot follow).
         i = j + 1
         target = (p[i].tolist(), v_tgt[i].tolist(), a_tgt[i].tolist())
-        moving = _plan_segment(otg, inp, traj, state, target, t_next - tau, t_next)
+        moving = _plan_segment(otg, inp, traj, state, target, t_next - tau, t_next, (row[j], row[i]))
         calls += 1
         late = moving and tau + traj.duration > t_next + _ON_TIME_S
         if late and ahead[j] > i:
             i = int(ahead[j])
             target = (p[i].tolist(), v_tgt[i].tolist(), a_tgt[i].tolist())
-            moving = _plan_segment(otg, inp, traj, state, target, float(t[i]) - tau, float(t[i]))
+            moving = _plan_segment(
+                otg, inp, traj, state, target, float(t[i]) - tau, float(t[i]), (row[j], row[i])
+            )
             calls += 1
         if not moving:
             state = target

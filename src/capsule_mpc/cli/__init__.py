@@ -1,24 +1,29 @@
 """The ``capsule-mpc`` command line: one sub-module per command, registered in ``_COMMANDS``.
 
 Exit status of every command: 0 on success, 1 when the work failed (the command says what), 2 on
-bad input (a config, file or option; the message names it), 130 on Ctrl-C
-(``capsule-mpc: interrupted`` on stderr). An interrupted command stops at once, even inside a
-CasADi solve (:mod:`capsule_mpc.interrupt`), and records nothing for the work in progress (an
-interrupted solve is never reported as a failed one); the files it had written are complete
-(``plan``, ``simulate``'s run files, ``compare`` and the arm export replace each file atomically).
+bad input (a config, file or option; the message names it), 128 + the signal's number when a
+signal stopped it: 130 on Ctrl-C (``capsule-mpc: interrupted`` on stderr), 143 on SIGTERM and 129
+on SIGHUP (``capsule-mpc: interrupted by SIGTERM``). An interrupted command stops at once, even
+inside a CasADi solve (:mod:`capsule_mpc.interrupt`), and records nothing for the work in progress
+(an interrupted solve is never reported as a failed one); the files it had written are complete
+(every file is replaced atomically), its output folder's manifest says ``interrupted`` and its
+worker processes are stopped.
 """
 
 from __future__ import annotations
 
 import argparse
+import codecs
 import importlib
 import importlib.metadata
+import io
 import os
+import signal
 import sys
 from collections.abc import Sequence
 
 from ..config import ConfigError
-from ..interrupt import interruptible
+from ..interrupt import TERMINATING_SIGNALS, exit_status, interruptible
 
 __all__ = ["main"]
 
@@ -27,7 +32,8 @@ __all__ = ["main"]
 _COMMANDS = (
     "info", "docs", "demo", "learn", "demonstrate", "simulate", "compare", "arm", "plan", "bench", "sweep",
 )  # fmt: skip
-#: Exit status after Ctrl-C (128 + SIGINT, as a shell reports a command it interrupted).
+#: Exit status after Ctrl-C (128 + SIGINT, as a shell reports a command it interrupted); after
+#: SIGTERM or SIGHUP, 128 + that signal's number.
 EXIT_INTERRUPTED = 130
 
 
@@ -47,7 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="capsule-mpc",
         description=(
             "Plan and control a magnetically actuated tethered capsule endoscope. Exit status: 0 "
-            "success, 1 the work failed, 2 bad input, 130 interrupted (Ctrl-C)."
+            "success, 1 the work failed, 2 bad input, 128 + N stopped by signal N (130 Ctrl-C, 143 "
+            "SIGTERM, 129 SIGHUP)."
         ),
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
@@ -62,8 +69,11 @@ def _exit_now(status: int) -> None:
     has unwound). Freeing a large expanded CasADi NLP takes seconds (measured 5.3 s for the
     rectangle's 525-step plan on the loaded 2-core machine), which a user who pressed Ctrl-C
     should not wait for."""
-    sys.stdout.flush()
-    sys.stderr.flush()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # e.g. the terminal is gone (SIGHUP)
+            pass
     os._exit(status)
 
 
@@ -80,19 +90,34 @@ def _run(argv: Sequence[str] | None) -> int:
     return status
 
 
+def _tolerate_encoding(streams: Sequence[object]) -> None:
+    """Print what a locale's encoding cannot show (``±`` under ``LC_ALL=C``) as escapes, rather
+    than fail on it; the files are UTF-8 whatever the locale."""
+    for stream in streams:
+        if isinstance(stream, io.TextIOWrapper) and codecs.lookup(stream.encoding).name != "utf-8":
+            stream.reconfigure(errors="backslashreplace")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``capsule-mpc`` console script; returns the exit status (module docstring)."""
+    if argv is None:  # the console script: the streams are ours
+        _tolerate_encoding([sys.stdout, sys.stderr])
     try:
-        with interruptible():
+        with interruptible(TERMINATING_SIGNALS):
             return _run(argv)
     except ConfigError as exc:
         print(f"capsule-mpc: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("capsule-mpc: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        status = exit_status(exc)
+        by = "" if status == EXIT_INTERRUPTED else f" by {signal.Signals(status - 128).name}"
+        try:
+            print(f"capsule-mpc: interrupted{by}", file=sys.stderr)
+        except OSError:  # the terminal is gone (SIGHUP): the status says it all
+            pass
         if argv is None:  # the console script: the process is ours, end it now
-            _exit_now(EXIT_INTERRUPTED)
-        return EXIT_INTERRUPTED
+            _exit_now(status)
+        return status
 
 
 if __name__ == "__main__":  # pragma: no cover

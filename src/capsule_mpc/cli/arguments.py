@@ -1,23 +1,129 @@
-"""Argument types shared by the commands (and the benchmark scripts)."""
+"""Argument types and checks shared by the commands (and the benchmark scripts).
+
+Each ``type=`` function here turns a bad value into an argparse error (exit status 2, before any
+work) that says what the option must be and what it got; argparse names the option.
+"""
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
+import math
+import os
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
-__all__ = ["int_at_least"]
+from ..budget import MAX_RUNS
+from ..config import ConfigError
+
+__all__ = [
+    "input_files",
+    "int_at_least",
+    "out_folder",
+    "positive_speed",
+    "refuse_repeats",
+    "run_count",
+    "seed",
+    "write_problem",
+]
 
 
-def int_at_least(minimum: int) -> Callable[[str], int]:
-    """An argparse ``type``: an integer >= ``minimum``, else an argparse error (exit 2) saying so."""
+def input_files(args: argparse.Namespace, *options: str) -> dict[str, str | Path | None]:
+    """The input files a command was given, by option (``--config``, ``--waypoints``, ...; None for
+    one not given): its output folder must not hold them
+    (:func:`capsule_mpc.outputs.output_folder`)."""
+    return {option: getattr(args, option.removeprefix("--").replace("-", "_"), None) for option in options}
+
+
+def int_at_least(minimum: int, maximum: int | None = None, bound: str | None = None) -> Callable[[str], int]:
+    """An argparse ``type``: an integer >= ``minimum`` (and <= ``maximum``, the limit ``bound``
+    named in the message), else an argparse error (exit 2) saying so."""
+    most = "" if maximum is None else f" and <= {maximum}" + (f" ({bound})" if bound else "")
 
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {value}")
+            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}{most}, got {text!r}") from None
+        if value < minimum or (maximum is not None and value > maximum):
+            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}{most}, got {value}")
         return value
 
     return parse
+
+
+#: A random seed: an integer >= 0 (NumPy seeds cannot be negative).
+seed = int_at_least(0)
+#: A number of runs: an integer in [1, :data:`capsule_mpc.budget.MAX_RUNS`].
+run_count = int_at_least(1, MAX_RUNS, "capsule_mpc.budget.MAX_RUNS")
+
+
+def positive_speed(text: str) -> float:
+    """An argparse ``type``: a speed > 0 m/s, a finite number (the upper bound is the rig's)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a speed > 0 m/s, got {text!r}")
+    return value
+
+
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its closest ancestor that exists."""
+    path = path.absolute()
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def _can_create_in(folder: Path) -> bool:
+    """Whether a file can be created in ``folder`` (a probe file is created and removed at once:
+    permission bits say nothing for the superuser or a read-only or virtual file system)."""
+    try:
+        fd, name = tempfile.mkstemp(dir=folder, prefix=".capsule-mpc-probe-")
+    except OSError:
+        return False
+    os.close(fd)
+    Path(name).unlink()
+    return True
+
+
+def write_problem(path: Path, folder: bool) -> str | None:
+    """Why ``path`` cannot be written as a file (``folder`` False) or used as an output folder
+    (created if missing), or None. The message starts with the path."""
+    if folder and path.exists() and not path.is_dir():
+        return f"{path}: is not a folder (a file or device of that name exists)"
+    if not folder and path.is_dir():
+        return f"{path}: is a folder; give a file name"
+    if not folder and path.exists() and not path.is_file():
+        return f"{path}: is not a regular file"
+    base = _nearest_existing(path if folder else path.parent)
+    if not base.is_dir():
+        return f"{path}: cannot be created: {base} is not a folder"
+    if not _can_create_in(base):
+        return f"{path}: cannot be written: no file can be created in {base}"
+    return None
+
+
+def out_folder(text: str) -> str:
+    """An argparse ``type``: an output folder that exists or can be created, and can be written."""
+    problem = write_problem(Path(text), folder=True)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return text
+
+
+def refuse_repeats(option: str, values: Sequence[object]) -> None:
+    """Refuse a value given twice to a list option (it would be counted twice).
+
+    Raises
+    ------
+    ConfigError
+        ``"<option>: <value> is given more than once"``.
+    """
+    seen: set[object] = set()
+    for value in values:
+        if value in seen:
+            raise ConfigError(f"{option}: {value!r} is given more than once")
+        seen.add(value)

@@ -1,8 +1,10 @@
 """``capsule-mpc bench``: build, start-up and closed-loop times of the MPC (JSON, table, figure).
 
 The logic is :func:`capsule_mpc.mpc.bench.run_benchmark`; ``benchmarks/mpc_bench.py`` runs the
-same code. Exit status: 0 when the run finished (whether or not the targets were met), 2 on a
-bad config or option.
+same code. Every option is checked before any work: the numbers when parsed, ``--out`` (a
+``.json`` file or a folder that can be written), then the config and what the closed-loop runs
+need (:func:`capsule_mpc.budget.check_run`). Exit status: 0 when the run finished (whether or
+not the targets were met), 2 on a bad config or option.
 """
 
 from __future__ import annotations
@@ -16,11 +18,52 @@ from typing import Any
 import numpy as np
 
 from ..atomic import write_text_atomic
+from ..config import ConfigError
+from .arguments import int_at_least, run_count, seed, write_problem
 
-__all__ = ["add_bench_arguments", "format_report", "plot_report", "register", "run", "write_report"]
+__all__ = [
+    "add_bench_arguments",
+    "bench_out",
+    "check_bench",
+    "format_report",
+    "plot_report",
+    "register",
+    "report_file",
+    "run",
+    "write_report",
+]
 
 #: Default JSON output (a folder gets ``mpc_bench.json`` inside it); the figure goes beside it.
 DEFAULT_OUT = "results/benchmarks/mpc_bench.json"
+#: Name of the report in an ``--out`` folder.
+REPORT_NAME = "mpc_bench.json"
+#: Horizons the benchmark accepts (as ``mpc.horizon``).
+_HORIZONS = (2, 200)
+
+
+def report_file(out: str | Path) -> Path:
+    """The JSON file of ``--out``: itself if it ends in ``.json``, else ``mpc_bench.json`` inside it."""
+    target = Path(out)
+    return target if target.suffix == ".json" else target / REPORT_NAME
+
+
+def bench_out(text: str) -> str:
+    """An argparse ``type``: a ``.json`` file, or a folder (existing, or a new name without an
+    extension), where the report and its figure can be written."""
+    path = Path(text)
+    if path.suffix != ".json" and not path.is_dir():
+        if path.exists():
+            raise argparse.ArgumentTypeError(f"{text}: is not a folder; give a folder or a .json file")
+        if path.suffix:
+            raise argparse.ArgumentTypeError(
+                f"{text}: must be a .json file or a folder; a new name with another extension "
+                f"({path.suffix}) is neither"
+            )
+    target = report_file(path)
+    problem = write_problem(target, folder=False) or write_problem(target.with_suffix(".png"), folder=False)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return text
 
 
 def add_bench_arguments(p: argparse.ArgumentParser) -> None:
@@ -30,8 +73,8 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged rectangle.yaml)")
     p.add_argument(
-        "--horizons", type=int, nargs="+", default=list(DEFAULT_HORIZONS), metavar="N",
-        help=f"horizons N to measure (default: {' '.join(map(str, DEFAULT_HORIZONS))})",
+        "--horizons", type=int_at_least(*_HORIZONS), nargs="+", default=list(DEFAULT_HORIZONS), metavar="N",
+        help=f"horizons N to measure, each in [2, 200] (default: {' '.join(map(str, DEFAULT_HORIZONS))})",
     )  # fmt: skip
     p.add_argument(
         "--schemes", nargs="+", default=list(DEFAULT_SCHEMES), choices=("rti", "sqp", "ipopt"),
@@ -42,18 +85,25 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
         help=f"QP solvers of the rti and sqp schemes (default: {' '.join(DEFAULT_QP_SOLVERS)})",
     )  # fmt: skip
     p.add_argument(
-        "--frames", type=int, default=DEFAULT_FRAMES,
-        help=f"camera frames of motion per closed-loop run; 0: the whole path (default {DEFAULT_FRAMES})",
+        "--frames", type=int_at_least(0), default=DEFAULT_FRAMES,
+        help=f"camera frames of motion per closed-loop run, >= 0; 0: the whole path (default "
+        f"{DEFAULT_FRAMES})",
     )  # fmt: skip
     p.add_argument(
-        "--repeats", type=int, default=1,
-        help="closed-loop runs per variant and N; the run with the median step time is reported, the "
-        "spread over the runs beside it (default 1)",
+        "--repeats", type=run_count, default=1,
+        help="closed-loop runs per variant and N, in [1, 10000]; the run with the median step time is "
+        "reported, the spread over the runs beside it (default 1)",
     )  # fmt: skip
-    p.add_argument("--seed", type=int, default=None, help="random seed (default: sim.seed of the config)")
     p.add_argument(
-        "--out", default=DEFAULT_OUT,
-        help=f"JSON file, or folder for mpc_bench.json ({DEFAULT_OUT}); the figure (.png) goes beside it",
+        "--seed",
+        type=seed,
+        default=None,
+        help="random seed, an integer >= 0 (default: sim.seed of the config)",
+    )
+    p.add_argument(
+        "--out", type=bench_out, default=DEFAULT_OUT,
+        help=f"JSON file (.json), or folder for {REPORT_NAME} ({DEFAULT_OUT}); the figure (.png) goes "
+        "beside it",
     )  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
@@ -75,19 +125,39 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
+def check_bench(config: str | Path | None, horizons: list[int], frames: int | None) -> None:
+    """Refuse a benchmark whose config is bad or whose closed-loop runs exceed the budget's bounds
+    (:func:`capsule_mpc.budget.check_run`: one MPC run at the longest horizon at a time), before any
+    work.
+
+    Raises
+    ------
+    ConfigError
+        A bad config, a horizon given twice, or runs beyond the bounds (naming ``path.speed_mps``).
+    """
+    from ..budget import check_run, speed_source
+    from ..config import load_config, packaged_config_path
+    from ..mpc.bench import path_first_frames
+    from ..paths import path_from_scenario
+    from .arguments import refuse_repeats
+
+    refuse_repeats("--horizons", horizons)
+    base = load_config(config if config is not None else packaged_config_path("rectangle"))
+    longest = base.model_copy(update={"mpc": base.mpc.model_copy(update={"horizon": max(horizons)})})
+    path = path_from_scenario(base)
+    if frames:
+        path = path_first_frames(path, frames, base.camera.rate_hz)
+    check_run(longest, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), predicting=1)
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark, print the tables and write the JSON report and its figure."""
     from ..mpc.bench import run_benchmark
 
-    if args.frames < 0:
-        print(f"capsule-mpc bench: --frames must be >= 0, got {args.frames}", file=sys.stderr)
-        return 2
-    if args.repeats < 1:
-        print(f"capsule-mpc bench: --repeats must be >= 1, got {args.repeats}", file=sys.stderr)
-        return 2
-    bad = [n for n in args.horizons if not 2 <= n <= 200]
-    if bad:
-        print(f"capsule-mpc bench: --horizons must each be in [2, 200], got {bad}", file=sys.stderr)
+    try:
+        check_bench(args.config, args.horizons, args.frames or None)
+    except ConfigError as exc:
+        print(f"capsule-mpc bench: {exc}", file=sys.stderr)
         return 2
 
     def say(msg: str) -> None:
@@ -107,10 +177,7 @@ def run(args: argparse.Namespace) -> int:
 
 def write_report(report: dict[str, Any], out: str | Path) -> Path:
     """Write ``report`` as JSON to ``out`` (a ``.json`` file, or a folder: ``out/mpc_bench.json``)."""
-    target = Path(out)
-    if target.suffix != ".json":
-        target = target / "mpc_bench.json"
-    return write_text_atomic(target, json.dumps(report, indent=2) + "\n")
+    return write_text_atomic(report_file(out), json.dumps(report, indent=2) + "\n")
 
 
 def plot_report(report: dict[str, Any], out: str | Path) -> Path:

@@ -54,11 +54,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config import Scenario
+from ..config import ConfigError, Scenario
 from ..control import available_controllers
 from ..metrics import run_metrics, stack_predictions
 from ..outputs import output_folder
 from ..paths import ReferencePath
+from .arguments import input_files, refuse_repeats, run_count
 from .simulate import PREDICTION_FIGURE, add_run_arguments, prepare_run, write_prediction_figure
 
 if TYPE_CHECKING:
@@ -71,11 +72,13 @@ __all__ = [
     "RUNS_FOLDER",
     "SUMMARY_COLUMNS",
     "aggregate_runs",
+    "check_controllers",
     "compare_controllers",
     "failure_line",
     "register",
     "rescore_on_common_window",
     "run",
+    "run_figures",
     "run_seed_controllers",
     "summary_header",
     "summary_table",
@@ -109,16 +112,6 @@ CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
 RUNS_FOLDER = "runs"
 
 
-def _runs_count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1 (runs per controller), got {text!r}")
-    return value
-
-
 def register(sub: Any) -> None:
     """Add the ``compare`` command."""
     p = sub.add_parser(
@@ -141,10 +134,10 @@ def register(sub: Any) -> None:
     )
     p.add_argument(
         "--runs",
-        type=_runs_count,
+        type=run_count,
         default=1,
         metavar="N",
-        help="seeds per controller, an integer >= 1: run k uses seed + k (default 1)",
+        help="seeds per controller, an integer in [1, 10000]: run k uses seed + k (default 1)",
     )
     p.set_defaults(func=run)
 
@@ -478,7 +471,7 @@ def compare_controllers(
     """
     from tqdm import tqdm
 
-    from ..atomic import atomic_path, write_text_atomic
+    from ..atomic import write_text_atomic
     from ..sim import write_run
 
     if runs < 1:
@@ -512,9 +505,7 @@ def compare_controllers(
                 first = results
                 predicting = results.get(PREDICTING_CONTROLLER)
                 if predicting is not None and stack_predictions(predicting.predictions) is not None:
-                    with atomic_path(out / PREDICTION_FIGURE) as tmp:
-                        write_prediction_figure(predicting, tmp)
-                    prediction_figure = out / PREDICTION_FIGURE
+                    prediction_figure = write_prediction_figure(predicting, out / PREDICTION_FIGURE)
     aggregated = aggregate_runs(per_seed)
     if runs == 1:  # as before: the run's text entries (run_dir, failure, traceback) beside its metrics
         for name, entry in aggregated.items():
@@ -562,7 +553,6 @@ def _write_figures(
     runs: int,
 ) -> list[str]:
     """trajectories.png and errors.png of the first seed, metrics.png of every run; the file names."""
-    from ..atomic import atomic_path
     from ..plots import plot_errors, plot_metrics, plot_trajectories
 
     if not first:  # no controller ran on the first seed
@@ -580,37 +570,64 @@ def _write_figures(
         "errors.png": lambda file: plot_errors(logs, path, file, ends),
         "metrics.png": lambda file: plot_metrics(bars, file),
     }
-    for name, plot in draw.items():  # each figure complete or absent, never half written
-        with atomic_path(out / name) as tmp:
-            plot(tmp)
+    for name, plot in draw.items():  # each figure complete or absent (written atomically)
+        plot(out / name)
     return list(draw)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Compare the controllers; exit status 1 if any controller failed on a seed, 2 for an unknown one."""
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
-    seed = scenario.sim.seed if args.seed is None else args.seed
+def check_controllers(controllers: Sequence[str] | None) -> list[str]:
+    """The controllers a comparison runs (:func:`_controller_names`), after refusing an unknown one or
+    one given twice.
+
+    Raises
+    ------
+    ConfigError
+        ``--controllers: unknown [...]; available: [...]`` or ``--controllers: 'x' is given more than once``.
+    """
     known = available_controllers()
-    unknown = [n for n in args.controllers or [] if n not in known]
+    unknown = [n for n in controllers or [] if n not in known]
     if unknown:
-        print(f"capsule-mpc compare: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
-        return 2
-    with output_folder(args.out, "compare") as out:
+        raise ConfigError(f"--controllers: unknown {unknown}; available: {known}")
+    refuse_repeats("--controllers", controllers or [])
+    return _controller_names(controllers)
+
+
+def run_figures(names: Sequence[str], runs: int) -> dict[str, Any]:
+    """What a comparison of ``names`` over ``runs`` seeds holds in memory at once, as keyword
+    arguments of :func:`capsule_mpc.budget.check_run`: every controller's run of a seed, and of
+    the first seed too when there are several; the offline plan for the ``plan`` controller."""
+    copies = 2 if runs > 1 else 1
+    return {
+        "runs": len(names) * copies,
+        "predicting": sum(n == PREDICTING_CONTROLLER for n in names) * copies,
+        "plan": "fixed" if PLANNING_CONTROLLER in names else None,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compare the controllers; exit status 1 if any controller failed on a seed, 2 on bad input."""
+    names = check_controllers(args.controllers)
+    scenario, path, meta = prepare_run(
+        args.config, args.waypoints, args.speed, args.plant, **run_figures(names, args.runs)
+    )
+    seed = scenario.sim.seed if args.seed is None else args.seed
+    inputs = input_files(args, "--config", "--waypoints")
+    with output_folder(args.out, "compare", inputs=inputs) as folder:
         summary = compare_controllers(
-            scenario, path, out, seed, controllers=args.controllers, meta=meta,
+            scenario, path, folder.path, seed, controllers=args.controllers, meta=meta,
             progress=not args.no_progress, runs=args.runs,
         )  # fmt: skip
+        failures = [
+            (name, seed_entry["seed"], entry["error"])
+            for seed_entry in summary["runs"]
+            for name, entry in seed_entry["controllers"].items()
+            if "error" in entry
+        ]
+        folder.status = 1 if failures else 0
     print(summary_table(summary["controllers"], args.runs), end="")
-    failed = False
-    for seed_entry in summary["runs"]:
-        for name, entry in seed_entry["controllers"].items():
-            if "error" in entry:
-                failed = True
-                where = f"seed {seed_entry['seed']}"
-                print(
-                    f"capsule-mpc compare: controller {name!r} failed ({where}): {entry['error']}",
-                    file=sys.stderr,
-                )
+    for name, failed_seed, error in failures:
+        print(f"capsule-mpc compare: controller {name!r} failed (seed {failed_seed}): {error}",
+              file=sys.stderr)  # fmt: skip
     folders = "one folder per controller" if args.runs == 1 else f"{RUNS_FOLDER}/seed_<S>/<controller>/"
     print(f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, {folders})")
-    return 1 if failed else 0
+    return folder.status

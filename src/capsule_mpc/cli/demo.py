@@ -32,14 +32,18 @@ from typing import Any, Final, Literal
 
 import yaml
 
-from ..config import Scenario, load_config, packaged_config_path
+from ..atomic import write_text_atomic
+from ..budget import check_run, speed_source
+from ..config import ConfigError, Scenario, load_config, packaged_config_path, read_yaml
 from ..outputs import output_folder
-from .demonstrate import DEFAULT_SPEEDS_MPS
+from .arguments import input_files, positive_speed, seed
+from .demonstrate import DEFAULT_SPEEDS_MPS, check_demonstrations
 
 __all__ = [
     "DEFAULT_OUT",
     "LEARNED_MODEL",
     "SCENARIO_FILE",
+    "check_demo",
     "derived_scenario_text",
     "model_is_current",
     "register",
@@ -54,13 +58,6 @@ LEARNED_MODEL = "learned_friction.yaml"
 SCENARIO_FILE = "scenario.yaml"
 #: The force model the friction is learned with and the controllers then use.
 FORCE_MODEL: Final[Literal["lookup"]] = "lookup"
-
-
-def _speed(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be a speed > 0 m/s, got {text}")
-    return value
 
 
 def register(sub: Any) -> None:
@@ -81,16 +78,17 @@ def register(sub: Any) -> None:
     p.add_argument("--out", default=str(DEFAULT_OUT), help=f"output folder (default: {DEFAULT_OUT})")
     p.add_argument(
         "--seed",
-        type=int,
+        type=seed,
         default=None,
-        help="seed of the demonstrations and the comparison (default: sim.seed)",
+        help="seed of the demonstrations and the comparison, an integer >= 0 (default: sim.seed)",
     )
     p.add_argument(
         "--speeds",
-        type=_speed,
+        type=positive_speed,
         nargs="+",
         default=list(DEFAULT_SPEEDS_MPS),
-        help="demonstration speeds, m/s (default: " + " ".join(f"{v:g}" for v in DEFAULT_SPEEDS_MPS) + ")",
+        help="demonstration speeds, m/s, each in (0, limits.speed_mps] and fast enough for a run within "
+        "an hour of simulated time (default: " + " ".join(f"{v:g}" for v in DEFAULT_SPEEDS_MPS) + ")",
     )
     p.add_argument(
         "--controllers", nargs="+", default=None, help="compare only these (default: all available)"
@@ -116,10 +114,10 @@ def model_is_current(model_path: Path, log_paths: Sequence[Path]) -> bool:
     if any(Path(p).stat().st_mtime >= stamp for p in log_paths):
         return False
     try:
-        data = yaml.safe_load(model_path.read_text()) or {}
-    except (OSError, yaml.YAMLError):
+        data = read_yaml(model_path)
+    except ConfigError:  # unreadable or refused: fitted again
         return False
-    if not isinstance(data, dict) or data.get("force_model") != FORCE_MODEL:
+    if data.get("force_model") != FORCE_MODEL:
         return False
     return set(data.get("sources") or []) == {str(Path(p).resolve()) for p in log_paths}
 
@@ -191,28 +189,55 @@ def _learn(base: Scenario, logs: list[Path], out: Path, refit: bool) -> Path:
     return model_path
 
 
+def check_demo(base: Scenario, speeds_mps: list[float], controllers: list[str]) -> None:
+    """Refuse a demo the rig or the machine cannot run, before any of it runs: a demonstration
+    speed beyond ``limits.speed_mps``, demonstrations or a comparison beyond the budget's bounds
+    (:func:`capsule_mpc.budget.check_run`).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``--speeds`` or ``path.speed_mps`` and the allowed range.
+    """
+    from ..learning.demonstrations import DEMO_PATHS
+    from ..paths import path_from_scenario
+    from .compare import run_figures
+
+    limit = base.limits.speed_mps
+    too_fast = [v for v in speeds_mps if v > limit]
+    if too_fast:
+        raise ConfigError(
+            f"--speeds: each must be in (0, {limit:g}] m/s (limits.speed_mps), got {too_fast[0]:g}"
+        )
+    check_demonstrations(base, speeds_mps, DEMO_PATHS)
+    path = path_from_scenario(base)
+    check_run(
+        base, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), **run_figures(controllers, 1)
+    )
+
+
 def _write_if_changed(path: Path, text: str) -> None:
-    if not path.exists() or path.read_text() != text:
-        path.write_text(text)
+    if not path.exists() or path.read_text(encoding="utf-8") != text:
+        write_text_atomic(path, text)
 
 
 def run(args: argparse.Namespace) -> int:
     """Demonstrate, learn, write the derived scenario and compare; say where everything is.
 
-    Exit status: 0; 1 if a controller raised or the fit failed; 2 for an unknown controller.
+    Exit status: 0; 1 if a controller raised or the fit failed; 2 on bad input (an unknown
+    controller, a speed beyond the EPM's limit, work beyond the machine's bounds), before any work.
     """
-    from ..control import available_controllers
+    from .compare import check_controllers
 
     wall0 = time.perf_counter()
-    known = available_controllers()
-    unknown = [n for n in args.controllers or [] if n not in known]
-    if unknown:
-        print(f"capsule-mpc demo: --controllers: unknown {unknown}; available: {known}", file=sys.stderr)
-        return 2
+    names = check_controllers(args.controllers)
     config = args.config if args.config is not None else str(packaged_config_path("rectangle"))
+    check_demo(load_config(config), args.speeds, names)
     # The folder keeps its demonstrations and model as a cache: nothing earlier is removed.
-    with output_folder(Path(args.out).resolve(), "demo", replace_previous=False) as out:
-        return _demo(args, config, out, wall0)
+    inputs = input_files(args, "--config")
+    with output_folder(Path(args.out).resolve(), "demo", replace_previous=False, inputs=inputs) as folder:
+        folder.status = _demo(args, config, folder.path, wall0)
+    return folder.status
 
 
 def _demo(args: argparse.Namespace, config: str, out: Path, wall0: float) -> int:
@@ -242,14 +267,15 @@ def _demo(args: argparse.Namespace, config: str, out: Path, wall0: float) -> int
     print(
         f"[4/4] compare: {', '.join(args.controllers) if args.controllers else 'every available controller'}"
     )
-    with output_folder(compare_dir, "compare"):  # a comparison replaces the previous one
+    with output_folder(compare_dir, "compare") as compared:  # a comparison replaces the previous one
         summary = compare_controllers(
             scenario, path, compare_dir, seed, controllers=args.controllers,
             meta={"config": str(scenario_path), "waypoints_file": None}, progress=not args.no_progress,
         )  # fmt: skip
+        errors = [n for n, e in summary["controllers"].items() if "error" in e]
+        compared.status = 1 if errors else 0
     print(f"  compared in {time.perf_counter() - t0:.1f} s")
     print(summary_table(summary["controllers"]), end="")
-    errors = [n for n, e in summary["controllers"].items() if "error" in e]
     for name in errors:
         print(f"capsule-mpc demo: controller {name!r} failed: {summary['controllers'][name]['error']}")
     print(f"demo results ({time.perf_counter() - wall0:.1f} s):")

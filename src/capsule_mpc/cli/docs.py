@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from ..reference_docs import write_reference_docs
+from .arguments import out_folder
 
 __all__ = ["register"]
 
@@ -14,7 +15,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``docs`` command."""
     p = sub.add_parser("docs", help="write docs/config.md and docs/cli.md from the code")
-    p.add_argument("--out", default="docs", help="output folder (default: docs)")
+    p.add_argument("--out", type=out_folder, default="docs", help="output folder (default: docs)")
     p.set_defaults(func=run)
 
 

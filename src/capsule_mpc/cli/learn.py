@@ -29,6 +29,7 @@ from ..learning import (
 )
 from ..learning.core import model_yaml
 from ..learning.fit import MAX_DEGREE
+from ..outputs import shown_path
 
 __all__ = ["output_problem", "register", "run", "summary"]
 
@@ -140,6 +141,13 @@ def _nearest_existing(path: Path) -> Path:
 
 def output_problem(option: str, path: Path, folder: bool) -> str | None:
     """Why ``path`` cannot be written as a file (or created as a folder), or None (a message naming it)."""
+    try:
+        return _output_problem(option, path, folder)
+    except OSError as exc:  # e.g. a name longer than the file system allows
+        return f"{option} {shown_path(path)}: cannot be used: {exc.strerror or exc}"
+
+
+def _output_problem(option: str, path: Path, folder: bool) -> str | None:
     if folder and path.exists() and not path.is_dir():
         return f"{option} {path}: is a file; give a folder for the figures"
     if not folder and path.is_dir():
@@ -207,7 +215,9 @@ def _write_outputs(args: argparse.Namespace, result: LearningResult) -> list[str
             write_samples_csv(result.samples, stack.enter_context(atomic_path(args.samples_out)))
         if args.figures:
             figures = save_figures(result, args.figures, stack=stack)
-        stack.enter_context(atomic_path(args.out)).write_text(model_yaml(result.model, result.warnings))
+        stack.enter_context(atomic_path(args.out)).write_text(
+            model_yaml(result.model, result.warnings), encoding="utf-8"
+        )
     return [str(p) for p in figures]
 
 

@@ -46,10 +46,15 @@ def register(sub: Any) -> None:
         "--variant", choices=("fixed", "min_time"), default="fixed",
         help="fixed: track the reference at the nominal speed; min_time: fastest within a 0.5 mm tube",
     )  # fmt: skip
-    p.add_argument("--waypoints", default=None, help="CSV with header x_m,y_m replacing the config's path")
     p.add_argument(
-        "--speed", type=float, default=None, help="nominal path speed, m/s (overrides path.speed_mps)"
-    )
+        "--waypoints", default=None,
+        help="CSV with header x_m,y_m replacing the config's path (at most 10000 waypoints)",
+    )  # fmt: skip
+    p.add_argument(
+        "--speed", type=float, default=None,
+        help="nominal path speed, m/s (overrides path.speed_mps); the fixed-time plan has a step per "
+        "camera frame and must fit in half the memory available (capsule_mpc.budget)",
+    )  # fmt: skip
     p.add_argument("--no-arm", action="store_true", help="skip the arm export (Ruckig + IK)")
     p.add_argument(
         "--no-progress", action="store_true", help="no progress bar (IPOPT iterations and elapsed time)"
@@ -88,11 +93,15 @@ def _print_plan(summary: dict[str, Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     """Plan, write the files, export the arm trajectory; see the module docstring for the status."""
     from ..outputs import output_folder
+    from .arguments import input_files
     from .simulate import prepare_run
 
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed)
-    with output_folder(args.out, "plan") as out:
-        return _plan_into(args, scenario, path, meta, out)
+    scenario, path, meta = prepare_run(
+        args.config, args.waypoints, args.speed, plan=args.variant, arm=not args.no_arm, closed_loop=False
+    )
+    with output_folder(args.out, "plan", inputs=input_files(args, "--config", "--waypoints")) as folder:
+        folder.status = _plan_into(args, scenario, path, meta, folder.path)
+    return folder.status
 
 
 def _plan_into(
@@ -110,7 +119,7 @@ def _plan_into(
         print(f"capsule-mpc plan: {plan.failure}; diagnostics in {out / PLAN_JSON}", file=sys.stderr)
         return 1
     paths = write_plan(scenario, plan, path, out, meta)
-    _print_plan(json.loads(paths["json"].read_text()))
+    _print_plan(json.loads(paths["json"].read_text(encoding="utf-8")))
     if not args.no_arm:
         try:
             arm = export_arm_trajectory(scenario, plan.t_s, plan.epm_position_m, out)

@@ -25,14 +25,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
+from ..budget import check_run, speed_source
 from ..config import Scenario, config_from_dict, load_config
 from ..magnetics import force_map
 from ..outputs import output_folder
 from ..path_reach import check_epm_workspace
 from ..paths import ReferencePath, path_from_scenario
-from .arguments import int_at_least
+from .arguments import input_files, seed
 
 if TYPE_CHECKING:
     from ..sim import RunResult
@@ -70,17 +71,21 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder (created)")
     p.add_argument(
         "--seed",
-        type=int_at_least(0),  # a NumPy seed cannot be negative
+        type=seed,
         default=None,
         help="random seed, an integer >= 0 (default: sim.seed of the config)",
     )
-    p.add_argument("--waypoints", default=None, help="CSV with header x_m,y_m replacing the config's path")
+    p.add_argument(
+        "--waypoints", default=None,
+        help="CSV with header x_m,y_m replacing the config's path (at most 10000 waypoints)",
+    )  # fmt: skip
     p.add_argument(
         "--speed",
         type=float,
         default=None,
         help="nominal path speed, m/s (overrides path.speed_mps); at most what the EPM can follow on the "
-        "path (0.072 m/s on the rectangle with the default limits)",
+        "path (0.072 m/s on the rectangle with the default limits), and at least what keeps a run "
+        "within an hour of simulated time and half the memory available (capsule_mpc.budget)",
     )
     p.add_argument(
         "--plant",
@@ -132,13 +137,23 @@ def prepare_run(
     waypoints: str | Path | None,
     speed: float | None,
     plant_preset: str | None = None,
+    *,
+    runs: int = 1,
+    predicting: int = 0,
+    plan: Literal["fixed", "min_time"] | None = None,
+    arm: bool = False,
+    processes: int = 1,
+    closed_loop: bool = True,
 ) -> tuple[Scenario, ReferencePath, dict[str, Any]]:
     """Load a scenario, apply the ``--waypoints`` / ``--speed`` / ``--plant`` overrides, and build the path.
 
-    Also makes sure the finite-magnet force map is cached (computing it, with a progress bar,
-    on first use), and refuses a path whose EPM would have to leave its workspace
-    (:func:`capsule_mpc.path_reach.check_epm_workspace`). The returned scenario carries the
-    overrides (``path.kind: waypoints`` with the absolute file, ``path.speed_mps``), so its
+    Then, before any work, refuses what the machine cannot do (:func:`capsule_mpc.budget.check_run`
+    with ``runs``, ``predicting``, ``plan``, ``arm``, ``processes`` and ``closed_loop``: runs
+    beyond the maximum simulated time or the memory allowance, naming ``--speed`` or
+    ``path.speed_mps``). Also makes sure the finite-magnet force map is cached (computing it,
+    with a progress bar, on first use), and refuses a path whose EPM would have to leave its
+    workspace (:func:`capsule_mpc.path_reach.check_epm_workspace`). The returned scenario carries
+    the overrides (``path.kind: waypoints`` with the absolute file, ``path.speed_mps``), so its
     dump beside the results reproduces the run.
 
     Returns
@@ -149,8 +164,8 @@ def prepare_run(
     Raises
     ------
     ConfigError
-        A bad config, override or waypoint file, or a path the EPM cannot follow inside its
-        workspace (naming the waypoint).
+        A bad config, override or waypoint file, work beyond the machine's bounds, or a path the
+        EPM cannot follow inside its workspace (naming the waypoint).
     """
     from .info import check_epm_height
 
@@ -167,6 +182,11 @@ def prepare_run(
             data["path"]["waypoints_file"] = str(Path(waypoints).resolve())
         scenario = config_from_dict(data)
         scenario.source_path = base.source_path
+    source = speed_source("--speed" if speed is not None else None, path.speed_mps)
+    check_run(
+        scenario, path.length_m, path.speed_mps, source, runs=runs, predicting=predicting, plan=plan,
+        arm=arm, processes=processes, closed_loop=closed_loop,
+    )  # fmt: skip
     check_epm_height(scenario)  # before a force map is computed for a height the code cannot model
     force_map(scenario, progress=True)  # computed once and cached: show progress on a fresh machine
     check_epm_workspace(scenario, path, source=waypoints)  # the EPM leads the capsule: room for it?
@@ -313,14 +333,20 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
-    seed = scenario.sim.seed if args.seed is None else args.seed
-    with output_folder(args.out, "simulate") as out:
+    want_arm = args.arm if args.arm is not None else args.controller in ARM_CONTROLLERS
+    scenario, path, meta = prepare_run(
+        args.config, args.waypoints, args.speed, args.plant, predicting=int(args.controller == "mpc"),
+        plan="fixed" if args.controller == "plan" else None, arm=want_arm,
+    )  # fmt: skip
+    run_seed = scenario.sim.seed if args.seed is None else args.seed
+    inputs = input_files(args, "--config", "--waypoints")
+    with output_folder(args.out, "simulate", inputs=inputs) as folder:
+        out = folder.path
         result = simulate(
             scenario,
             args.controller,
             path,
-            seed,
+            run_seed,
             progress=not args.no_progress,
             meta=meta,
             realtime=args.realtime,
@@ -331,7 +357,7 @@ def run(args: argparse.Namespace) -> int:
         plot_errors(logs, path, out / "errors.png", {result.controller: result.metrics["motion_end_s"]})
         write_prediction_figure(result, out / PREDICTION_FIGURE)
         _print_result(result, out)
-        want_arm = args.arm if args.arm is not None else args.controller in ARM_CONTROLLERS
         if want_arm:
             export_run_arm(result, out)
-    return EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
+        folder.status = EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
+    return folder.status

@@ -25,7 +25,7 @@ from .data import (
 from .fit import PolynomialFit, fit_c_polynomial
 from .logs import LogOptions, find_run_logs, read_run_log, samples_from_run_logs
 from .openloop import LoopCheck, check_open_loop
-from .quality import FitQuality, assess_fit
+from .quality import FitQuality, assess_fit, no_friction_problem
 
 __all__ = [
     "LearningResult",
@@ -88,6 +88,14 @@ class LearningResult:
         return out
 
 
+def _origin(samples: FrictionSamples) -> str:
+    """The samples' files for a message (the first few, then how many more)."""
+    origin = ", ".join(samples.sources[:_MAX_SOURCES_NAMED]) or "the samples"
+    if len(samples.sources) > _MAX_SOURCES_NAMED:
+        origin += f" and {len(samples.sources) - _MAX_SOURCES_NAMED} more"
+    return origin
+
+
 def learn_friction(
     samples: FrictionSamples,
     scenario: Scenario,
@@ -123,8 +131,9 @@ def learn_friction(
     Raises
     ------
     LearningDataError
-        Fewer usable samples (or distinct speeds) than the degree needs; the message lists
-        the exclusion counts.
+        Fewer usable samples (or distinct speeds) than the degree needs (the message lists
+        the exclusion counts), or a fit that predicts no friction
+        (:func:`~capsule_mpc.learning.quality.no_friction_problem`).
     """
     constants = FrictionConstants.from_scenario(scenario)
     t0 = time.perf_counter()
@@ -134,14 +143,14 @@ def learn_friction(
         fit = fit_c_polynomial(cs.speed_mps, cs.c, degree=degree, robust=robust)
     except ValueError as exc:
         counts = ", ".join(f"{k} {v}" for k, v in cs.excluded.items() if v) or "none"
-        origin = ", ".join(samples.sources[:_MAX_SOURCES_NAMED]) or "the samples"
-        if len(samples.sources) > _MAX_SOURCES_NAMED:
-            origin += f" and {len(samples.sources) - _MAX_SOURCES_NAMED} more"
         raise LearningDataError(
-            f"{origin}: cannot fit c(v): {exc}; {len(cs.c)} usable of {len(samples)} samples "
+            f"{_origin(samples)}: cannot fit c(v): {exc}; {len(cs.c)} usable of {len(samples)} samples "
             f"(excluded: {counts})"
         ) from None
     t2 = time.perf_counter()
+    problem = no_friction_problem(fit, constants.mu0, constants.v_star_mps)
+    if problem is not None:
+        raise LearningDataError(f"{_origin(samples)}: {problem}")
     quality = assess_fit(fit, cs.speed_mps, cs.c, scenario.path.speed_mps)
     t3 = time.perf_counter()
     model = LearnedFrictionModel(

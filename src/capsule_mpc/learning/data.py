@@ -410,5 +410,7 @@ def write_samples_csv(samples: FrictionSamples, path: str | Path, only_unflagged
     ]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savetxt(path, data, delimiter=",", header=",".join(SAMPLE_COLUMNS), comments="", fmt="%.9g")
+    np.savetxt(
+        path, data, delimiter=",", header=",".join(SAMPLE_COLUMNS), comments="", fmt="%.9g", encoding="utf-8"
+    )
     return int(keep.sum())

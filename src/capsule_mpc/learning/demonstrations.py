@@ -145,7 +145,7 @@ def _cached(run_dir: Path, key: str) -> dict[str, Any] | None:
     if not (meta.exists() and (run_dir / "log.csv").exists()):
         return None
     try:
-        data: dict[str, Any] = json.loads(meta.read_text())
+        data: dict[str, Any] = json.loads(meta.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError):
         return None
     return data if data.get("key") == key else None

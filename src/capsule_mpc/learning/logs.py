@@ -431,9 +431,23 @@ def find_run_logs(paths: Iterable[str | Path]) -> list[Path]:
     Raises
     ------
     LearningDataError
-        A path does not exist, a folder holds no run log, or a CSV in a folder is not text.
+        A path does not exist, a folder holds no run log, a CSV in a folder is not text, or a
+        log comes twice (given twice, or as a file and in a folder given: its samples would
+        count twice).
     """
     out: list[Path] = []
+    seen: dict[tuple[int, int], Path] = {}
+
+    def add(path: Path) -> None:
+        stat = path.stat()
+        first = seen.setdefault((stat.st_dev, stat.st_ino), path)
+        if first is not path:
+            also = "" if first == path else f" (also given as {first})"
+            raise LearningDataError(
+                f"{path}: the same run log is given more than once{also}; each log counts once"
+            )
+        out.append(path)
+
     for raw in paths:
         path = Path(raw)
         if path.is_dir():
@@ -443,9 +457,10 @@ def find_run_logs(paths: Iterable[str | Path]) -> list[Path]:
                     f"{path}: folder holds no run log (CSV with {', '.join(LOG_REQUIRED_COLUMNS)} and "
                     f"{', '.join(CAMERA_COLUMNS)} or {', '.join(TRUTH_COLUMNS)})"
                 )
-            out.extend(found)
+            for log in found:
+                add(log)
         elif path.exists():
-            out.append(path)
+            add(path)
         else:
             raise LearningDataError(f"{path}: no such file or folder")
     return out

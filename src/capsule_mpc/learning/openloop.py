@@ -117,7 +117,7 @@ def run_controller(log_path: Path) -> str | None:
     """The controller named by the ``run.json`` beside a log, or None (absent or unreadable)."""
     meta = log_path.parent / "run.json"
     try:
-        data = json.loads(meta.read_text())
+        data = json.loads(meta.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return None
     controller = data.get("controller") if isinstance(data, dict) else None

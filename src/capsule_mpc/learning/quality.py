@@ -21,6 +21,12 @@ down, which this module measures in three ways:
    validity range: outside it the controller's law holds c at the end value, i.e. it
    extrapolates.
 
+Beyond a weak fit, a model can be plainly wrong: one whose friction mu(v) = mu0 - c(v) ln(v*/v)
+stays below :data:`MIN_FRICTION_FRACTION` of the configured ``friction.mu0`` at every speed of
+its range predicts a capsule that slides without friction, which the measured mu0 contradicts.
+:func:`no_friction_problem` says so, and the fit is refused rather than written
+(:func:`capsule_mpc.learning.learn_friction`).
+
 A robust (Huber) fit is judged with the same least-squares formulas on its residuals: the
 outliers it down-weights still count in the SSE, so its band is, if anything, too wide.
 Measured on ``capsule-mpc demonstrate`` logs (lab plant, 15 runs): the residual correlation
@@ -43,10 +49,12 @@ from .fit import PolynomialFit
 __all__ = [
     "MAX_REL_HALF_WIDTH",
     "MAX_REL_SWING",
+    "MIN_FRICTION_FRACTION",
     "SHAPE_P_VALUE",
     "FitQuality",
     "assess_fit",
     "correlation_time",
+    "no_friction_problem",
 ]
 
 #: Largest acceptable 95 % half-width of c(v), as a fraction of |c(v)|. In mu = mu0 - c ln(v*/v)
@@ -59,6 +67,9 @@ SHAPE_P_VALUE = 0.05
 #: A fitted swing (max - min of c over the validity range) above this fraction of the mean c that
 #: the F-test does not support is reported: below it the wiggle is harmless whatever its cause.
 MAX_REL_SWING = 0.2
+#: A learned mu(v) below this fraction of ``friction.mu0`` at every speed of its validity range
+#: predicts no friction. The paper's own c(v) with mu0 = 0.22 peaks at mu = 0.03 (14 % of mu0).
+MIN_FRICTION_FRACTION = 0.02
 #: Points of the validity range at which the band and the swing are evaluated.
 _GRID_POINTS = 101
 #: Longest lag of the residual autocorrelation considered, as a fraction of the sample count.
@@ -204,6 +215,39 @@ def _explained(fit: PolynomialFit, tau: float) -> str:
         "friction varying along the path or between runs, force-model error), correlated over "
         f"{tau:.1f} samples (~{n / tau:.0f} independent of {n}). A low R^2 is expected of noisy "
         "samples; how precisely c(v) is known is what counts"
+    )
+
+
+def no_friction_problem(fit: PolynomialFit, mu0: float, v_star_mps: float) -> str | None:
+    """Why the friction law of ``fit`` predicts no friction, or None.
+
+    Parameters
+    ----------
+    fit : PolynomialFit
+        The fitted c(v).
+    mu0 : float
+        The configured sliding friction ``friction.mu0`` (the capsule's measured friction).
+    v_star_mps : float
+        The rate-and-state reference speed v*, m/s.
+
+    Returns
+    -------
+    str or None
+        A sentence with the largest mu(v) over the validity range and the bound, when that
+        largest mu is below :data:`MIN_FRICTION_FRACTION` of ``mu0``; None otherwise (and
+        always for mu0 = 0).
+    """
+    lo, hi = fit.validity_mps
+    grid = np.linspace(lo, hi, _GRID_POINTS)
+    mu = mu0 - fit(grid) * np.log(v_star_mps / grid)
+    peak = float(np.max(mu))
+    if not peak < MIN_FRICTION_FRACTION * mu0:
+        return None
+    return (
+        f"the learned law predicts no friction: mu(v) is at most {peak:.2g} over its whole range "
+        f"{lo:.4g}-{hi:.4g} m/s, below {MIN_FRICTION_FRACTION:.0%} of friction.mu0 = {mu0:g} (the "
+        "capsule's measured sliding friction); the samples' friction (traction - tether drag - m a) "
+        "is about zero: check their traction and normal force, and friction.tether_drag_n"
     )
 
 

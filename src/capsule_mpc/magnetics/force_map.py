@@ -4,14 +4,15 @@ Computing one finite-magnet force takes milliseconds (magpylib ``getFT`` on a
 meshed IPM), far too slow for a 1 kHz plant, so the map is computed once per
 magnet geometry and grid, stored as ``.npz`` under a key that hashes every
 input, and interpolated: cubic splines (SciPy) for the simulator's plant and a
-CasADi B-spline for the controller's ``lookup`` model.
+CasADi B-spline for the controller's ``lookup`` model. A cached table is used only
+if it matches its checksum and holds finite forces for its key and grid; else it is
+computed again (:mod:`capsule_mpc.cache`).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from scipy.interpolate import RectBivariateSpline
 from scipy.spatial.transform import Rotation
 
 from ..atomic import atomic_path
+from ..cache import cache_folder, load_or_build
 from ..config import Scenario
 from .finite import finite_force
 
@@ -32,11 +34,10 @@ _FORMAT_VERSION = 1
 
 
 def cache_directory(scenario: Scenario) -> Path:
-    """Cache folder: ``force_map.cache_dir``, else ``$CAPSULE_MPC_CACHE``, else ~/.cache/capsule_mpc."""
-    if scenario.force_map.cache_dir is not None:
-        return Path(scenario.force_map.cache_dir)
-    env = os.environ.get("CAPSULE_MPC_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "capsule_mpc"
+    """Cache folder, created: ``force_map.cache_dir``, else ``$CAPSULE_MPC_CACHE``, else
+    ~/.cache/capsule_mpc; a temporary folder, with a warning, if it cannot be written
+    (:func:`capsule_mpc.cache.cache_folder`)."""
+    return cache_folder(scenario.force_map.cache_dir)
 
 
 def _axes(scenario: Scenario) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -94,6 +95,12 @@ class ForceMap:
     key: str
 
     def __post_init__(self) -> None:
+        grid = (len(self.lead_x_m), len(self.lead_y_m), len(self.height_m), 3)
+        if self.force_n.shape != grid:
+            raise ValueError(f"force_n: shape {self.force_n.shape} does not match the grid {grid}")
+        bad = np.count_nonzero(~np.isfinite(self.force_n))
+        if bad:
+            raise ValueError(f"force_n: not finite at {bad} of {self.force_n.size} values")
         # One 2-D cubic spline per (height, component): ~5 us per call, fast enough for 1 kHz.
         splines = [
             [RectBivariateSpline(self.lead_x_m, self.lead_y_m, self.force_n[:, :, k, c]) for c in range(3)]
@@ -158,7 +165,7 @@ class ForceMap:
 
     @classmethod
     def load(cls, path: Path) -> ForceMap:
-        """Read a table written by :meth:`save`."""
+        """Read a table written by :meth:`save` (ValueError if its forces are not finite)."""
         with np.load(path) as data:
             return cls(
                 lead_x_m=data["lead_x_m"], lead_y_m=data["lead_y_m"], height_m=data["height_m"],
@@ -175,6 +182,9 @@ def force_map(
 ) -> ForceMap:
     """The scenario's finite-magnet force map, from the disk cache or computed (and cached).
 
+    A cached table that fails its checksum, does not load, is not for this key and grid or holds
+    non-finite forces is said on stderr, removed and computed again (:mod:`capsule_mpc.cache`).
+
     Parameters
     ----------
     scenario : Scenario
@@ -187,14 +197,31 @@ def force_map(
         Mounting rotation of the EPM (the plant's truth); None: the nominal array.
     """
     key = force_map_key(scenario, epm_orientation)
+    axes = _axes(scenario)
+    if not use_cache:
+        return _compute(scenario, key, progress, epm_orientation)
     path = cache_directory(scenario) / f"force_map_{key}.npz"
-    if use_cache and path.exists():
-        return ForceMap.load(path)
+    table, _cached = load_or_build(
+        path,
+        lambda out: _compute(scenario, key, progress, epm_orientation).save(out),
+        lambda stored: _for_key(ForceMap.load(stored), key, axes),
+    )
+    return table
+
+
+def _compute(scenario: Scenario, key: str, progress: bool, epm_orientation: Rotation | None) -> ForceMap:
     lead_x, lead_y, heights = _axes(scenario)
     gx, gy, gh = np.meshgrid(lead_x, lead_y, heights, indexing="ij")
     leads = np.column_stack([gx.ravel(), gy.ravel()])
     forces = finite_force(scenario, leads, gh.ravel(), progress=progress, epm_orientation=epm_orientation)
-    table = ForceMap(lead_x, lead_y, heights, forces.reshape(*gx.shape, 3), key)
-    if use_cache:
-        table.save(path)
+    return ForceMap(lead_x, lead_y, heights, forces.reshape(*gx.shape, 3), key)
+
+
+def _for_key(table: ForceMap, key: str, axes: tuple[np.ndarray, np.ndarray, np.ndarray]) -> ForceMap:
+    """``table`` if it was computed for ``key`` on the grid ``axes``; else ValueError."""
+    if table.key != key:
+        raise ValueError(f"it holds the table of key {table.key[:40]!r}")
+    stored = (table.lead_x_m, table.lead_y_m, table.height_m)
+    if not all(np.array_equal(a, b) for a, b in zip(stored, axes, strict=True)):
+        raise ValueError("its grid is not the scenario's")
     return table

@@ -222,7 +222,8 @@ def fresh_process_build(scenario: Scenario) -> dict[str, Any]:
         [sys.executable, "-c", _CHILD],
         input=dump_config(scenario),
         capture_output=True,
-        text=True,
+        encoding="utf-8",
+        errors="replace",
         timeout=_BUILD_TIMEOUT_S,
         check=False,
     )
@@ -236,7 +237,7 @@ def fresh_process_build(scenario: Scenario) -> dict[str, Any]:
 def _fresh_build_main(t0: float) -> None:
     """Entry point of the fresh process: scenario YAML on stdin, one JSON line on stdout."""
     t_import = time.perf_counter() - t0
-    scenario = config_from_dict(yaml.safe_load(sys.stdin.read()))
+    scenario = config_from_dict(yaml.safe_load(sys.stdin.buffer.read().decode("utf-8")))
     t1 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -373,12 +374,18 @@ def machine_info() -> dict[str, Any]:
     cpu_model = ""
     cpuinfo = Path("/proc/cpuinfo")
     if cpuinfo.exists():
-        lines = [ln for ln in cpuinfo.read_text().splitlines() if ln.startswith("model name")]
+        lines = [
+            ln
+            for ln in cpuinfo.read_text(encoding="utf-8", errors="replace").splitlines()
+            if ln.startswith("model name")
+        ]
         cpu_model = lines[0].split(":", 1)[1].strip() if lines else ""
     gcc = shutil.which("gcc")
     gcc_version = None
     if gcc is not None:
-        proc = subprocess.run([gcc, "--version"], capture_output=True, text=True, check=False)
+        proc = subprocess.run(
+            [gcc, "--version"], capture_output=True, encoding="utf-8", errors="replace", check=False
+        )
         gcc_version = proc.stdout.splitlines()[0] if proc.stdout else None
     affinity = getattr(os, "sched_getaffinity", None)
     return {
@@ -396,9 +403,10 @@ def machine_info() -> dict[str, Any]:
 
 
 def _fresh_cache(parent: Path, source: Path) -> Path:
-    """An empty cache folder holding copies of the force maps (so nothing but the MPC is cold)."""
+    """An empty cache folder holding copies of the force maps and their checksums (so nothing but
+    the MPC is cold)."""
     folder = Path(tempfile.mkdtemp(dir=parent))
-    for table in source.glob("force_map_*.npz"):
+    for table in source.glob("force_map_*.npz*"):
         shutil.copy2(table, folder / table.name)
     return folder
 

@@ -14,7 +14,8 @@
   frame of the SQP schemes (from a cold start RTI can diverge).
 
 The NLP's derivatives (``mpc_qp_data``) and values (``mpc_merit``) can be compiled to C once and
-cached on disk (``compile_dir``). Every solve returns a :class:`SolveResult` with status,
+cached on disk (``compile_dir``; a library is checked against its checksum before it is loaded,
+see :mod:`capsule_mpc.cache`). Every solve returns a :class:`SolveResult` with status,
 iterations and wall time; failures are values, never exceptions. The exception is Ctrl-C, which
 CasADi would turn into a failure status: every call runs in
 :func:`capsule_mpc.interrupt.solver_call`, so inside :func:`capsule_mpc.interrupt.interruptible`
@@ -26,8 +27,8 @@ from __future__ import annotations
 import hashlib
 import inspect
 import os
+import signal
 import subprocess
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +36,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from ..cache import load_or_build, usable_folder
 from ..interrupt import raise_if_interrupted, run_interruptibly, solver_call
 from .problem import N_REF, N_STATE, OCP, STATE_SCALE, U_SCALE, X_SCALE
 
@@ -326,30 +328,91 @@ def nlp_cache_key(ocp: OCP) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
 
 
+def _gcc(source: str, out: Path) -> None:
+    """Compile ``source`` (a C file in ``out``'s folder) to the shared library ``out``.
+
+    gcc runs in that folder with relative names (the library does not depend on the folder's
+    name), puts its temporary files there, and runs in its own process group: whatever ends the
+    call (Ctrl-C included) kills gcc and the compilers it started.
+
+    Raises
+    ------
+    OSError
+        No gcc.
+    RuntimeError
+        gcc failed (its first error line).
+    """
+    command = ["gcc", *_CFLAGS, source, "-o", out.name]
+    env = {**os.environ, "TMPDIR": str(out.parent)}
+    with subprocess.Popen(
+        command, cwd=out.parent, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        encoding="utf-8", errors="replace",
+        start_new_session=True,
+    ) as gcc:  # fmt: skip
+        try:
+            _, err = gcc.communicate()
+        except BaseException:
+            try:
+                os.killpg(gcc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            raise
+    if gcc.returncode != 0:
+        lines = err.strip().splitlines() or ["no message"]
+        first_error = next((line for line in lines if "error" in line), lines[-1])
+        raise RuntimeError(f"gcc failed (exit {gcc.returncode}): {first_error}")
+
+
+class _NotExpandable(Exception):
+    """The problem cannot be expanded to SX: there is no C code to generate."""
+
+
 def compiled_nlp_functions(ocp: OCP, cache_dir: Path) -> tuple[ca.Function, ca.Function, bool] | None:
     """``ocp``'s NLP derivative and value functions (:func:`nlp_functions`) as C code compiled once
     and cached on disk.
 
-    The shared library is named by :func:`nlp_cache_key` and written atomically. Returns the two
-    functions loaded from it and whether it came from the cache; None when the problem cannot be
-    expanded to SX (e.g. a B-spline lookup), so there is nothing to compile.
+    The shared library is named by :func:`nlp_cache_key` and stored with its checksum
+    (:func:`capsule_mpc.cache.load_or_build`): one that fails the checksum (truncated, modified) is
+    never loaded, and one that does not load or was compiled for another problem size is replaced.
+    It is generated and compiled in a temporary folder inside ``cache_dir``, removed whatever ends
+    the build; an unwritable ``cache_dir`` is replaced by a temporary one, with a warning.
+
+    Returns
+    -------
+    tuple or None
+        The two functions loaded from the library and whether it came from the cache; None when
+        the problem cannot be expanded to SX (e.g. a B-spline lookup), so there is nothing to
+        compile.
+
+    Raises
+    ------
+    OSError, RuntimeError
+        No C compiler, or compiling failed.
     """
-    lib = cache_dir / f"mpc_nlp_{nlp_cache_key(ocp)}.so"
-    cached = lib.exists()
-    if not cached:
+    lib = usable_folder(cache_dir) / f"mpc_nlp_{nlp_cache_key(ocp)}.so"
+
+    def build(out: Path) -> None:
         qp_data, merit, expanded = _expanded_nlp_functions(ocp)
         if not expanded:
-            return None
-        cache_dir.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=cache_dir) as tmp:
-            gen = ca.CodeGenerator("mpc_nlp.c")
-            gen.add(qp_data)
-            gen.add(merit)
-            run_interruptibly(gen.generate, tmp + os.sep)
-            out = Path(tmp) / lib.name
-            subprocess.run(["gcc", *_CFLAGS, str(Path(tmp) / "mpc_nlp.c"), "-o", str(out)], check=True)
-            out.replace(lib)
-    return ca.external("mpc_qp_data", str(lib)), ca.external("mpc_merit", str(lib)), cached
+            raise _NotExpandable
+        gen = ca.CodeGenerator("mpc_nlp.c")
+        gen.add(qp_data)
+        gen.add(merit)
+        run_interruptibly(gen.generate, str(out.parent) + os.sep)
+        _gcc("mpc_nlp.c", out)
+
+    def load(path: Path) -> tuple[ca.Function, ca.Function]:
+        qp_data, merit = ca.external("mpc_qp_data", str(path)), ca.external("mpc_merit", str(path))
+        n_w, n_p = qp_data.size1_in(0), qp_data.size1_in(1)
+        if (n_w, n_p) != (ocp.n_w, ocp.n_p):
+            raise ValueError(f"compiled for {n_w} variables, {n_p} parameters, not {ocp.n_w}, {ocp.n_p}")
+        return qp_data, merit
+
+    try:
+        (qp_data, merit), cached = load_or_build(lib, build, load)
+    except _NotExpandable:
+        return None
+    return qp_data, merit, cached
 
 
 def _nlpsol(name: str, plugin: str, nlp: dict, make_opts) -> ca.Function:

@@ -67,7 +67,7 @@ def write_plan_csv(plan: Plan, out: str | Path) -> Path:
     table = np.column_stack([plan.t_s, plan.epm_position_m, vel, plan.capsule_position_m])
 
     def write(tmp: Path) -> None:
-        with tmp.open("w", newline="") as fh:
+        with tmp.open("w", encoding="utf-8", newline="") as fh:
             writer = csv.writer(fh)
             writer.writerow(PLAN_COLUMNS)
             writer.writerows([repr(float(v)) for v in row] for row in table)
@@ -84,12 +84,12 @@ def read_plan_csv(path: str | Path) -> dict[str, np.ndarray]:
         A missing column (the missing names are listed).
     """
     path = Path(path)
-    with path.open() as fh:
+    with path.open(encoding="utf-8-sig") as fh:
         header = fh.readline().strip().split(",")
     missing = [c for c in PLAN_COLUMNS if c not in header]
     if missing:
         raise ValueError(f"{path}: missing columns {missing}; expected {list(PLAN_COLUMNS)}")
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8-sig")
     return {name: data[:, header.index(name)] for name in PLAN_COLUMNS}
 
 
@@ -211,7 +211,7 @@ def write_plan(
     text = json.dumps(summary, indent=2) + "\n"
     return {
         "csv": write_plan_csv(plan, out / PLAN_CSV),
-        "json": _replace_atomically(out / PLAN_JSON, lambda tmp: tmp.write_text(text)),
+        "json": _replace_atomically(out / PLAN_JSON, lambda tmp: tmp.write_text(text, encoding="utf-8")),
         "config": _replace_atomically(out / CONFIG_YAML, lambda tmp: dump_config(scenario, tmp)),
         "figure": plot_plan(plan, path, out / PLAN_PNG),
     }

@@ -117,7 +117,7 @@ def read_log(path: str | Path) -> dict[str, np.ndarray]:
         not a number (the message names the line and column).
     """
     path = Path(path)
-    with path.open(newline="") as fh:
+    with path.open(encoding="utf-8", newline="") as fh:
         rows = list(csv.reader(fh))
     if not rows:
         raise ValueError(f"{path}: empty log (no header)")

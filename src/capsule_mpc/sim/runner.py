@@ -81,6 +81,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from ..budget import TIMEOUT_FACTOR
 from ..config import Scenario
 from ..control import Command, Controller, StepStats, make_controller
 from ..magnetics import model_equilibrium_lead
@@ -106,8 +107,6 @@ __all__ = [
     "start_pose",
 ]
 
-#: A run is cut off at TIMEOUT_FACTOR * nominal duration + sim.tail_s (issue #3).
-TIMEOUT_FACTOR = 1.25
 #: Each actuator limit counter (:meth:`~capsule_mpc.actuation.Actuator.limit_counts`) in words:
 #: (what the limit did, what the count counts).
 LIMIT_WORDS: dict[str, tuple[str, str]] = {

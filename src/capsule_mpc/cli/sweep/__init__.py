@@ -40,22 +40,24 @@ refused (exit 2, naming the difference). A worker process that dies loses its ru
 is recorded as crashed (every controller failed, with the reason), the others go on, and a
 resumed sweep runs it again. Exit status: 0 when every controller ran on every seed; 1 when any
 controller failed or a run crashed (each named on stderr); 2 on bad input (nothing is written);
-130 on Ctrl-C (the workers are stopped, the finished runs' files are kept, no summary is written).
+130 on Ctrl-C, 143 on SIGTERM, 129 on SIGHUP (the workers are stopped, the finished runs' files are
+kept, no summary is written, the manifest says ``interrupted``).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+from ...budget import check_processes
 from ...config import ConfigError
-from ...control import available_controllers
 from ...outputs import output_folder
-from ..arguments import int_at_least
-from ..compare import RUNS_FOLDER, _controller_names, summary_table
+from ..arguments import input_files, int_at_least, run_count
+from ..compare import RUNS_FOLDER, check_controllers, run_figures, summary_table
 from ..simulate import add_run_arguments, prepare_run
 from .campaign import sweep
 from .results import SPEC_FILE, check_resume, finished_runs, sweep_spec, worst_runs, worst_table
@@ -95,7 +97,7 @@ def register(sub: Any) -> None:
     )
     add_run_arguments(p)
     p.add_argument(
-        "--runs", type=int_at_least(1), required=True, metavar="N", help="number of runs (seeds), >= 1"
+        "--runs", type=run_count, required=True, metavar="N", help="number of runs (seeds), in [1, 10000]"
     )
     p.add_argument(
         "--controllers", nargs="+", default=None, help="only these controllers (default: all available)"
@@ -128,7 +130,7 @@ def register(sub: Any) -> None:
         default=None,
         metavar="K",
         help="worker processes, >= 1 (default: the CPU count); not with --scheduler (the cluster has "
-        "its own)",
+        "its own); at most as many as half the memory available holds, with their runs (capsule_mpc.budget)",
     )
     p.set_defaults(func=run)
 
@@ -144,47 +146,55 @@ def run(args: argparse.Namespace) -> int:
     """Run the sweep; exit status 1 if a controller failed or a run crashed, 2 on bad input."""
     _check_executor_arguments(args)
     vary = list(args.vary or [])
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant)
+    names = check_controllers(args.controllers)
+    # Each local worker holds one seed's runs (every controller) at a time; the process pool starts
+    # no more workers than there are runs, a Dask LocalCluster all of them; a remote cluster's
+    # workers are its own (this machine then holds no run).
+    workers = args.workers or os.cpu_count() or 1
+    workers = 1 if args.scheduler else workers if args.executor == "dask" else min(workers, args.runs)
+    check_processes(workers)
+    figures = {**run_figures(names, 1), "processes": workers} if not args.scheduler else {"runs": 0}
+    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant, **figures)
     check_vary(scenario, vary)
-    known = available_controllers()
-    unknown = [n for n in args.controllers or [] if n not in known]
-    if unknown:
-        raise ConfigError(f"--controllers: unknown {unknown}; available: {known}")
     seed = scenario.sim.seed if args.seed is None else args.seed
-    names = _controller_names(args.controllers)
     resume = check_resume(args.out, sweep_spec(scenario, path, seed, args.runs, names, vary))
     if resume:
         done = len(finished_runs(Path(args.out), [seed + k for k in range(args.runs)]))
         print(f"capsule-mpc sweep: resuming the sweep in {args.out}: {done} of {args.runs} runs done")
     with ExitStack() as stack:
         client = stack.enter_context(dask_client(args.scheduler, args.workers)) if args.scheduler else None
-        out = stack.enter_context(
-            output_folder(args.out, "sweep", replace_previous=not resume, resume=resume)
-        )
-        summary = sweep(
-            scenario, path, out, seed, args.runs, controllers=names, vary=vary, executor=args.executor,
-            workers=args.workers, client=client, meta=meta, progress=not args.no_progress,
+        folder = stack.enter_context(
+            output_folder(
+                args.out, "sweep", replace_previous=not resume, resume=resume,
+                inputs=input_files(args, "--config", "--waypoints"),
+            )
         )  # fmt: skip
+        summary = sweep(
+            scenario, path, folder.path, seed, args.runs, controllers=names, vary=vary,
+            executor=args.executor, workers=args.workers, client=client, meta=meta,
+            progress=not args.no_progress,
+        )  # fmt: skip
+        failures = _failures(summary)
+        folder.status = 1 if failures else 0
     print(summary_table(summary["controllers"], args.runs), end="")
     print(worst_table(summary["worst"]), end="")
-    failed = False
-    for entry in summary["runs"]:
-        if "crashed" in entry:
-            failed = True
-            print(
-                f"capsule-mpc sweep: run of seed {entry['seed']} crashed: {entry['crashed']}", file=sys.stderr
-            )
-            continue
-        for name, result in entry["controllers"].items():
-            if "error" in result:
-                failed = True
-                print(
-                    f"capsule-mpc sweep: controller {name!r} failed (seed {entry['seed']}): "
-                    f"{result['error']}",
-                    file=sys.stderr,
-                )
+    for failure in failures:
+        print(f"capsule-mpc sweep: {failure}", file=sys.stderr)
     print(
         f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, "
         f"{RUNS_FOLDER}/seed_<S>.json)"
     )
-    return 1 if failed else 0
+    return folder.status
+
+
+def _failures(summary: dict[str, Any]) -> list[str]:
+    """What failed in a sweep: each crashed run, and each controller that failed on a seed."""
+    failures = []
+    for entry in summary["runs"]:
+        if "crashed" in entry:
+            failures.append(f"run of seed {entry['seed']} crashed: {entry['crashed']}")
+            continue
+        for name, result in entry["controllers"].items():
+            if "error" in result:
+                failures.append(f"controller {name!r} failed (seed {entry['seed']}): {result['error']}")
+    return failures

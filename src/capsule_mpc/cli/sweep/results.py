@@ -108,7 +108,10 @@ def check_resume(out: str | Path, spec: Mapping[str, Any]) -> bool:
         its ``sweep.json`` cannot be read.
     """
     held_file = Path(out) / SPEC_FILE
-    if not held_file.is_file():
+    try:
+        if not held_file.is_file():
+            return False
+    except OSError:  # e.g. a name too long: no sweep there (the output folder says why)
         return False
     try:
         held = json.loads(held_file.read_text(encoding="utf-8"))
@@ -226,7 +229,6 @@ def summary_markdown(
 
 def write_figures(out: Path, per_seed: Sequence[Mapping[str, Any]]) -> list[str]:
     """metrics.png and one distribution_<metric>.png per metric of the table; the file names."""
-    from ...atomic import atomic_path
     from ...plots import plot_metrics
 
     done: dict[str, list[Mapping[str, Any]]] = {}
@@ -238,7 +240,6 @@ def write_figures(out: Path, per_seed: Sequence[Mapping[str, Any]]) -> list[str]
         return []
     draw: dict[str, Sequence[tuple[str, str]] | None] = {"metrics.png": None}
     draw.update({f"distribution_{key}.png": [(key, header)] for key, header in _RANKED})
-    for name, keys in draw.items():  # each figure complete or absent, never half written
-        with atomic_path(out / name) as tmp:
-            plot_metrics(done, tmp, keys)
+    for name, keys in draw.items():  # each figure complete or absent (written atomically)
+        plot_metrics(done, out / name, keys)
     return list(draw)

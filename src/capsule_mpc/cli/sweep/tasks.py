@@ -116,14 +116,17 @@ Outcome = tuple[SeedTask, dict[str, Any]]
 
 
 def _init_worker() -> None:
-    """Worker initializer: Ctrl-C is the parent's to handle (it stops the workers), and tqdm's lock
-    is a thread lock (a worker shows no bars; tqdm's default cross-process lock is a named
+    """Worker initializer: Ctrl-C and a hang-up, sent to the whole process group, are the parent's
+    to handle (it stops the workers; SIGTERM is how it does, so that one is left alone), and tqdm's
+    lock is a thread lock (a worker shows no bars; tqdm's default cross-process lock is a named
     semaphore, reported as leaked when the worker is terminated)."""
     import threading
 
     from tqdm import tqdm
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for signum in (signal.SIGINT, getattr(signal, "SIGHUP", None)):
+        if signum is not None:
+            signal.signal(signum, signal.SIG_IGN)
     tqdm.set_lock(threading.RLock())
 
 
@@ -206,7 +209,7 @@ def run_on_process_pool(
                 _stop_pool(pool)
                 pool = _new_pool(workers)
         pool.shutdown(wait=True)
-    except BaseException as exc:  # Ctrl-C (in the parent; the workers ignore it), or the caller stopped
+    except BaseException as exc:  # Ctrl-C or SIGTERM (in the parent), or the caller stopped
         traceback.clear_frames(exc.__traceback__)  # an interrupted shutdown's frames hold its queues
         _stop_pool(pool)
         raise
