@@ -121,9 +121,9 @@ CASES = [
     Case(
         "simulate-speed-1e-9",
         [*SIM, "--speed", "1e-9"],
-        rf"^capsule-mpc: --speed 1e-09 m/s: {AT_1E9}, 4e\+11 plant steps\) needing 45 TiB "
-        rf"\(the log 45 TiB\); {TIME_BOUND} and {MEMORY_BOUND}; --speed must be at least 0\.000112 m/s on "
-        r"this path$",
+        rf"^capsule-mpc: --speed 1e-09 m/s: {AT_1E9}, 4e\+11 plant steps\) needing \d+ TiB "
+        rf"\(the log 45 TiB, 2e\+11 arm ticks per run \d+ TiB\); {TIME_BOUND} and {MEMORY_BOUND}; "
+        r"--speed must be at least 0\.000112 m/s on this path$",
     ),
     Case(
         "compare-speed-1e-9",
@@ -190,7 +190,8 @@ CASES = [
         "simulate-memory-at-1-khz",  # 2016 s, within the hour, but 2e6 frames at 1 kHz: 7.7 GiB of log
         [*SIM, "--config", "{tmp}/fast_camera.yaml", "--speed", "0.0002"],
         r"^capsule-mpc: --speed 0\.0002 m/s: the 0\.32 m path takes 1\.6e\+03 s at this speed: a run of up "
-        r"to 2e\+03 s simulated \(2e\+06 frames at 1000 Hz.* needing 7\.7 GiB \(the log 7\.7 GiB\); "
+        r"to 2e\+03 s simulated \(2e\+06 frames at 1000 Hz.* needing 12 GiB \(the log 7\.7 GiB, "
+        r"2\.02e\+06 arm ticks per run 3\.8 GiB\); "
         rf"{MEMORY_BOUND}; --speed must be at least 0\.000\d+ m/s on this path$",
         {"fast_camera.yaml": "base: paper\ncamera: {rate_hz: 1000}\narm: {arm_rate_hz: 1000}\n"},
     ),

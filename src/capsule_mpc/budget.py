@@ -22,7 +22,8 @@ What is counted (:func:`run_needs`):
 * **The offline plan** (``plan``, and the ``plan`` controller): one NLP of ``(L / v +
   tail) * camera.rate_hz`` steps for the fixed-time variant, :data:`BYTES_PER_PLAN_STEP` each.
 * **The arm export** (``plan``, ``simulate`` of the MPC or with ``--arm``, ``arm-export``): one
-  setpoint per ``1 / arm.arm_rate_hz`` over the trajectory, :data:`BYTES_PER_SETPOINT` each.
+  setpoint per ``1 / arm.arm_rate_hz`` over the trajectory, :data:`BYTES_PER_SETPOINT` each; with
+  the robot arm in the loop (``sim.actuator: robot``) every run records its ticks likewise.
 * **Parallel work**: ``compare`` holds every controller's run of a seed (and of the first seed,
   for the figures); ``sweep`` holds that in each of its ``--workers`` processes, each also
   :data:`BYTES_PER_PROCESS`.
@@ -231,6 +232,11 @@ def run_needs(
         )
         name = "the log" if runs * processes == 1 else f"{runs * processes} runs' logs"
         parts.append((name, float(frames) * per_frame * processes))
+        if scenario.sim.actuator == "robot":  # the arm records every tick of a run for its export
+            ticks = _count(run_s * scenario.arm.arm_rate_hz) + 1
+            parts.append((
+                f"{ticks:.3g} arm ticks per run", float(ticks) * BYTES_PER_SETPOINT * runs * processes
+            ))  # fmt: skip
     steps, plan_s = 0, 0.0
     if plan is not None:
         from .planner.problem import PlannerOptions  # the planner's CasADi only when a plan is costed
