@@ -44,7 +44,7 @@ COMMANDS: dict[str, list[str]] = {
     "sweep": ["sweep", "--config", RECTANGLE, "--waypoints", "wp.csv", "--controllers", "follow",
               "--runs", "1"],
     "plan": ["plan", "--config", RECTANGLE, "--waypoints", "wp.csv"],
-    "arm-export": ["arm-export", "--plan", "plan.csv"],
+    "arm-export": ["arm-export", "--config", RECTANGLE, "--plan", "plan.csv"],
     "demonstrate": ["demonstrate", "--speeds", "0.02"],
 }  # fmt: skip
 #: The commands with a --no-progress option.
