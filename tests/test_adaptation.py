@@ -1,4 +1,4 @@
-"""Online friction adaptation (issue 12, item 1): capsule_mpc.mpc.adaptation, its OCP parameter and
+"""Online friction adaptation: capsule_mpc.mpc.adaptation, its OCP parameter and
 its config fields."""
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ from capsule_mpc.config import config_from_dict, packaged_config_path
 
 RATE_HZ = 500.0
 DT = 1.0 / RATE_HZ
-#: Tolerance of the finite-difference jerk against its limit (the issue's 1 %).
+#: Tolerance of the finite-difference jerk against its limit (1 %).
 JERK_TOL = 1.01
 #: How close Ruckig lands on a target position, m (its numerical precision).
 RUCKIG_PRECISION_M = 1e-8
@@ -509,7 +509,7 @@ def test_summary_stores_the_configured_arm_rate(scenario, tmp_path):
 def test_a_deviation_beyond_the_tolerance_is_refused_even_past_the_row_checks(
     scenario, tmp_path, monkeypatch
 ):
-    # The 5 cm step between two rows: the row check refuses it; without that check, the
+    # A 5 cm step between two rows: the row check refuses it; without that check, the
     # check of the result still does (a 49 mm deviation), and nothing is written.
     t, p = rectangle_plan(0.02)
     keep = t <= 2.0

@@ -88,7 +88,7 @@ N = len(GOOD)
 
 CASES = [
     Case(
-        "z-zero",  # the awk '$4=0'
+        "z-zero",  # awk '$4=0'
         lambda: csv_text(replaced_all(GOOD, 3, 0.0)),
         lambda: (
             "data row 1 (t_s = 0), epm_z_m: must be in the EPM workspace [0.085, 0.105] m "

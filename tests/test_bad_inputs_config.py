@@ -1,5 +1,5 @@
 """Bad-input catalogue, configs, waypoints and run arguments: each refused with exit code 2, a
-message naming the field, line or file, and no output (issue 11, items 5 and 7).
+message naming the field, line or file, and no output.
 
 Every case goes through ``capsule_mpc.cli.main`` as a user would; argparse errors exit through
 ``SystemExit(2)``, the others return 2. Each is refused before any simulation or force-map work.

@@ -1,4 +1,4 @@
-"""Bad input to the ``faults:`` switches (issue 12, item 5): exit code 2, the field and its allowed
+"""Bad input to the ``faults:`` switches: exit code 2, the field and its allowed
 range named, nothing written -- for ``simulate``, ``compare`` and ``sweep`` alike.
 
 Each case writes a scenario (``base: paper`` plus a ``faults:`` section) and runs the command

@@ -222,7 +222,7 @@ def test_a_refused_out_says_why_in_one_line_and_nothing_is_written_or_lost(case,
     assert not (PACKAGE / "results").exists()
 
 
-# --- the case, for real: a plan, then its arm export into the plan's own folder --------------
+# --- the case for real: a plan, then its arm export into the plan's own folder ------------------------------
 
 
 def test_arm_export_into_the_folder_of_its_plan_is_refused_and_the_plan_kept(workdir, capsys):
@@ -243,7 +243,7 @@ def test_arm_export_into_the_folder_of_its_plan_is_refused_and_the_plan_kept(wor
     assert "joint_trajectory.csv" in read_manifest(workdir / "arm")["files"]
 
 
-# --- what a command that runs must not do ------------------------------------------------------------
+# --- what a command that runs must not do -------------------------------------------------------------------
 
 
 def test_a_file_written_into_the_folder_during_a_run_is_not_claimed_nor_removed_by_the_next(

@@ -1,4 +1,4 @@
-"""Paths whose EPM would have to leave its workspace are refused before any run (issue 11, item 4).
+"""Paths whose EPM would have to leave its workspace are refused before any run.
 
 The waypoint reader keeps the capsule inside the plate and the workspace box; the EPM leads it
 by about 15.5 mm toward -x on the shipped rig (the nominal dipole model; about 17 mm on the
@@ -45,7 +45,7 @@ def refused(capsys, out: Path, argv: list[str]) -> str:
 @pytest.mark.parametrize(
     ("rows", "needle", "bound"),
     [
-        # The issue's path: along the -x edge, then up. The capsule is inside (x >= -0.18) but
+        # A path along the -x edge, then up. The capsule is inside (x >= -0.18) but
         # the EPM, 16 mm further toward -x, is not.
         (
             [(-0.10, 0.0), (-0.179, 0.0), (-0.179, 0.12)],
@@ -74,7 +74,7 @@ def refused(capsys, out: Path, argv: list[str]) -> str:
             "y >= -0.13 m (limits.workspace_min_m[1])",
         ),
     ],
-    ids=["issue-minus-x-corner", "minus-x-start-at-rest", "plus-y-edge", "minus-y-edge"],
+    ids=["minus-x-corner", "minus-x-start-at-rest", "plus-y-edge", "minus-y-edge"],
 )
 def test_simulate_refuses_a_path_whose_epm_leaves_the_workspace(tmp_path, capsys, rows, needle, bound):
     wp = waypoints(tmp_path, rows)

@@ -196,7 +196,7 @@ def test_cli_runs_two_seeds(tmp_path, table, rectangle_config, capsys):
 def test_a_failed_planner_is_a_failed_row_not_a_result(
     tmp_path, table, rectangle_config, capsys, monkeypatch
 ):
-    """Issue 11, item 3: the plan controller whose solve fails has no metrics, says why, exit 1."""
+    """The plan controller whose solve fails has no metrics, says why, exit 1."""
     import capsule_mpc.planner.core as core
 
     monkeypatch.setattr(core, "PlannerOptions", lambda: PlannerOptions(max_iter=2))

@@ -280,7 +280,7 @@ def test_compare_with_mpc_adds_solver_figures_and_prediction(tmp_path, short_pat
     assert "deadline misses" in (out / "summary.md").read_text()
 
 
-# --- how a run ended: said in words, and in the exit status (issue 11, item 4) -------------------------
+# --- how a run ended: said in words, and in the exit status -------------------------------------------------
 
 
 def simulate_follow(tmp_path, config_text, waypoints, *extra):

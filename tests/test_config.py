@@ -273,7 +273,7 @@ def test_check_epm_height_refuses_what_the_force_map_cannot_hold(scenario):
 
 
 def test_paper_yaml_comment_matches_info(scenario):
-    """The comment on plate.epm_height_m quotes what `capsule-mpc info` prints (issue 11, item 10)."""
+    """The comment on plate.epm_height_m quotes what `capsule-mpc info` prints."""
     text = packaged_config_path("paper").read_text()
     quoted = re.search(r"F_N = ([\d.]+) m g directly under the\s+# EPM centre and ([\d.]+) m g at the", text)
     assert quoted is not None

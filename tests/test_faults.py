@@ -1,4 +1,4 @@
-"""Fault injection (issue 12, item 3): rates, reproducibility, and the controller holding up."""
+"""Fault injection: rates, reproducibility, and the controller holding up."""
 
 from __future__ import annotations
 

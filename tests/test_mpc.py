@@ -48,7 +48,7 @@ def test_mpc_beats_follow_on_the_same_run(fast, mpc_run):
     # the final approach that would finish it is off here): whether the short tail counts it at
     # rest is a coin toss, its distance to the end is not.
     assert mpc_run.metrics["final_error_mm"] < 1.0
-    # A frame whose step and SQP recovery both fail sends the shifted plan (issue 10): rare.
+    # A frame whose step and SQP recovery both fail sends the shifted plan: rare.
     assert mpc_run.metrics["solver_failures"] <= 0.01 * len(mpc_run.step_stats)
 
 

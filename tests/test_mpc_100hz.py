@@ -1,4 +1,4 @@
-"""The 100 Hz loop (issue 10, item 4): configs/rectangle_100hz.yaml against the 30 Hz rectangle."""
+"""The 100 Hz loop: configs/rectangle_100hz.yaml against the 30 Hz rectangle."""
 
 from __future__ import annotations
 

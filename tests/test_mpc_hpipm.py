@@ -1,4 +1,4 @@
-"""The MPC's stage-wise layout and its HPIPM real-time iteration (issue 10, item 1)."""
+"""The MPC's stage-wise layout and its HPIPM real-time iteration."""
 
 from __future__ import annotations
 
@@ -180,8 +180,8 @@ def test_dynamics_residual_matches_the_models_implicit_euler(fast, eps_mps):
 
 
 def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(sharp, recorded):
-    """On the recorded closed-loop frames the HPIPM step (issue settings) and a piqp step solved
-    to 1e-10 give the same plan (issue 10: commands within 0.15 mm/s)."""
+    """On the recorded closed-loop frames the HPIPM step (the default settings) and a piqp step solved
+    to 1e-10 give the same plan (commands within 0.15 mm/s)."""
     _run, frames, _calls = recorded
     ocp = build_mpc_stack(sharp).ocp
     qp_data, merit = nlp_functions(ocp)
@@ -203,8 +203,8 @@ def test_hpipm_step_agrees_with_a_tightly_solved_piqp_step(sharp, recorded):
             dx_max = max(dx_max, float(np.abs(xs_h[0:2] - xs_p[0:2]).max()))
     # HPIPM stops at its iteration cap (10) on a few frames: 0.06 mm/s measured at most.
     assert du0_max < 1e-4  # m/s: 0.1 mm/s on the command sent, every frame
-    # Later commands of the plan sit where the QP's optimum is flatter: 0.11 mm/s measured at most
-    # (after the merge with the plant-side changes of issue 9/11); the issue's bound is 0.15 mm/s.
+    # Later commands of the plan sit where the QP's optimum is flatter: 0.11 mm/s measured at most;
+    # the bound is 0.15 mm/s.
     assert du_max < 1.5e-4  # m/s: on every planned command of the steps used
     assert dx_max < 1e-6  # m: 1 um on every predicted capsule position of the steps used
 

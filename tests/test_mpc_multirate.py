@@ -1,4 +1,4 @@
-"""The MPC's multi-rate stage grid (issue 10, the 100 Hz loop): the first stage is one camera frame,
+"""The MPC's multi-rate stage grid (the 100 Hz loop): the first stage is one camera frame,
 the later ones ``mpc.dt_s``, so a fast loop keeps a long horizon at a small N."""
 
 from __future__ import annotations

@@ -383,7 +383,7 @@ def test_cli_shows_ipopt_progress_on_stderr_unless_no_progress(tmp_path, capsys)
 
 
 def test_a_plan_at_the_friction_laws_lowest_speed_converges(scenario):
-    """Issue 11, item 3: the pipe at 5 mm/s, the lower end of c(v)'s range, failed to converge.
+    """the pipe at 5 mm/s, the lower end of c(v)'s range, failed to converge.
 
     A hard clamp of the speed into the range put a kink in mu(v) at 5 mm/s; the capsule slows
     below it in a bend, and IPOPT cycled there (the pipe's first bend alone: 500 iterations,

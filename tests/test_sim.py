@@ -571,7 +571,7 @@ def test_solve_time_delay_applies_each_command_when_its_step_ends(scenario):
     np.testing.assert_allclose(applied_t - frame_t, 0.002, atol=1e-3 + 1e-9)
 
 
-# --- how a run ended, in words (issue 11, item 4) ------------------------------------------------------
+# --- how a run ended, in words ------------------------------------------------------
 
 
 def test_limit_text_names_every_limit_that_acted_with_its_unit():

@@ -1,4 +1,4 @@
-"""The issue's closed-loop targets on the full paths (slow: `make test-slow`)."""
+"""The closed-loop targets on the full paths (slow: `make test-slow`)."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ def rectangle_runs() -> dict[str, dict]:
 
 
 def test_rectangle_targets_met_on_lab(rectangle_runs):
-    """The issue's targets on a `lab` draw: tracking and cross-track RMS <= 1/3 of paper_0.8v's,
+    """The targets on a `lab` draw: tracking and cross-track RMS <= 1/3 of paper_0.8v's,
     cross-track below both baselines, final error at rest <= 0.5 mm, on time, no failure.
 
     Over 200 `lab` draws (README) the RMS targets hold on the means; the final error is <= 0.5 mm

@@ -601,7 +601,7 @@ class MPCConfig(_Strict):
             "m/s, (0, 0.01]; None: friction.smoothing_eps_mps. A larger eps makes the friction's sign "
             "change at rest less abrupt, so one Gauss-Newton step predicts it (the plant is unchanged). "
             "Measured over the rectangle at 0.01/0.02/0.04 m/s and the pipe at 0.005/0.02/0.045 m/s, "
-            "5 seeds each, lab plant, against the former solver at 1 mm/s (issue 10): 5 mm/s gave "
+            "5 seeds each, lab plant, against the former solver at 1 mm/s: 5 mm/s gave "
             "cross-track RMS -14 %, tracking RMS -4 % (geometric means), final error 0.47 mm (0.71 "
             "before) and 12 fallback frames in the 30 runs; 3 mm/s -10 %, +2 %, 0.43 mm, 56; 7.5 "
             "mm/s -16 %, -5 %, 0.66 mm, 0 (and the ideal plant's capsule never settled at the end)."
@@ -839,7 +839,7 @@ _Vec3 = tuple[Number, Number, Number]
 
 
 class FaultsConfig(_Strict):
-    """Faults injected into a simulated run (issue 12): every switch is off (0) by default.
+    """Faults injected into a simulated run: every switch is off (0) by default.
 
     Each fault is drawn from the run's seed on its own random stream (turning faults on changes
     neither the plant's draw nor the camera noise), only from t = 0 (the settle phase is fault

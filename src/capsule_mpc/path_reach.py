@@ -40,7 +40,7 @@ from .steady import steady_lead
 __all__ = ["EPM_WORKSPACE_MARGIN_M", "EpmNeed", "check_epm_workspace", "epm_positions_needed"]
 
 #: Room (m) the EPM needs beyond the nominal model's steady positions, on every side of the
-#: workspace box. Measured with the ``lab`` plant, seeds 0 and 1 (issue 11): on the rectangle and
+#: workspace box. Measured with the ``lab`` plant, seeds 0 and 1: on the rectangle and
 #: pipe configs the EPM went beyond the box of its nominal positions by up to 8.6 mm (mpc: it
 #: swings out at the corners to turn the capsule; the plant's true lead is also ~1.5 mm longer
 #: than the model's) and 5.6 mm (follow, paper_0.8v: they keep the capsule's start offset in the

@@ -106,7 +106,7 @@ PREDICTING_CONTROLLER = "mpc"
 #: The controller that needs the offline plan: it is solved once, with a progress bar, before its
 #: first run (the runs take it from :func:`capsule_mpc.planner.cached_plan`).
 PLANNING_CONTROLLER = "plan"
-#: Order of the runs and of the table rows (the issue's order); other registered controllers follow.
+#: Order of the runs and of the table rows; other registered controllers follow.
 CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
 #: Sub-folder of ``--out`` holding the run folders when there are several runs per controller.
 RUNS_FOLDER = "runs"

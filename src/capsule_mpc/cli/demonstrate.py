@@ -18,7 +18,7 @@ from .learn import output_problem
 
 __all__ = ["DEFAULT_SPEEDS_MPS", "check_demonstrations", "register", "run"]
 
-#: The issue's default demonstration speeds, m/s (inside and around the paper's 0.005-0.04 m/s range).
+#: The default demonstration speeds, m/s (inside and around the paper's 0.005-0.04 m/s range).
 DEFAULT_SPEEDS_MPS = (0.005, 0.01, 0.02, 0.03, 0.04)
 
 

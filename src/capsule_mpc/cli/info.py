@@ -24,7 +24,7 @@ __all__ = ["PAPER_SPEEDS_MPS", "check_epm_height", "register", "scenario_figures
 
 #: The arm speeds of the paper's experiments, m/s (paper §IV, pipe experiment v3, v2, v1).
 PAPER_SPEEDS_MPS = (0.005, 0.02, 0.045)
-#: Leads reported by ``info``, m (the issue asks for 0 and 10 mm).
+#: Leads reported by ``info``, m (0 and 10 mm).
 _LEADS_M = (0.0, 0.010)
 #: Resolution of the highest allowed EPM height quoted when a height is refused, m.
 _HEIGHT_RESOLUTION_M = 5e-4

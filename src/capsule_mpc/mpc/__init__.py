@@ -1,4 +1,4 @@
-"""Real-time model-predictive control of the EPM (issue: MPC and planner).
+"""Real-time model-predictive control of the EPM.
 
 Importing this package registers the ``mpc`` controller.
 """

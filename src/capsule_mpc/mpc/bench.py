@@ -74,12 +74,12 @@ DEFAULT_HORIZONS = (10, 20, 40, 60)
 DEFAULT_FRAMES = 300
 DEFAULT_SCHEMES = ("rti",)
 DEFAULT_QP_SOLVERS = ("hpipm", "piqp")
-#: Targets of issue 10 for the controller step (Python included) per horizon, ms.
+#: Targets for the controller step (Python included) per horizon, ms.
 TARGETS: dict[int, dict[str, float]] = {
     20: {"median_ms": 1.0, "p99_ms": 2.5, "max_ms": 5.0},
     40: {"median_ms": 2.0, "p99_ms": 5.0},
 }
-#: Target of issue 10 for the second start (compiled, warm cache), s.
+#: Target for the second start (compiled, warm cache), s.
 WARM_START_TARGET_S = 0.3
 #: Slowest frames listed per run (they are what sets p99 and max).
 _N_SLOWEST = 8

@@ -65,7 +65,7 @@ MAX_STEP_VIOLATION = 20.0
 _IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded"}
 #: QP solvers the SQP schemes can use on the stage-wise layout.
 QP_SOLVERS = ("hpipm", "piqp")
-#: HPIPM settings (issue 10, 127 recorded QPs at N = 20): with HPIPM's default absolute
+#: HPIPM settings (127 recorded QPs at N = 20): with HPIPM's default absolute
 #: tolerances 24-41 of them hit the iteration cap; 'speed' mode with these residual tolerances
 #: (scaled units) and a cap of 8-15 iterations gave no failure and unchanged commands. Measured
 #: again on 380 frames of the rectangle (N = 20) against piqp solved to 1e-10: first command

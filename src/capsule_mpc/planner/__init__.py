@@ -1,4 +1,4 @@
-"""Offline planning of the EPM trajectory for a whole path (issue: MPC and planner).
+"""Offline planning of the EPM trajectory for a whole path.
 
 * :func:`plan_path` -- the whole path as one optimal-control problem on the controller's
   model (multiple shooting, implicit Euler as equality constraints, IPOPT): fixed time at the
