@@ -385,11 +385,15 @@ def test_the_lowest_speed_named_is_the_lowest_that_fits(monkeypatch):
     monkeypatch.setattr(budget, "available_memory_bytes", lambda: AVAILABLE)
     scenario = load_config()
     with pytest.raises(ConfigError) as exc:
-        budget.check_run(scenario, 0.32, 1e-9, "--speed 1e-09 m/s", runs=4, predicting=1, plan="fixed")
+        budget.check_run(
+            scenario, 0.32, 1e-9, "--speed 1e-09 m/s", budget.Workload(runs=4, predicting=1, plan="fixed")
+        )
     lowest = float(re.search(r"must be at least ([0-9.e-]+) m/s", str(exc.value)).group(1))
-    budget.check_run(scenario, 0.32, lowest, "--speed", runs=4, predicting=1, plan="fixed")
+    budget.check_run(scenario, 0.32, lowest, "--speed", budget.Workload(runs=4, predicting=1, plan="fixed"))
     with pytest.raises(ConfigError):
-        budget.check_run(scenario, 0.32, lowest * 0.99, "--speed", runs=4, predicting=1, plan="fixed")
+        budget.check_run(
+            scenario, 0.32, lowest * 0.99, "--speed", budget.Workload(runs=4, predicting=1, plan="fixed")
+        )
 
 
 def test_run_needs_counts_the_frames_of_a_run_to_its_cut_off(scenario):

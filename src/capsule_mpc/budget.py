@@ -69,6 +69,7 @@ __all__ = [
     "MEMORY_FRACTION",
     "TIMEOUT_FACTOR",
     "Needs",
+    "Workload",
     "available_memory_bytes",
     "check_arm_export",
     "check_processes",
@@ -187,29 +188,14 @@ def _count(x: float) -> int:
     return math.ceil(x - 1e-9) if math.isfinite(x) else 2**62
 
 
-def run_needs(
-    scenario: Scenario,
-    length_m: float,
-    speed_mps: float,
-    *,
-    runs: int = 1,
-    predicting: int = 0,
-    plan: Literal["fixed", "min_time"] | None = None,
-    arm: bool = False,
-    processes: int = 1,
-    closed_loop: bool = True,
-) -> Needs:
-    """What closed-loop runs (and a plan, an arm export) of a path need at most.
+@dataclass(frozen=True)
+class Workload:
+    """What a command runs at once, for :func:`run_needs` and :func:`check_run`.
 
-    Parameters
+    Attributes
     ----------
-    scenario : Scenario
-        Rates (``camera.rate_hz``, ``sim.plant_rate_hz``, ``arm.arm_rate_hz``), ``sim.settle_s``,
-        ``sim.tail_s``, ``mpc.horizon`` and ``limits.speed_mps`` (the minimum-time plan's grid).
-    length_m, speed_mps : float
-        The path's length, m, and nominal speed, m/s (> 0).
     runs : int
-        Runs held in memory at once in each process.
+        Closed-loop runs held in memory at once in each process.
     predicting : int
         How many of them are of a predicting controller (the MPC).
     plan : {'fixed', 'min_time'}, optional
@@ -221,6 +207,31 @@ def run_needs(
     closed_loop : bool
         Whether there are closed-loop runs at all (``plan`` has none).
     """
+
+    runs: int = 1
+    predicting: int = 0
+    plan: Literal["fixed", "min_time"] | None = None
+    arm: bool = False
+    processes: int = 1
+    closed_loop: bool = True
+
+
+def run_needs(scenario: Scenario, length_m: float, speed_mps: float, work: Workload = Workload()) -> Needs:
+    """What closed-loop runs (and a plan, an arm export) of a path need at most.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Rates (``camera.rate_hz``, ``sim.plant_rate_hz``, ``arm.arm_rate_hz``), ``sim.settle_s``,
+        ``sim.tail_s``, ``sim.actuator``, ``mpc.horizon`` and ``limits.speed_mps`` (the
+        minimum-time plan's grid).
+    length_m, speed_mps : float
+        The path's length, m, and nominal speed, m/s (> 0).
+    work : Workload
+        What runs at once (default: one closed-loop run).
+    """
+    runs, predicting, plan, arm = work.runs, work.predicting, work.plan, work.arm
+    processes, closed_loop = work.processes, work.closed_loop
     duration = length_m / speed_mps if speed_mps > 0 else math.inf
     sim, rate = scenario.sim, scenario.camera.rate_hz
     run_s = sim.settle_s + TIMEOUT_FACTOR * duration + sim.tail_s if closed_loop else 0.0
@@ -328,23 +339,13 @@ def speed_source(option: str | None, speed_mps: float) -> str:
 
 
 def check_run(
-    scenario: Scenario,
-    length_m: float,
-    speed_mps: float,
-    source: str,
-    *,
-    runs: int = 1,
-    predicting: int = 0,
-    plan: Literal["fixed", "min_time"] | None = None,
-    arm: bool = False,
-    processes: int = 1,
-    closed_loop: bool = True,
+    scenario: Scenario, length_m: float, speed_mps: float, source: str, work: Workload = Workload()
 ) -> Needs:
     """Refuse work beyond :data:`MAX_SIM_TIME_S` or the memory allowance, before it starts.
 
     Parameters
     ----------
-    scenario, length_m, speed_mps, runs, predicting, plan, arm, processes, closed_loop
+    scenario, length_m, speed_mps, work
         As for :func:`run_needs`.
     source : str
         The option or field that set the speed, with its value (:func:`speed_source`, e.g.
@@ -362,13 +363,7 @@ def check_run(
         plant steps (or the plan's steps) and memory, the bound exceeded and the lowest speed
         that fits.
     """
-    return _check(
-        scenario, source, speed_mps,
-        lambda v: run_needs(
-            scenario, length_m, v, runs=runs, predicting=predicting, plan=plan, arm=arm,
-            processes=processes, closed_loop=closed_loop,
-        ),
-    )  # fmt: skip
+    return _check(scenario, source, speed_mps, lambda v: run_needs(scenario, length_m, v, work))
 
 
 def check_arm_export(scenario: Scenario, duration_s: float, source: str) -> int:

@@ -135,7 +135,7 @@ def check_bench(config: str | Path | None, horizons: list[int], frames: int | No
     ConfigError
         A bad config, a horizon given twice, or runs beyond the bounds (naming ``path.speed_mps``).
     """
-    from ..budget import check_run, speed_source
+    from ..budget import Workload, check_run, speed_source
     from ..config import load_config, packaged_config_path
     from ..mpc.bench import path_first_frames
     from ..paths import path_from_scenario
@@ -147,7 +147,9 @@ def check_bench(config: str | Path | None, horizons: list[int], frames: int | No
     path = path_from_scenario(base)
     if frames:
         path = path_first_frames(path, frames, base.camera.rate_hz)
-    check_run(longest, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), predicting=1)
+    check_run(
+        longest, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), Workload(predicting=1)
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -54,6 +54,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..budget import Workload
 from ..config import ConfigError, Scenario
 from ..control import available_controllers
 from ..metrics import run_metrics, stack_predictions
@@ -592,23 +593,23 @@ def check_controllers(controllers: Sequence[str] | None) -> list[str]:
     return _controller_names(controllers)
 
 
-def run_figures(names: Sequence[str], runs: int) -> dict[str, Any]:
-    """What a comparison of ``names`` over ``runs`` seeds holds in memory at once, as keyword
-    arguments of :func:`capsule_mpc.budget.check_run`: every controller's run of a seed, and of
-    the first seed too when there are several; the offline plan for the ``plan`` controller."""
+def run_figures(names: Sequence[str], runs: int) -> Workload:
+    """What a comparison of ``names`` over ``runs`` seeds holds in memory at once (for
+    :func:`capsule_mpc.budget.check_run`): every controller's run of a seed, and of the first seed
+    too when there are several; the offline plan for the ``plan`` controller."""
     copies = 2 if runs > 1 else 1
-    return {
-        "runs": len(names) * copies,
-        "predicting": sum(n == PREDICTING_CONTROLLER for n in names) * copies,
-        "plan": "fixed" if PLANNING_CONTROLLER in names else None,
-    }
+    return Workload(
+        runs=len(names) * copies,
+        predicting=sum(n == PREDICTING_CONTROLLER for n in names) * copies,
+        plan="fixed" if PLANNING_CONTROLLER in names else None,
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Compare the controllers; exit status 1 if any controller failed on a seed, 2 on bad input."""
     names = check_controllers(args.controllers)
     scenario, path, meta = prepare_run(
-        args.config, args.waypoints, args.speed, args.plant, **run_figures(names, args.runs)
+        args.config, args.waypoints, args.speed, args.plant, run_figures(names, args.runs)
     )
     seed = scenario.sim.seed if args.seed is None else args.seed
     inputs = input_files(args, "--config", "--waypoints")

@@ -212,7 +212,7 @@ def check_demo(base: Scenario, speeds_mps: list[float], controllers: list[str]) 
     check_demonstrations(base, speeds_mps, DEMO_PATHS)
     path = path_from_scenario(base)
     check_run(
-        base, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), **run_figures(controllers, 1)
+        base, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), run_figures(controllers, 1)
     )
 
 

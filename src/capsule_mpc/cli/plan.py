@@ -92,13 +92,13 @@ def _print_plan(summary: dict[str, Any]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Plan, write the files, export the arm trajectory; see the module docstring for the status."""
+    from ..budget import Workload
     from ..outputs import output_folder
     from .arguments import input_files
     from .simulate import prepare_run
 
-    scenario, path, meta = prepare_run(
-        args.config, args.waypoints, args.speed, plan=args.variant, arm=not args.no_arm, closed_loop=False
-    )
+    work = Workload(plan=args.variant, arm=not args.no_arm, closed_loop=False)
+    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, work=work)
     with output_folder(args.out, "plan", inputs=input_files(args, "--config", "--waypoints")) as folder:
         folder.status = _plan_into(args, scenario, path, meta, folder.path)
     return folder.status

@@ -25,9 +25,9 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
-from ..budget import check_run, speed_source
+from ..budget import Workload, check_run, speed_source
 from ..config import Scenario, config_from_dict, load_config
 from ..magnetics import force_map
 from ..outputs import output_folder
@@ -137,19 +137,13 @@ def prepare_run(
     waypoints: str | Path | None,
     speed: float | None,
     plant_preset: str | None = None,
-    *,
-    runs: int = 1,
-    predicting: int = 0,
-    plan: Literal["fixed", "min_time"] | None = None,
-    arm: bool = False,
-    processes: int = 1,
-    closed_loop: bool = True,
+    work: Workload = Workload(),
 ) -> tuple[Scenario, ReferencePath, dict[str, Any]]:
     """Load a scenario, apply the ``--waypoints`` / ``--speed`` / ``--plant`` overrides, and build the path.
 
     Then, before any work, refuses what the machine cannot do (:func:`capsule_mpc.budget.check_run`
-    with ``runs``, ``predicting``, ``plan``, ``arm``, ``processes`` and ``closed_loop``: runs
-    beyond the maximum simulated time or the memory allowance, naming ``--speed`` or
+    with ``work``, a :class:`~capsule_mpc.budget.Workload`: runs beyond the maximum simulated time
+    or the memory allowance, naming ``--speed`` or
     ``path.speed_mps``). Also makes sure the finite-magnet force map is cached (computing it,
     with a progress bar, on first use), and refuses a path whose EPM would have to leave its
     workspace (:func:`capsule_mpc.path_reach.check_epm_workspace`). The returned scenario carries
@@ -183,10 +177,7 @@ def prepare_run(
         scenario = config_from_dict(data)
         scenario.source_path = base.source_path
     source = speed_source("--speed" if speed is not None else None, path.speed_mps)
-    check_run(
-        scenario, path.length_m, path.speed_mps, source, runs=runs, predicting=predicting, plan=plan,
-        arm=arm, processes=processes, closed_loop=closed_loop,
-    )  # fmt: skip
+    check_run(scenario, path.length_m, path.speed_mps, source, work)
     check_epm_height(scenario)  # before a force map is computed for a height the code cannot model
     force_map(scenario, progress=True)  # computed once and cached: show progress on a fresh machine
     check_epm_workspace(scenario, path, source=waypoints)  # the EPM leads the capsule: room for it?
@@ -334,10 +325,12 @@ def run(args: argparse.Namespace) -> int:
         )
         return 2
     want_arm = args.arm if args.arm is not None else args.controller in ARM_CONTROLLERS
-    scenario, path, meta = prepare_run(
-        args.config, args.waypoints, args.speed, args.plant, predicting=int(args.controller == "mpc"),
-        plan="fixed" if args.controller == "plan" else None, arm=want_arm,
-    )  # fmt: skip
+    work = Workload(
+        predicting=int(args.controller == "mpc"),
+        plan="fixed" if args.controller == "plan" else None,
+        arm=want_arm,
+    )
+    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant, work)
     run_seed = scenario.sim.seed if args.seed is None else args.seed
     inputs = input_files(args, "--config", "--waypoints")
     with output_folder(args.out, "simulate", inputs=inputs) as folder:

@@ -50,10 +50,11 @@ import argparse
 import os
 import sys
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ...budget import check_processes
+from ...budget import Workload, check_processes
 from ...config import ConfigError
 from ...outputs import output_folder
 from ..arguments import input_files, int_at_least, run_count
@@ -153,8 +154,8 @@ def run(args: argparse.Namespace) -> int:
     workers = args.workers or os.cpu_count() or 1
     workers = 1 if args.scheduler else workers if args.executor == "dask" else min(workers, args.runs)
     check_processes(workers)
-    figures = {**run_figures(names, 1), "processes": workers} if not args.scheduler else {"runs": 0}
-    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant, **figures)
+    work = replace(run_figures(names, 1), processes=workers) if not args.scheduler else Workload(runs=0)
+    scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, args.plant, work)
     check_vary(scenario, vary)
     seed = scenario.sim.seed if args.seed is None else args.seed
     resume = check_resume(args.out, sweep_spec(scenario, path, seed, args.runs, names, vary))
