@@ -25,11 +25,13 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check src tests benchmarks
 	$(BIN)/mypy src
 
+# The suite runs on every core (pytest-xdist); a test module's tests stay on one worker, so its
+# module-scoped fixtures are built once.
 test: lint
-	$(BIN)/python -m pytest -m "not slow" -q
+	$(BIN)/python -m pytest -m "not slow" -q -n auto --dist loadfile
 
 test-slow: $(STAMP)
-	$(BIN)/python -m pytest -m slow -q
+	$(BIN)/python -m pytest -m slow -q -n auto --dist loadfile
 
 format: $(STAMP)
 	$(BIN)/ruff format src tests benchmarks

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,13 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 os.environ.setdefault("CAPSULE_MPC_CACHE", str(REPO / ".cache"))
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # pytest-xdist's workers start with Ctrl-C (and hang-up) ignored, and the commands the tests
+    # start would inherit that: the signal tests need the handlers a terminal gives.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 from capsule_mpc import Scenario, load_config  # noqa: E402
 from capsule_mpc.magnetics import ForceMap, force_map  # noqa: E402
