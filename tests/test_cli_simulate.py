@@ -86,6 +86,7 @@ def test_bad_waypoints_exit_2_with_row(tmp_path, capsys):
     assert "line 3" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # ~3 min; .ci/run runs `make demo` itself on the clean clone after the tests
 def test_demo_demonstrates_learns_and_compares_with_a_cache(tmp_path, capsys, table):
     from capsule_mpc.config import packaged_config_path
 
