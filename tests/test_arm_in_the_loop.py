@@ -15,14 +15,13 @@ from hypothesis import strategies as st
 from capsule_mpc import Scenario
 from capsule_mpc.arm import (
     ArmKinematics,
-    CartesianLimits,
     ExportCheckError,
     RobotArmActuator,
-    VelocitySmoother,
     check_run_trajectory,
     run_trajectory_since,
 )
 from capsule_mpc.config import config_from_dict
+from capsule_mpc.mpc import build_mpc_stack
 from capsule_mpc.paths import rectangle
 from capsule_mpc.safety import safe_command
 from capsule_mpc.sim import draw_plant_truth, simulate
@@ -86,39 +85,54 @@ def test_every_sent_command_is_within_speed_acceleration_and_jerk(lab_robot, run
     assert (np.abs(np.diff(_commands(runs["follow"]), n=2, axis=0)) / FRAME_S**2).max() > lim.jerk_mps3
 
 
-def test_the_mpcs_epm_prediction_matches_a_ruckig_rollout_of_its_commands(lab_robot, runs):
-    """The MPC's model of the arm (the EPM at the commanded velocity over each frame, the commands
-    jerk-limited) against Ruckig at 500 Hz fed the same commands frame by frame: over every
-    window of the 20-frame horizon the predicted EPM displacement is within 4 mm of Ruckig's.
-    Measured on this run: 3.6 mm at worst (while the MPC accelerates from rest to catch the
-    reference: Ruckig ends each frame's move at zero acceleration, so on a steep ramp it lags the
-    commands by up to about a frame), 2.2 mm at the 95th percentile. Commands that step their
-    velocity (beyond the jerk limit) are predicted worse."""
+def _predicted_displacements(scenario: Scenario, commands: np.ndarray, lag_s: float) -> np.ndarray:
+    """The EPM positions the MPC's model predicts for ``commands`` (N x 3) sent one per frame from
+    rest (:meth:`capsule_mpc.mpc.problem.OCP.epm_velocities` on the frame grid)."""
+    ocp = build_mpc_stack(scenario).ocp
+    grid = replace(ocp, steps_s=np.full(len(commands), FRAME_S), lag_s=lag_s)
+    velocities = grid.epm_velocities(commands.T, np.zeros(3)).T
+    return np.vstack([np.zeros(3), np.cumsum(FRAME_S * velocities, axis=0)])
+
+
+def _arm_rollout(scenario: Scenario, commands: np.ndarray, bandwidth_hz: float | None) -> np.ndarray:
+    """The EPM the plant feels (Ruckig at the arm rate, UR5 IK, joint servo lag) for ``commands``
+    sent one per frame, from rest at the workspace's middle; displacements from the start."""
+    arm = RobotArmActuator(scenario, record=False, servo_bandwidth_hz=bandwidth_hz)
+    start = np.array([0.0, 0.0, scenario.plate.epm_height_m])
+    arm.reset(start)
+    out = [np.zeros(3)]
+    for k, c in enumerate(commands):
+        arm.set_velocity_command(k * FRAME_S, c)
+        out.append(arm.step(FRAME_S) - start)
+    return np.array(out)
+
+
+def _window_errors(arm: np.ndarray, model: np.ndarray, horizon: int = 20) -> np.ndarray:
+    """Error of the predicted displacement over each window of ``horizon`` frames, m."""
+    gap = arm - model
+    return np.array([np.abs(gap[k + horizon] - gap[k]).max() for k in range(len(gap) - horizon)])
+
+
+@pytest.mark.parametrize("bandwidth_hz", [None, 5.0, 10.0])
+def test_the_mpcs_epm_prediction_matches_the_arm_fed_its_commands(lab_robot, runs, bandwidth_hz):
+    """The MPC's model of the arm (Ruckig's ramp between commands, the servo lag as a delay) against
+    the arm itself -- Ruckig at 500 Hz, UR5 IK and joint servos of the given bandwidth -- fed the
+    MPC's own commands of a lab run frame by frame, over every window of the 20-frame horizon:
+    the predicted EPM displacement is within 0.4 mm of the arm's in 95 % of windows and 1.5 mm in
+    all (the worst while the MPC accelerates from rest, where Ruckig needs more than a frame to
+    build up the acceleration), well below the error of holding each command over its frame (the
+    EPM at the commanded velocity at once): under half of it at the 95th percentile, under 0.7 of it
+    at worst."""
     cmd = _commands(runs["mpc"])
-
-    def rollout(commands: np.ndarray) -> np.ndarray:
-        smoother = VelocitySmoother(CartesianLimits.from_scenario(lab_robot), lab_robot.arm.arm_rate_hz)
-        smoother.reset(np.zeros(3))
-        tick_s, tick, out = smoother.dt_s, 0, [np.zeros(3)]
-        for k, c in enumerate(commands):
-            smoother.set_target_velocity(c)
-            while (tick + 1) * tick_s <= (k + 1) * FRAME_S + 1e-12:
-                position, _v, _a = smoother.step()
-                tick += 1
-            out.append(np.array(position))
-        return np.array(out)
-
-    def worst_window_error(commands: np.ndarray, horizon: int = 20) -> float:
-        arm = rollout(commands)
-        model = np.vstack([np.zeros(3), np.cumsum(FRAME_S * commands, axis=0)])
-        gap = arm - model
-        return max(float(np.abs(gap[k + horizon] - gap[k]).max()) for k in range(len(commands) - horizon))
-
-    assert worst_window_error(cmd) <= 4e-3
-    # The same velocities stepped at once (every other frame's command repeated, a jerk far beyond
-    # the limit): the prediction is off by more.
-    stepped = np.repeat(cmd[::4], 4, axis=0)[: len(cmd)]
-    assert worst_window_error(stepped) > worst_window_error(cmd)
+    cmd = cmd[np.argmax(np.abs(cmd).sum(axis=1) > 0) :]  # from the first command that moves
+    lag = 0.0 if bandwidth_hz is None else 1.0 / (2.0 * math.pi * bandwidth_hz)
+    arm = _arm_rollout(lab_robot, cmd, bandwidth_hz)
+    model = _window_errors(arm, _predicted_displacements(lab_robot, cmd, lag))
+    held = _window_errors(arm, np.vstack([np.zeros(3), np.cumsum(FRAME_S * cmd, axis=0)]))
+    assert np.percentile(model, 95) <= 4e-4
+    assert model.max() <= 1.5e-3
+    assert np.percentile(model, 95) < 0.5 * np.percentile(held, 95)
+    assert model.max() < 0.7 * held.max()
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -38,12 +38,13 @@ def _gap_rows(ocp, w: np.ndarray) -> np.ndarray:
     return g.reshape(ocp.horizon, N_STATE + N_PATH)[:, :N_STATE]
 
 
-def _integrated_plan(ocp, x0, vel, cmd):
-    """A plan whose positions integrate the stage rates ``vel`` (2 x N) and ``cmd`` (3 x N) over
-    the stage steps (implicit Euler, as the gap rows): its physical ``(xs, us)``."""
+def _integrated_plan(ocp, x0, vel, cmd, u_prev):
+    """A plan whose positions integrate the stage rates ``vel`` (2 x N) and the EPM's motion under
+    the commands ``cmd`` (3 x N, after ``u_prev``) over the stage steps, as the gap rows do: its
+    physical ``(xs, us)``."""
     h = ocp.steps_s
     pos = x0[0:2, None] + np.cumsum(h * vel, axis=1)
-    epm = x0[4:7, None] + np.cumsum(h * cmd, axis=1)
+    epm = x0[4:7, None] + np.cumsum(h * ocp.epm_velocities(cmd, u_prev), axis=1)
     return np.vstack([pos, vel, epm]), cmd
 
 
@@ -98,10 +99,12 @@ def test_dynamics_rows_are_the_models_implicit_euler_on_each_stages_step(coarse)
     p = ocp.pack_parameters(x0, np.zeros((6, N)), u_prev, np.zeros(3))
     _, merit = nlp_functions(ocp)
 
+    epm_v = ocp.epm_velocities(us, u_prev)  # the EPM as the arm moves it (the model's input)
+
     def worst_rows(steps):
         xs, x = [], x0
         for k in range(N):
-            x = np.asarray(discrete_step(model, steps[k], "implicit_euler")(x, us[:, k])).ravel()
+            x = np.asarray(discrete_step(model, steps[k], "implicit_euler")(x, epm_v[:, k])).ravel()
             xs.append(x)
         w = ocp.pack_variables(np.array(xs).T, us, np.zeros((2, N)), x0, u_prev)
         g = np.asarray(merit(w, p)[1]).ravel().reshape(N, N_STATE + N_PATH)
@@ -122,7 +125,7 @@ def test_shift_advances_the_plan_one_frame_and_keeps_its_gaps_closed(coarse, see
     rng = np.random.default_rng(seed)
     x0 = np.concatenate([rng.normal(0, 0.01, 4), rng.normal(0, 0.01, 2), [0.09]])
     u_prev = rng.normal(0, 0.01, 3)
-    xs, us = _integrated_plan(ocp, x0, rng.normal(0, 0.02, (2, N)), rng.normal(0, 0.03, (3, N)))
+    xs, us = _integrated_plan(ocp, x0, rng.normal(0, 0.02, (2, N)), rng.normal(0, 0.03, (3, N)), u_prev)
     w = ocp.pack_variables(xs, us, rng.random((2, N)), x0, u_prev)
     assert np.abs(_gap_rows(ocp, w)).max() < 1e-9
     shifted = ocp.shift(w)
@@ -130,7 +133,7 @@ def test_shift_advances_the_plan_one_frame_and_keeps_its_gaps_closed(coarse, see
     # Constant rates: the shifted plan is the same motion sampled one frame later (past the
     # horizon too, where it goes on at the last rates).
     vel, cmd = rng.normal(0, 0.02, 2), rng.normal(0, 0.03, 3)
-    xs_c, us_c = _integrated_plan(ocp, x0, np.tile(vel[:, None], N), np.tile(cmd[:, None], N))
+    xs_c, us_c = _integrated_plan(ocp, x0, np.tile(vel[:, None], N), np.tile(cmd[:, None], N), cmd)
     w_c = ocp.pack_variables(xs_c, us_c, np.zeros((2, N)), np.concatenate([x0[:2], vel, x0[4:]]), cmd)
     xs_s, us_s, _ = ocp.unpack(ocp.shift(w_c))
     later = FRAME_S + ocp.node_times_s[1:]

@@ -30,7 +30,8 @@ def test_ideal_draw_is_the_nominal_rig(scenario):
             assert getattr(truth, name) == nominal, name
     assert truth.tether_drag_n == scenario.friction.tether_drag_n
     assert truth.camera_noise_std_m == scenario.camera.noise_std_m
-    assert truth.servo_bandwidth_hz is None and truth.start_at_true_equilibrium
+    assert truth.servo_bandwidth_hz == scenario.arm.servo_bandwidth_hz  # the nominal arm's lag
+    assert truth.start_at_true_equilibrium
     assert truth.friction_field.scale(0.01, -0.02) == 1.0
 
 

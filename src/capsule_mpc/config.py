@@ -976,6 +976,17 @@ class ArmConfig(_Strict):
             "125 Hz for a CB3."
         ),
     )
+    servo_bandwidth_hz: Number | None = Field(
+        7.5,
+        gt=0,
+        le=1000,
+        description=(
+            "Nominal bandwidth of the arm's joint servos, Hz, (0, 1000]; None: the joints reach "
+            "their setpoints at once. The MPC predicts the EPM a time constant 1 / (2 pi f) behind "
+            "the jerk-limited setpoints (about 21 ms at 7.5 Hz); the ideal plant has this lag, the "
+            "lab and hard plants draw their own. Measure it on the rig from the EPM's step response."
+        ),
+    )
     plan_lookahead_s: Number = Field(
         0.2,
         ge=0,
@@ -1149,8 +1160,8 @@ PLANT_PRESET_RANGES: dict[str, dict[str, tuple[float, float]]] = {
 }
 
 #: The nominal (``ideal``) value of every drawable ``PlantConfig`` field; ``None`` for the servo
-#: bandwidth means no lag, ``None`` for the tether drag means ``friction.tether_drag_n`` and for the
-#: camera noise ``camera.noise_std_m``.
+#: bandwidth means ``arm.servo_bandwidth_hz``, for the tether drag ``friction.tether_drag_n`` and
+#: for the camera noise ``camera.noise_std_m``.
 PLANT_FIXED: dict[str, float | None] = {
     "epm_remanence_scale": 1.0,
     "ipm_remanence_scale": 1.0,
@@ -1305,9 +1316,9 @@ class PlantConfig(_Strict):
         default_factory=list, description="Patches whose friction is scaled, on top of the field."
     )
     servo_bandwidth_hz: Number | None = _drawn(
-        "Bandwidth of the arm's velocity servo (first-order lag of the EPM behind its command), Hz, "
+        "Bandwidth of the arm's joint servos (first-order lag of the EPM behind its setpoints), Hz, "
         "(0, 1000]. lab U(5, 10) Hz (Cartesian velocity control of a UR-class arm); hard U(2, 5) Hz; "
-        "ideal no lag.",
+        "ideal the nominal arm.servo_bandwidth_hz.",
         gt=0,
         le=1000,
     )

@@ -6,20 +6,23 @@ constraint rows ordered ``gap_0, path_0, ..., gap_{N-1}, path_{N-1}`` where ``ga
 ``x_{k+1}`` (coefficient the identity) to ``(x_k, u_k)``; and every cost term and path row a
 function of one stage's ``(x_k, u_k)`` only, so the Gauss-Newton Hessian is block diagonal.
 
-* State ``x_k`` (10): capsule position ``p`` (2) and velocity ``v`` (2), EPM position ``e`` (2)
-  and height ``h``, and the EPM velocity command ``c`` (3) applied over the step that ends at
-  stage k. ``x_0`` is fixed by its bounds to the estimated state and the command being applied
-  (``u_prev``): carrying the previous command in the state makes the acceleration limit a bound
-  and the rate cost stage-local.
-* Input ``u_k`` (7): the command change ``dc`` (3), the capsule velocity at stage k+1 (2; the one
-  implicit part of the dynamics) and two non-negative slacks (coupling, normal force).
-* Gap rows (10 per stage, linear): ``c_{k+1} = c_k + dc_k``, ``(e, h)_{k+1} = (e, h)_k + dt
-  c_{k+1}``, ``v_{k+1} = `` the input, ``p_{k+1} = p_k + dt v_{k+1}``: implicit Euler of
-  ``p' = v, e' = c``.
-* Path rows (5 per stage): implicit Euler of the capsule's velocity, ``v_{k+1} - v_k - dt (a(x_{k+1})
+* State ``x_k`` (13): capsule position ``p`` (2) and velocity ``v`` (2), EPM position ``e`` (2)
+  and height ``h``, the EPM velocity command ``c`` (3) applied over the step that ends at stage k,
+  and its slope ``s`` (3: the command's change over that step per unit time, an acceleration).
+  ``x_0`` is fixed by its bounds to the estimated state, the command being applied (``u_prev``)
+  and its slope: carrying them in the state makes the acceleration and jerk limits stage-local.
+* Input ``u_k`` (8): the command change ``dc`` (3), the capsule velocity at stage k+1 (2; the one
+  implicit part of the dynamics), two non-negative slacks (coupling, normal force) and the jerk
+  rows' slack.
+* Gap rows (13 per stage, linear): ``c_{k+1} = c_k + dc_k``, ``s_{k+1} = dc_k / dt``,
+  ``(e, h)_{k+1} = (e, h)_k +`` the arm's displacement (:func:`arm_displacement`: the command
+  profile Ruckig ramps between commands, delayed by the nominal servo lag), ``v_{k+1} = `` the
+  input, ``p_{k+1} = p_k + dt v_{k+1}``: implicit Euler of ``p' = v``.
+* Path rows (11 per stage): implicit Euler of the capsule's velocity, ``v_{k+1} - v_k - dt (a(x_{k+1})
   + d/m) = 0`` (2 rows; ``x_{k+1}`` written through the gap's explicit expressions: the model is
   stiff, see :mod:`capsule_mpc.dynamics`), coupling ``|lead - lead_eq|^2 <= max_lead^2 (1 + s_0)``
-  and the normal-force band ``F_N,min - s_1 <= F_N <= F_N,max + s_1`` at ``x_{k+1}``.
+  and the normal-force band ``F_N,min - s_1 <= F_N <= F_N,max + s_1`` at ``x_{k+1}``, and the
+  slope's change within the jerk limit (3 lower, 3 upper, softened by the jerk slack).
 * Bounds: EPM speed on ``c_{k+1}``, acceleration on ``dc_k`` (``|dc| <= a dt``), workspace on
   ``(e, h)_{k+1}``, slacks >= 0.
 * Stage grid: stage 0 lasts one camera frame (its command is the one sent, held for a frame),
@@ -27,10 +30,10 @@ function of one stage's ``(x_k, u_k)`` only, so the Gauss-Newton Hessian is bloc
   stretches the horizon at the same N (e.g. 20 ms stages in a 100 Hz loop); ``dt`` above is the
   stage's own step.
 
-Parameters ``p = (x_0, ref, u_prev, d)``: the estimated current state (7), the reference window
+Parameters ``p = (x_0, ref, u_prev, s_prev, d, dmu)``: the estimated current state (7), the reference window
 (capsule position and velocity at stages 1..N, and the EPM velocity feed-forward for inputs
-0..N-1: the path's velocity, or an offline plan's EPM velocity), the command being applied (3),
-and the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a constant force (N) plus an
+0..N-1: the path's velocity, or an offline plan's EPM velocity), the command being applied (3)
+and its slope (3), the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a constant force (N) plus an
 extra friction force (N) that opposes the capsule's motion -- the model's friction is the part
 of the mismatch that turns with the motion, so it must not be a fixed vector -- and last the
 friction-coefficient offset ``dmu`` of :mod:`capsule_mpc.mpc.adaptation` (the model's friction
@@ -48,6 +51,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TypeVar
 
 import casadi as ca
 import numpy as np
@@ -112,9 +116,11 @@ STATE_SCALE = np.concatenate([X_SCALE, U_SCALE, A_SCALE])
 JERK_SLACK_SCALE = 0.1
 INPUT_SCALE = np.concatenate([U_SCALE, X_SCALE[2:4], S_SCALE, [JERK_SLACK_SCALE]])
 _STAGE = N_STATE + N_INPUT
-#: Stage-state columns of the positions (capsule x, y; EPM x, y, height) and of their rates
-#: (capsule velocity; the EPM velocity command), pairwise.
-_POSITIONS, _RATES = [0, 1, 4, 5, 6], [2, 3, 7, 8, 9]
+#: A CasADi expression or a NumPy array (the arm model is written once for both).
+_Expr = TypeVar("_Expr", ca.MX, np.ndarray)
+#: Stage-state columns of the capsule's position and velocity, the EPM's position (x, y, height)
+#: and its velocity command.
+_CAPSULE_P, _CAPSULE_V, _EPM, _CMD = slice(0, 2), slice(2, 4), slice(4, 7), slice(7, 10)
 
 
 @dataclass(frozen=True)
@@ -142,7 +148,9 @@ class OCP:
     n_w, n_p : int
         Number of variables and parameters.
     n_x, n_u, n_g : int
-        Stage state, input and path-row counts (10, 7, 5).
+        Stage state, input and path-row counts (13, 8, 11).
+    lag_s : float
+        The nominal arm's servo time constant the prediction delays the EPM by, s.
     """
 
     nlp: dict
@@ -161,6 +169,7 @@ class OCP:
     n_x: int = N_STATE
     n_u: int = N_INPUT
     n_g: int = N_PATH
+    lag_s: float = 0.0
 
     @property
     def frame_s(self) -> float:
@@ -183,6 +192,22 @@ class OCP:
         """``N``, ``nx``, ``nu``, ``ng`` per stage, as CasADi's HPIPM interface takes them."""
         n = self.horizon
         return {"N": n, "nx": [self.n_x] * (n + 1), "nu": [self.n_u] * n + [0], "ng": [self.n_g] * n + [0]}
+
+    def epm_velocities(
+        self, us: np.ndarray, u_prev: np.ndarray, slope_prev: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The EPM's mean velocity over each step (3 x N), m/s, as the prediction moves it for the
+        commands ``us`` (3 x N) after ``u_prev`` (3) changing at ``slope_prev`` (3, m/s^2; default
+        0): :func:`arm_displacement` over each stage's step, divided by the step."""
+        us = np.asarray(us, dtype=float)
+        commands = np.column_stack([np.ravel(u_prev), us])
+        slope = np.zeros(_NU_MODEL) if slope_prev is None else np.ravel(slope_prev).astype(float)
+        out = np.empty_like(us)
+        for k, h in enumerate(self.steps_s):
+            dc = commands[:, k + 1] - commands[:, k]
+            out[:, k] = arm_displacement(commands[:, k], dc, slope, float(h), self.lag_s) / h
+            slope = dc / h
+        return out
 
     def _stages(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Scaled ``w`` -> stage states (N+1 x 10) and inputs (N x 7), both scaled."""
@@ -283,19 +308,24 @@ class OCP:
         old_t = self.node_times_s
         new_t = self.frame_s + old_t
         phys = np.column_stack([np.interp(new_t, old_t, col) for col in states.T]) * STATE_SCALE
-        # Positions (capsule p, EPM e and h) are piecewise linear in time: interpolated exactly,
-        # and continued past the horizon at the last stage's rates. Each stage's rate (capsule
-        # velocity, command) is then the position's mean rate over the new stage, so every linear
-        # gap row holds as it did in ``w``; only the velocity's implicit Euler rows move.
+        # The capsule's position is piecewise linear in time: interpolated exactly, continued past
+        # the horizon at the last stage's velocity, and each stage's velocity is then the
+        # position's mean rate over the new stage, so its gap rows hold as they did in ``w``.
         past = np.maximum(new_t - old_t[-1], 0.0)[:, None]
-        phys[:, _POSITIONS] += past * states[-1, _RATES] * STATE_SCALE[_RATES]
-        phys[1:, _RATES] = np.diff(phys[:, _POSITIONS], axis=0) / self.steps_s[:, None]
-        cmd = slice(_NX_MODEL, _NX_MODEL + _NU_MODEL)
-        phys[1:, _SLOPE] = np.diff(phys[:, cmd], axis=0) / self.steps_s[:, None]
+        phys[:, _CAPSULE_P] += past * states[-1, _CAPSULE_V] * STATE_SCALE[_CAPSULE_V]
+        phys[1:, _CAPSULE_V] = np.diff(phys[:, _CAPSULE_P], axis=0) / self.steps_s[:, None]
+        # The command profile is piecewise linear between the stage commands (held past the
+        # horizon): interpolated exactly; its slopes follow, and the EPM moves over each new stage
+        # as the prediction moves it (arm_displacement), so the EPM's gap rows hold too.
+        phys[1:, _SLOPE] = np.diff(phys[:, _CMD], axis=0) / self.steps_s[:, None]
+        for k, h in enumerate(self.steps_s):
+            dc = phys[k + 1, _CMD] - phys[k, _CMD]
+            move = arm_displacement(phys[k, _CMD], dc, phys[k, _SLOPE], float(h), self.lag_s)
+            phys[k + 1, _EPM] = phys[k, _EPM] + move
         moved = phys / STATE_SCALE
         stage = np.minimum(np.searchsorted(old_t, new_t[:-1], side="right") - 1, self.horizon - 1)
         new_inputs = np.hstack([
-            np.diff(moved[:, cmd], axis=0),  # dc (the command's scale)
+            np.diff(moved[:, _CMD], axis=0),  # dc (the command's scale)
             moved[1:, 2:4],  # capsule velocity at the next stage (the state's scale)
             inputs[stage, _NU_MODEL + 2 :],  # slacks: the old stage the new one starts in
         ])  # fmt: skip
@@ -315,16 +345,42 @@ class OCP:
         return np.concatenate([p[:_NX_MODEL], p[i_u : i_u + 2 * _NU_MODEL]]) / STATE_SCALE
 
 
-def _next_state(xk: ca.MX, uk: ca.MX, dt_s: float) -> ca.MX:
-    """Physical x_{k+1} from physical (x_k, u_k): implicit Euler of p' = v and e' = c; the
-    command's slope is its change over the step."""
+def arm_displacement(cmd: _Expr, dc: _Expr, slope: _Expr, h: float, lag_s: float) -> _Expr:
+    """The EPM's displacement over a step of ``h`` (s) that changes the command from ``cmd`` by
+    ``dc``, the command having changed at ``slope`` (m/s^2) over the step before.
+
+    The arm's response as the MPC predicts it: Ruckig (velocity interface) turns each command into
+    a jerk-limited ramp that reaches it by the step's end, so a jerk-feasible command sequence
+    gives setpoint velocities linear between the commands (the trapezoid rule: half a step behind
+    holding each command over its step); the joint servos follow their setpoints with a
+    first-order lag of time constant ``lag_s``, which on a ramp is a delay of ``lag_s``. The
+    displacement is the integral of the command profile, piecewise linear, delayed by ``lag_s``,
+    over the step; the profile before the step's start is the previous step's ramp (``slope``),
+    continued where ``lag_s`` reaches further back. Linear in its arguments (stage-local);
+    symbolic (CasADi) or numeric (NumPy) alike.
+    """
+    if lag_s <= h:
+        return h * cmd + (h - lag_s) ** 2 / (2.0 * h) * dc - 0.5 * lag_s**2 * slope
+    return h * cmd - h * (lag_s - 0.5 * h) * slope
+
+
+def _next_state(xk: ca.MX, uk: ca.MX, dt_s: float, lag_s: float) -> ca.MX:
+    """Physical x_{k+1} from physical (x_k, u_k): implicit Euler of p' = v, the EPM moved as the
+    arm moves it (:func:`arm_displacement`); the command's slope is its change over the step."""
     pos, epm, height, cmd = xk[0:2], xk[4:6], xk[6], xk[7:10]
-    cmd_next = cmd + uk[0:3]
+    dc = uk[0:3]
+    cmd_next = cmd + dc
     v_next = uk[3:5]
+    move = arm_displacement(cmd, dc, xk[_SLOPE], dt_s, lag_s)
     return ca.vertcat(
-        pos + dt_s * v_next, v_next, epm + dt_s * cmd_next[0:2], height + dt_s * cmd_next[2], cmd_next,
-        uk[0:3] / dt_s,
+        pos + dt_s * v_next, v_next, epm + move[0:2], height + move[2], cmd_next, dc / dt_s,
     )  # fmt: skip
+
+
+def servo_lag_s(scenario: Scenario) -> float:
+    """The nominal arm's servo time constant ``1 / (2 pi arm.servo_bandwidth_hz)``, s (0 without)."""
+    f = scenario.arm.servo_bandwidth_hz
+    return 0.0 if f is None else 1.0 / (2.0 * np.pi * float(f))
 
 
 def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: float | None = None) -> OCP:
@@ -363,6 +419,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     dist, mu_offset = p[i_dist : i_dist + N_DIST], p[i_dist + N_DIST]
 
     mass = sc.capsule.mass_kg
+    lag = servo_lag_s(sc)
     eps = sc.friction.smoothing_eps_mps
     eq_sq = lim.max_lead_m**2
     lead_eq = ca.DM(lead_eq_m)
@@ -373,7 +430,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
         xk = x_scale * w[_STAGE * k : _STAGE * k + N_STATE]
         uk = u_scale * w[_STAGE * k + N_STATE : _STAGE * (k + 1)]
         x_next_var = w[_STAGE * (k + 1) : _STAGE * (k + 1) + N_STATE]
-        x1 = _next_state(xk, uk, h)
+        x1 = _next_state(xk, uk, h, lag)
         m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL : _NX_MODEL + _NU_MODEL], uk[0:3], uk[5:7]
         sj, jerk = uk[7], (uk[0:3] / h - xk[_SLOPE]) / J_SCALE
         v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
@@ -461,5 +518,5 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     return OCP(
         nlp={"x": w, "p": p, "f": f, "g": g}, residual=residual, slack_gradient=slack_gradient,
         lbw=lbw, ubw=ubw, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg), horizon=n, dt_s=dt_s,
-        lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p, steps_s=steps,
+        lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p, steps_s=steps, lag_s=lag,
     )  # fmt: skip

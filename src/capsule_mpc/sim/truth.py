@@ -51,7 +51,8 @@ class PlantTruth:
         Every drawable field's value (scales dimensionless, SI otherwise); ``tether_drag_n``,
         ``camera_noise_std_m`` filled from the nominal scenario where the preset keeps them.
     servo_bandwidth_hz : float or None
-        None: the arm has no servo lag.
+        The arm's joint servo bandwidth, Hz (the nominal ``arm.servo_bandwidth_hz`` unless the
+        preset draws one); None: the arm has no servo lag.
     friction_field : FrictionField
         The friction multiplier over the plate (field and patches).
     start_at_true_equilibrium : bool
@@ -122,6 +123,8 @@ def draw_plant_truth(scenario: Scenario, seed: int) -> PlantTruth:
     cfg = scenario.plant
     rng = np.random.default_rng([seed, PLANT_STREAM])
     raw, servo = _draw_values(cfg, rng)
+    if servo is None:  # not drawn: the nominal arm's
+        servo = scenario.arm.servo_bandwidth_hz
     if raw["tether_drag_n"] is None:
         raw["tether_drag_n"] = scenario.friction.tether_drag_n
     if raw["camera_noise_std_m"] is None:
