@@ -13,6 +13,7 @@ in the data flow, so the arm does not import the simulator.
 from __future__ import annotations
 
 import importlib
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 
@@ -20,7 +21,13 @@ import numpy as np
 
 from .config import ConfigError, Scenario
 
-__all__ = ["Actuator", "make_actuator", "register_actuator"]
+__all__ = ["Actuator", "make_actuator", "register_actuator", "servo_time_constant_s"]
+
+
+def servo_time_constant_s(bandwidth_hz: float | None) -> float | None:
+    """The time constant ``1 / (2 pi f)`` (s) of a first-order servo of bandwidth ``f`` (Hz); None
+    without a bandwidth (the servo reaches its setpoint at once)."""
+    return None if bandwidth_hz is None else 1.0 / (2.0 * math.pi * float(bandwidth_hz))
 
 
 class Actuator(ABC):

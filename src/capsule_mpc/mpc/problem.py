@@ -56,6 +56,7 @@ from typing import TypeVar
 import casadi as ca
 import numpy as np
 
+from ..actuation import servo_time_constant_s
 from ..config import Scenario, stage_end_times_s
 from ..dynamics import CapsuleModel
 
@@ -210,7 +211,7 @@ class OCP:
         return out
 
     def _stages(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Scaled ``w`` -> stage states (N+1 x 10) and inputs (N x 7), both scaled."""
+        """Scaled ``w`` -> stage states (N+1 x 13) and inputs (N x 8), both scaled."""
         n = self.horizon
         w = np.asarray(w, dtype=float).ravel()
         body = w[: _STAGE * n].reshape(n, _STAGE)
@@ -228,7 +229,7 @@ class OCP:
 
     @cached_property
     def _later_states(self) -> np.ndarray:
-        """Indices of ``w``'s stage states 1..N (N x 10)."""
+        """Indices of ``w``'s stage states 1..N (N x 13)."""
         first = _STAGE * np.arange(1, self.horizon + 1)
         return first[:, None] + np.arange(N_STATE)[None, :]
 
@@ -281,7 +282,7 @@ class OCP:
         return self._join(states / STATE_SCALE, inputs / INPUT_SCALE)
 
     def _join(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """Scaled stage states (N+1 x 10) and inputs (N x 7) -> ``w``."""
+        """Scaled stage states (N+1 x 13) and inputs (N x 8) -> ``w``."""
         return np.concatenate([np.hstack([states[:-1], inputs]).ravel(), states[-1]])
 
     def shift(self, w: np.ndarray) -> np.ndarray:
@@ -318,10 +319,8 @@ class OCP:
         # horizon): interpolated exactly; its slopes follow, and the EPM moves over each new stage
         # as the prediction moves it (arm_displacement), so the EPM's gap rows hold too.
         phys[1:, _SLOPE] = np.diff(phys[:, _CMD], axis=0) / self.steps_s[:, None]
-        for k, h in enumerate(self.steps_s):
-            dc = phys[k + 1, _CMD] - phys[k, _CMD]
-            move = arm_displacement(phys[k, _CMD], dc, phys[k, _SLOPE], float(h), self.lag_s)
-            phys[k + 1, _EPM] = phys[k, _EPM] + move
+        moves = self.steps_s * self.epm_velocities(phys[1:, _CMD].T, phys[0, _CMD], phys[0, _SLOPE])
+        phys[1:, _EPM] = phys[0, _EPM] + np.cumsum(moves, axis=1).T
         moved = phys / STATE_SCALE
         stage = np.minimum(np.searchsorted(old_t, new_t[:-1], side="right") - 1, self.horizon - 1)
         new_inputs = np.hstack([
@@ -377,12 +376,6 @@ def _next_state(xk: ca.MX, uk: ca.MX, dt_s: float, lag_s: float) -> ca.MX:
     )  # fmt: skip
 
 
-def servo_lag_s(scenario: Scenario) -> float:
-    """The nominal arm's servo time constant ``1 / (2 pi arm.servo_bandwidth_hz)``, s (0 without)."""
-    f = scenario.arm.servo_bandwidth_hz
-    return 0.0 if f is None else 1.0 / (2.0 * np.pi * float(f))
-
-
 def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: float | None = None) -> OCP:
     """Build the MPC's NLP for ``model`` with step ``dt_s`` in the stage-wise layout.
 
@@ -419,7 +412,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     dist, mu_offset = p[i_dist : i_dist + N_DIST], p[i_dist + N_DIST]
 
     mass = sc.capsule.mass_kg
-    lag = servo_lag_s(sc)
+    lag = servo_time_constant_s(sc.arm.servo_bandwidth_hz) or 0.0  # no servo lag: 0
     eps = sc.friction.smoothing_eps_mps
     eq_sq = lim.max_lead_m**2
     lead_eq = ca.DM(lead_eq_m)

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from ..actuation import Actuator, make_actuator, register_actuator
+from ..actuation import Actuator, make_actuator, register_actuator, servo_time_constant_s
 from ..config import Scenario
 
 __all__ = [
@@ -141,8 +141,7 @@ class SimpleArm(Actuator):
     @property
     def servo_time_constant_s(self) -> float | None:
         """The servo's time constant ``1 / (2 pi servo_bandwidth_hz)``, s; None without a bandwidth."""
-        f = self.servo_bandwidth_hz
-        return None if f is None else 1.0 / (2.0 * math.pi * f)
+        return servo_time_constant_s(self.servo_bandwidth_hz)
 
     def step(self, dt_s: float) -> np.ndarray:
         """Advance by ``dt_s`` (s); returns the EPM position (x, y, height), m."""
