@@ -252,3 +252,44 @@ def test_offline_plan_as_feedforward(fast):
     m = run.metrics
     assert not (m["decoupled"] or m["dropped"] or m["stalled"])
     assert m["final_error_mm"] < 1.0 and m["cross_track_max_mm"] < 1.5
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    offset=st.tuples(*[st.floats(-0.01, 0.01)] * 2),
+    blend=st.floats(0.1, 5.0),
+    t0=st.floats(0.0, 8.0),
+)
+def test_the_start_reference_joins_the_path_smoothly(fast, offset, blend, t0):
+    """From the capsule's rest position at t = 0 onto the path by ``mpc.start_blend_s``, with a
+    velocity that is the derivative of the position (a closed form, checked by differences)."""
+    ctrl = MPCController()
+    ctrl.scenario = fast.model_copy(update={"mpc": fast.mpc.model_copy(update={"start_blend_s": blend})})
+    ctrl._start_offset = np.asarray(offset)
+    times = np.array([0.0, t0, t0 + 1e-6, blend, blend + t0])
+    pos, vel = PATH.position(times).T, PATH.velocity(times).T
+    jpos, jvel = ctrl._join(times, pos, vel)
+    assert np.allclose(jpos[:, 0], pos[:, 0] + offset, atol=1e-15)
+    assert np.allclose(jpos[:, 3:], pos[:, 3:], atol=1e-15) and np.allclose(jvel[:, 3:], vel[:, 3:])
+    joined = (jpos - pos)[:, 1:3]  # the offset left at t0 and just after: a fading, smooth blend
+    assert np.all(np.abs(joined) <= np.abs(np.asarray(offset))[:, None] + 1e-15)
+    slope = (joined[:, 1] - joined[:, 0]) / 1e-6
+    # A forward difference is off by at most |f''| h / 2, f'' <= (pi^2 / 2) |offset| / blend^2.
+    bound = 2.5 * 1e-6 * max(abs(offset[0]), abs(offset[1])) / blend**2
+    assert np.allclose(slope, (jvel - vel)[:, 1], rtol=0, atol=bound + 1e-12)
+
+
+def test_joining_the_path_from_the_rest_position_tracks_better_on_the_lab_rig(lab_scenario):
+    """Lab draws whose capsule rests millimetres off the path's start (in the static-friction dead
+    zone): joining the path over 2 s beats dragging the capsule sideways onto it at once, on the
+    whole run's tracking error scored against the path itself."""
+    path = ReferencePath(np.array([[-0.05, -0.03], [0.0, -0.03]]), closed=False, speed_mps=0.02)
+    for seed in (1, 5, 12):
+        rms = {}
+        for blend in (0.0, 2.0):
+            sc = lab_scenario.model_copy(update={
+                "mpc": lab_scenario.mpc.model_copy(update={"compile_c": False, "start_blend_s": blend}),
+                "sim": lab_scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
+            })  # fmt: skip
+            rms[blend] = simulate(sc, MPCController(), path, seed=seed).metrics["tracking_rms_mm"]
+        assert rms[2.0] < rms[0.0], (seed, rms)

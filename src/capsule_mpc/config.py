@@ -681,6 +681,17 @@ class MPCConfig(_Strict):
     disturbance_max_n: Number = Field(
         0.15, ge=0, description="Bound on each estimated disturbance force component, N."
     )
+    start_blend_s: Number = Field(
+        2.0,
+        ge=0,
+        le=10,
+        description=(
+            "The reference joins the path from where the capsule rests at the start over this "
+            "long, s, [0, 10] (a half-cosine fade of the offset): the capsule breaks loose along "
+            "the path and is steered onto it while sliding. 0: the path itself from the first "
+            "frame. Runs are scored against the path either way."
+        ),
+    )
     friction_adaptation: Literal["off", "rls"] = Field(
         "off",
         description=(

@@ -180,6 +180,8 @@ class MPCController(Controller):
                     "velocity as feed-forward",
                     stacklevel=2,
                 )
+        self._started = False
+        self._start_offset: np.ndarray | None = None
         self.last_prediction: np.ndarray | None = None
         self.clipped_steps = 0
         self._rest_leads: list[np.ndarray] = []
@@ -199,6 +201,8 @@ class MPCController(Controller):
         if t_s < 0:  # settle phase: the rig holds the EPM, so plan to stay at the start
             return np.vstack([self.path.position(np.zeros(n)).T, np.zeros((4, n))])
         pos, vel = self.path.position(times).T, self.path.velocity(times).T
+        if self._start_offset is not None:
+            pos, vel = self._join(times, pos, vel)
         if self._offline_plan is None:
             return np.vstack([pos, vel, vel])
         starts = times - ocp.steps_s  # input k applies from stage k's time on
@@ -265,6 +269,22 @@ class MPCController(Controller):
         limit = self.scenario.mpc.disturbance_max_n
         self.disturbance_n[0:2] = np.clip(-force[0:2], -limit, limit)
 
+    def _join(self, times: np.ndarray, pos: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The reference joining the path from where the capsule rested at the start.
+
+        The offset of the rest position from the path's start fades out over
+        ``mpc.start_blend_s`` (a half cosine), so the capsule breaks loose along the path and is
+        steered onto it while it slides, instead of being dragged sideways out of the
+        static-friction dead zone first (a breakaway across the path lurches millimetres on the
+        soft axis). The run is still scored against the path itself.
+        """
+        blend = self.scenario.mpc.start_blend_s
+        phase = np.clip(times / blend, 0.0, 1.0)
+        weight = 0.5 * (1.0 + np.cos(np.pi * phase))
+        rate = np.where(phase < 1.0, -0.5 * np.pi / blend * np.sin(np.pi * phase), 0.0)
+        offset = self._start_offset[:, None]
+        return pos + offset * weight, vel + offset * rate
+
     def _initial_guess(self, x0: np.ndarray) -> np.ndarray:
         """Everything standing still at the current state."""
         ocp = self.stack.ocp  # type: ignore[union-attr]
@@ -313,6 +333,10 @@ class MPCController(Controller):
         if not accepted:  # an outlier rejected by the filter's gate: the prediction stands in for it
             measurement = replace(measurement, position_m=None)
         pos, vel = self.estimator.estimate(t_s)
+        if t_s >= 0 and not self._started:
+            self._started = True
+            if self.scenario.mpc.start_blend_s > 0:
+                self._start_offset = pos - self.path.position(np.zeros(1))[0]
         self._calibrate_rest_offset(t_s, epm, measurement)
         self.approach.observe(measurement)
         u_approach = self.approach.step(t_s, epm, self.u_prev, self.disturbance_n[0:2])
