@@ -98,9 +98,11 @@ def test_demo_demonstrates_learns_and_compares_with_a_cache(tmp_path, capsys, ta
     assert main(args) == 0
     first = capsys.readouterr().out
     logs = sorted((out / "demonstrations").glob("*/log.csv"))
-    assert len(logs) == 6  # straight x, straight y, rectangle at two speeds
+    # straight x, straight y, rectangle at two speeds; breakaways along x and y after 4 rest times
+    assert len(logs) == 6 + 8
     model = yaml.safe_load((out / "learned_friction.yaml").read_text())
     assert model["force_model"] == "lookup" and model["degree"] == 4
+    assert model["rig"] == {"preset": "lab", "seed": 0} and "static_mu_1s" in model and "p1" in model["ci95"]
     assert sorted(model["sources"]) == sorted(str(p.resolve()) for p in logs)
     assert (out / "learning" / "friction_c_fit.png").stat().st_size > 0
     scenario = load_config(out / "scenario.yaml")  # the derived scenario: lookup model + learned friction
@@ -125,7 +127,7 @@ def test_demo_demonstrates_learns_and_compares_with_a_cache(tmp_path, capsys, ta
     stamp = (out / "learned_friction.yaml").stat().st_mtime_ns
     assert main(args) == 0
     second = capsys.readouterr().out
-    assert "(6 cached)" in second and "friction model: up to date" in second and "| follow |" in second
+    assert "(14 cached)" in second and "friction model: up to date" in second and "| follow |" in second
     assert (out / "learned_friction.yaml").stat().st_mtime_ns == stamp  # (re-fit rules: next test)
 
 

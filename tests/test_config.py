@@ -105,7 +105,7 @@ def test_base_inheritance_overrides_only_given_fields(tmp_path):
 
 
 def test_learned_model_from_file_and_inline(tmp_path):
-    model = {"coefficients": [0.5, 0.03], "validity_mps": [0.005, 0.04], "degree": 1}
+    model = {"coefficients": [0.5, 0.03], "validity_mps": [0.005, 0.04], "degree": 1, "force_model": "dipole"}
     (tmp_path / "model.yaml").write_text(yaml.safe_dump(model))
     path = tmp_path / "c.yaml"
     path.write_text("base: paper\nfriction:\n  learned: model.yaml\n")

@@ -107,11 +107,20 @@ def test_measured_steady_lead_needs_truth(demos):
 
 
 def test_demonstrate_cli(tmp_path, capsys, table):
-    args = ["demonstrate", "--speeds", "0.03", "--paths", "straight_x", "--out", str(tmp_path)]
+    args = [
+        "demonstrate",
+        "--speeds",
+        "0.03",
+        "--paths",
+        "straight_x",
+        "--no-breakaway",
+        "--out",
+        str(tmp_path),
+    ]
     assert main(args) == 0
     assert main(args) == 0
     out = capsys.readouterr().out
-    assert "1 demonstration run(s) (1 cached)" in out
+    assert "1 demonstration run(s) (0 breakaway, 1 cached)" in out
     assert (tmp_path / "straight_x_v30mmps_r0" / "log.csv").exists()
 
 

@@ -21,6 +21,7 @@ import math
 import numbers
 import re
 import reprlib
+import warnings
 from collections.abc import Hashable
 from importlib import resources
 from pathlib import Path
@@ -54,6 +55,8 @@ __all__ = [
     "FrictionPatchConfig",
     "IPMConfig",
     "LearnedFrictionModel",
+    "LearnedModelWarning",
+    "LearnedRig",
     "LimitsConfig",
     "MPCConfig",
     "PathConfig",
@@ -62,6 +65,7 @@ __all__ = [
     "RateStateConfig",
     "Scenario",
     "SimConfig",
+    "check_learned_force_model",
     "config_from_dict",
     "dump_config",
     "load_config",
@@ -84,6 +88,10 @@ _MAX_SHOWN = 80
 _REPR = reprlib.Repr()
 _REPR.maxlevel, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict = 3, 8, 8, 4
 _REPR.maxstring = _REPR.maxother = _MAX_SHOWN - 4
+
+
+class LearnedModelWarning(UserWarning):
+    """A learned friction model is loaded without knowing which force model it was fitted with."""
 
 
 class ConfigError(ValueError):
@@ -274,6 +282,13 @@ class RateStateConfig(_Strict):
     b: Number = Field(..., ge=0, description="Evolution-effect constant b, >= 0 (paper eq. 5).")
 
 
+class LearnedRig(_Strict):
+    """The simulated rig a learned model's demonstrations ran on (one plant draw)."""
+
+    preset: Literal["ideal", "lab", "hard"] = Field(..., description="Plant preset drawn from.")
+    seed: Integer = Field(..., ge=0, description="Seed of the plant draw, >= 0.")
+
+
 class LearnedFrictionModel(_Strict):
     """A steady-state friction law mu(v) = mu0 - c(v) ln(v*/|v|) with polynomial c(v) (paper eq. 10).
 
@@ -296,7 +311,12 @@ class LearnedFrictionModel(_Strict):
     r2: Number | None = Field(None, description="Coefficient of determination of the fit.")
     rmse: Number | None = Field(None, ge=0, description="Root-mean-square residual of c.")
     force_model: Literal["dipole", "lookup"] | None = Field(
-        None, description="Force model that gave F and F_N in the fit (informational)."
+        None,
+        description=(
+            "Force model that gave F and F_N in the fit: 'dipole' or 'lookup'. A scenario using the "
+            "model must have the same force_model (refused on load otherwise; a model without one "
+            "loads with a warning)."
+        ),
     )
     robust: StrictBool | None = Field(
         None, description="Whether the fit used the Huber loss (informational)."
@@ -305,6 +325,36 @@ class LearnedFrictionModel(_Strict):
         None, description="Samples excluded from the fit, by reason (informational)."
     )
     sources: list[str] | None = Field(None, description="Files the samples came from (informational).")
+    static_mu_1s: Number | None = Field(
+        None,
+        ge=0,
+        le=2,
+        description=(
+            "Breakaway friction coefficient after 1 s at rest, dimensionless, [0, 2]: static_mu_1s in "
+            "mu_s(T) = static_mu_1s + static_healing ln(T / 1 s), fitted to breakaway experiments "
+            "((|F_xy| - f_s) / F_N when the capsule starts to slide after resting T)."
+        ),
+    )
+    static_healing: Number | None = Field(
+        None,
+        ge=-1,
+        le=1,
+        description=(
+            "Growth of the breakaway friction coefficient per e-fold of rest time (static_healing "
+            "in mu_s(T) above), dimensionless per e-fold, [-1, 1]; given together with static_mu_1s."
+        ),
+    )
+    ci95: dict[str, tuple[Number, Number]] | None = Field(
+        None,
+        description=(
+            "95 % confidence intervals [low, high] of fitted parameters, by name: static_mu_1s, "
+            "static_healing (same units as the fields) and p1, p2, ... (the coefficients of c(v), "
+            "highest power first, units of c per (m/s)^power); low <= value <= high."
+        ),
+    )
+    rig: LearnedRig | None = Field(
+        None, description="The rig the demonstrations ran on: plant preset and seed of its draw."
+    )
 
     @model_validator(mode="after")
     def _check(self) -> LearnedFrictionModel:
@@ -315,6 +365,19 @@ class LearnedFrictionModel(_Strict):
             raise ValueError(
                 f"degree: must equal len(coefficients) - 1 = {len(self.coefficients) - 1}, got {self.degree}"
             )
+        if (self.static_mu_1s is None) != (self.static_healing is None):
+            raise ValueError("static_mu_1s and static_healing: give both or neither")
+        values: dict[str, float | None] = {f"p{k + 1}": c for k, c in enumerate(self.coefficients)}
+        values.update(static_mu_1s=self.static_mu_1s, static_healing=self.static_healing)
+        for name, (low, high) in (self.ci95 or {}).items():
+            if name not in values:
+                allowed = ", ".join(values)
+                raise ValueError(f"ci95.{name}: not a fitted parameter of this model ({allowed})")
+            if not low <= high:
+                raise ValueError(f"ci95.{name}: must satisfy low <= high, got [{low}, {high}]")
+            value = values[name]
+            if value is not None and not low <= value <= high:
+                raise ValueError(f"ci95.{name}: [{low}, {high}] must contain the value {value}")
         return self
 
 
@@ -1755,13 +1818,48 @@ def load_config(path: str | Path | None = None) -> Scenario:
     data = _resolve_base(path, read_yaml(path))
     scenario: Scenario = _validate(Scenario, data, f"config {path}")
     scenario.source_path = path.resolve()
+    check_learned_force_model(scenario, f"config {path}")
     return scenario
 
 
 def config_from_dict(data: dict[str, Any]) -> Scenario:
     """Validate a scenario given as a mapping (same rules and errors as :func:`load_config`)."""
     scenario: Scenario = _validate(Scenario, dict(data), "config")
+    learned = scenario.friction.learned
+    if isinstance(learned, LearnedFrictionModel) or (isinstance(learned, Path) and learned.is_absolute()):
+        check_learned_force_model(scenario, "config")
     return scenario
+
+
+def check_learned_force_model(scenario: Scenario, where: str) -> None:
+    """Refuse a learned friction model fitted with another force model than the scenario's.
+
+    The learned c(v) (and breakaway coefficients) are ratios of forces computed with the model's
+    ``force_model``; used with another one they misstate the friction by the models' difference.
+    A model that records no force model is accepted with a :class:`LearnedModelWarning`.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``friction.learned.force_model`` and ``force_model`` with both values.
+    """
+    if scenario.friction.learned is None:
+        return
+    model = scenario.controller_friction()
+    if model.force_model is None:
+        warnings.warn(
+            f"{where}: friction.learned records no force_model; it is used with force_model "
+            f"{scenario.force_model!r}, which may not be the one it was fitted with (learn it again "
+            "with capsule-mpc learn-friction, which records it)",
+            LearnedModelWarning,
+            stacklevel=3,
+        )
+    elif model.force_model != scenario.force_model:
+        raise ConfigError(
+            f"invalid {where}:\n  friction.learned.force_model: {model.force_model!r} but force_model is "
+            f"{scenario.force_model!r}; learn the model again with force_model: {scenario.force_model}, "
+            f"or set force_model: {model.force_model}"
+        )
 
 
 def dump_config(scenario: Scenario, path: str | Path | None = None) -> str:

@@ -2,11 +2,13 @@
 
 Four steps, each cached so that a second run only repeats the comparison:
 
-1. *demonstrate*: the ``follow`` baseline at several speeds on straight and rectangular
-   paths (:func:`capsule_mpc.learning.demonstrations.run_demonstrations`) into
-   ``OUT/demonstrations/``; a run whose config, path, speed and seed are unchanged is reused.
+1. *demonstrate*: on one rig (``--plant``, ``--seed``: one plant draw), the ``follow``
+   baseline at several speeds on straight and rectangular paths and the breakaway
+   experiments (:func:`capsule_mpc.learning.demonstrations.run_demonstrations`) into
+   ``OUT/demonstrations/``; a run whose config, rig, path, speed and seed are unchanged is reused.
 2. *learn*: c(v) fitted to those logs with the ``lookup`` force model (the finite-magnet
-   force map, as the paper used FEM) into ``OUT/learned_friction.yaml``, with the paper's
+   force map, as the paper used FEM), and the static friction and its healing to the
+   breakaways, into ``OUT/learned_friction.yaml``, with the paper's
    Fig. 7b/7c as ``OUT/learning/friction_*.png``. Skipped when the model exists, is newer
    than every demonstration log and was fitted to exactly those logs.
 3. *scenario*: ``OUT/scenario.yaml``, the base config (a full dump) with
@@ -14,7 +16,8 @@ Four steps, each cached so that a second run only repeats the comparison:
    controllers' model uses the force map and the learned friction; the simulated plant is
    the same rig.
 4. *compare*: every available controller (``follow``, ``paper_0.8v``, ``mpc``, ``plan`` if
-   available) on that scenario, same plant and seed, into ``OUT/compare/`` (see
+   available) on that scenario, on the same rig (the plant drawn with the same seed), into
+   ``OUT/compare/`` (see
    :mod:`capsule_mpc.cli.compare`).
 
 The finite-magnet force map is computed on first use and cached (``$CAPSULE_MPC_CACHE``,
@@ -35,9 +38,10 @@ import yaml
 from ..atomic import write_text_atomic
 from ..budget import check_run, speed_source
 from ..config import ConfigError, Scenario, load_config, packaged_config_path, read_yaml
+from ..learning.demonstrations import BreakawayPlan
 from ..outputs import output_folder
-from .arguments import input_files, positive_speed, seed
-from .demonstrate import DEFAULT_SPEEDS_MPS, check_demonstrations
+from .arguments import input_files, positive_speed
+from .demonstrate import DEFAULT_SPEEDS_MPS, add_rig_arguments, check_demonstrations, rig_scenario
 
 __all__ = [
     "DEFAULT_OUT",
@@ -76,12 +80,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--config", default=None, help="base scenario YAML (default: packaged rectangle.yaml)")
     p.add_argument("--out", default=str(DEFAULT_OUT), help=f"output folder (default: {DEFAULT_OUT})")
-    p.add_argument(
-        "--seed",
-        type=seed,
-        default=None,
-        help="seed of the demonstrations and the comparison, an integer >= 0 (default: sim.seed)",
-    )
+    add_rig_arguments(p, seed_default=None)
     p.add_argument(
         "--speeds",
         type=positive_speed,
@@ -150,13 +149,14 @@ def _demonstrate(base: Scenario, args: argparse.Namespace, out: Path, seed: int)
     t0 = time.perf_counter()
     runs = run_demonstrations(
         base, args.speeds, out / "demonstrations", seed=seed, use_cache=not args.no_cache,
-        progress=not args.no_progress,
+        progress=not args.no_progress, breakaway=BreakawayPlan(),
     )  # fmt: skip
     cached = sum(r.cached for r in runs)
+    n_break = sum(r.experiment == "breakaway" for r in runs)
     print(
-        f"[1/4] demonstrations: {len(runs)} follow runs ({cached} cached) at "
-        f"{', '.join(f'{v:g}' for v in args.speeds)} m/s in {time.perf_counter() - t0:.1f} s "
-        f"-> {out / 'demonstrations'}"
+        f"[1/4] demonstrations on the rig {base.plant.preset!r} seed {seed}: {len(runs) - n_break} follow "
+        f"runs at {', '.join(f'{v:g}' for v in args.speeds)} m/s and {n_break} breakaway runs ({cached} "
+        f"cached) in {time.perf_counter() - t0:.1f} s -> {out / 'demonstrations'}"
     )
     for r in runs:
         if r.status in ("decoupled", "dropped"):
@@ -167,6 +167,7 @@ def _demonstrate(base: Scenario, args: argparse.Namespace, out: Path, seed: int)
 def _learn(base: Scenario, logs: list[Path], out: Path, refit: bool) -> Path:
     from ..learning import LogOptions, learn_from_logs, write_model
     from ..learning.plots import save_figures
+    from .learn import static_text
 
     model_path = out / LEARNED_MODEL
     if not refit and model_is_current(model_path, logs):
@@ -184,6 +185,8 @@ def _learn(base: Scenario, logs: list[Path], out: Path, refit: bool) -> Path:
         f"samples, valid {lo:.4g}-{hi:.4g} m/s, R^2 {r2}, in {time.perf_counter() - t0:.1f} s "
         f"-> {model_path} (figures: {', '.join(p.name for p in figures)} in {out / 'learning'})"
     )
+    for line in static_text(result):
+        print(f"  {line}")
     for warning in result.warnings:
         print(f"  WARNING: {warning}")
     return model_path
@@ -209,7 +212,7 @@ def check_demo(base: Scenario, speeds_mps: list[float], controllers: list[str]) 
         raise ConfigError(
             f"--speeds: each must be in (0, {limit:g}] m/s (limits.speed_mps), got {too_fast[0]:g}"
         )
-    check_demonstrations(base, speeds_mps, DEMO_PATHS)
+    check_demonstrations(base, speeds_mps, DEMO_PATHS, breakaway=BreakawayPlan())
     path = path_from_scenario(base)
     check_run(
         base, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), run_figures(controllers, 1)
@@ -232,7 +235,7 @@ def run(args: argparse.Namespace) -> int:
     wall0 = time.perf_counter()
     names = check_controllers(args.controllers)
     config = args.config if args.config is not None else str(packaged_config_path("rectangle"))
-    check_demo(load_config(config), args.speeds, names)
+    check_demo(rig_scenario(load_config(config), args.plant), args.speeds, names)
     # The folder keeps its demonstrations and model as a cache: nothing earlier is removed.
     inputs = input_files(args, "--config")
     with output_folder(Path(args.out).resolve(), "demo", replace_previous=False, inputs=inputs) as folder:
@@ -247,7 +250,7 @@ def _demo(args: argparse.Namespace, config: str, out: Path, wall0: float) -> int
     from ..paths import path_from_scenario
     from .compare import compare_controllers, summary_table
 
-    base = load_config(config)
+    base = rig_scenario(load_config(config), args.plant)
     seed = base.sim.seed if args.seed is None else args.seed
     print(f"capsule-mpc demo: demonstrate -> learn -> compare on {config} (seed {seed}), into {out}")
     force_map(base, progress=not args.no_progress)  # computed once per machine, then cached

@@ -31,7 +31,7 @@ from ..learning.core import model_yaml
 from ..learning.fit import MAX_DEGREE
 from ..outputs import shown_path
 
-__all__ = ["output_problem", "register", "run", "summary"]
+__all__ = ["interval_text", "output_problem", "register", "run", "static_text", "summary"]
 
 #: Notes printed in the text summary (all of them are in the --json output).
 _MAX_NOTES = 4
@@ -82,8 +82,9 @@ def register(sub: Any) -> None:
     p.add_argument("--min-log-ratio", type=_non_negative, default=MIN_LOG_RATIO,
                    help=f"exclude samples with |ln(v*/v)| below this (default {MIN_LOG_RATIO})")  # fmt: skip
     logs = p.add_argument_group("run logs (--log)")
-    logs.add_argument("--force-model", choices=("dipole", "lookup"), default=None,
-                      help="force model for F and F_N (default: the config's force_model)")  # fmt: skip
+    p.add_argument("--force-model", choices=("dipole", "lookup"), default=None,
+                   help="force model for F and F_N, recorded in the model (default: the config's "
+                   "force_model); a scenario using the model must use the same one")  # fmt: skip
     logs.add_argument("--truth", action="store_true",
                       help="use the simulator's true capsule position instead of the camera's")  # fmt: skip
     logs.add_argument("--window", type=_positive, default=LogOptions.window_s,
@@ -123,6 +124,9 @@ def summary(result: LearningResult, wall_s: float) -> dict[str, Any]:
         "rmse": fit.rmse,
         "robust": fit.robust,
         "force_model": result.model.force_model,
+        "ci95": result.model.ci95,
+        "rig": None if result.model.rig is None else result.model.rig.model_dump(),
+        "static_friction": _static_summary(result),
         "c_at_mps": {f"{v:.4g}": float(fit(v)) for v in np.linspace(*fit.validity_mps, 5)},
         "quality": result.quality.to_dict(),
         "open_loop": [check.to_dict() for check in result.loop_checks],
@@ -130,6 +134,53 @@ def summary(result: LearningResult, wall_s: float) -> dict[str, Any]:
         "notes": result.samples.notes,
         "timings_s": {**result.timings_s, "total": wall_s},
     }
+
+
+def _static_summary(result: LearningResult) -> dict[str, Any] | None:
+    """The breakaway fit and its events, JSON-able; None without breakaway logs."""
+    static = result.static
+    if static is None:
+        return None
+    fit = static.fit
+    return {
+        "static_mu_1s": fit.static_mu_1s,
+        "static_healing": fit.static_healing,
+        "ci95": {k: list(v) for k, v in fit.ci95.items()},
+        "n_breakaways": fit.n,
+        "rmse": fit.rmse,
+        "force_model": static.force_model,
+        "breakaways": [
+            {"log": str(e.path), "rest_s": e.rest_s, "mu_s": e.mu_s, "t_break_s": e.t_break_s}
+            for e in static.events
+        ],
+        "notes": static.notes,
+    }
+
+
+def interval_text(value: float, ci: tuple[float, float] | list[float] | None, digits: int = 4) -> str:
+    """``value`` with its 95 % interval, e.g. ``0.2 [0.19, 0.21]`` (the value alone without one)."""
+    if ci is None:
+        return f"{value:.{digits}g}"
+    return f"{value:.{digits}g} [{ci[0]:.{digits}g}, {ci[1]:.{digits}g}]"
+
+
+def static_text(result: LearningResult) -> list[str]:
+    """Lines on the static friction learned from breakaway logs (empty without them)."""
+    static = result.static
+    if static is None:
+        return []
+    fit = static.fit
+    rests = ", ".join(f"{t:.3g}" for t in sorted(e.rest_s for e in static.events))
+    lines = [
+        f"static friction from {fit.n} breakaway(s) (rest times {rests} s; force model "
+        f"{static.force_model}): mu_s(T) = static_mu_1s + static_healing ln(T / 1 s), "
+        "95 % intervals in brackets",
+        f"  static_mu_1s = {interval_text(fit.static_mu_1s, fit.ci95['static_mu_1s'])}, "
+        f"static_healing = {interval_text(fit.static_healing, fit.ci95['static_healing'])} per e-fold; "
+        f"RMS residual {fit.rmse:.3g}",
+    ]
+    lines += [f"  note: {note}" for note in static.notes]
+    return lines
 
 
 def _nearest_existing(path: Path) -> Path:
@@ -232,12 +283,22 @@ def _print_text(result: LearningResult, info: dict[str, Any]) -> None:
         print(f"  note: {note}")
     if len(notes) > _MAX_NOTES:
         print(f"  ... {len(notes) - _MAX_NOTES} more note(s) (--json lists them all)")
-    coefs = ", ".join(f"p{i + 1} = {c:.4g}" for i, c in enumerate(fit.coefficients))
-    print(f"  c(v) = poly degree {fit.degree}{' (Huber)' if fit.robust else ''}: {coefs}")
+    ci95 = result.model.ci95 or {}
+    coefs = ", ".join(
+        f"p{i + 1} = {interval_text(c, ci95.get(f'p{i + 1}'))}" for i, c in enumerate(fit.coefficients)
+    )
+    bracket = " (95 % intervals in brackets)" if ci95 else ""
+    print(f"  c(v) = poly degree {fit.degree}{' (Huber)' if fit.robust else ''}{bracket}: {coefs}")
     lo, hi = fit.validity_mps
     r2 = "n/a" if fit.r2 is None else f"{fit.r2:.4f}"
     print(f"  valid for {lo:.4g} <= v <= {hi:.4g} m/s; SSE {fit.sse:.5g}, R^2 {r2}, RMSE {fit.rmse:.4g}")
     print("  c at " + ", ".join(f"{k} m/s: {v:.4f}" for k, v in info["c_at_mps"].items()))
+    print(
+        f"  force model: {result.model.force_model}"
+        + (f"; rig: {result.model.rig.preset} seed {result.model.rig.seed}" if result.model.rig else "")
+    )
+    for line in static_text(result):
+        print(f"  {line}")
     quality = result.quality
     print(f"  {quality.explained}")
     if not quality.weak:
@@ -274,7 +335,7 @@ def run(args: argparse.Namespace) -> int:
     }
     try:
         if args.samples:
-            result = learn_from_samples_csv(args.samples, scenario, **fit_kw)
+            result = learn_from_samples_csv(args.samples, scenario, force_model=args.force_model, **fit_kw)
         else:
             options = LogOptions(
                 window_s=args.window,

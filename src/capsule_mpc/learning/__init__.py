@@ -4,6 +4,10 @@ Run logs (or per-sample CSVs) -> per-sample mu and c -> least-squares polynomial
 c(v) -> a :class:`~capsule_mpc.config.LearnedFrictionModel` YAML that a scenario
 loads as ``friction.learned``.
 
+Static friction and its healing from breakaway experiments: :mod:`.breakaway`
+(:func:`learn_static_friction`, :func:`fit_healing`); :func:`learn_from_logs` uses the
+breakaway logs among its inputs for them.
+
 Main entry points: :func:`learn_from_logs`, :func:`learn_from_samples_csv`,
 :func:`learn_friction`, :func:`write_model`, :func:`steady_lead`. Every fit carries a
 verdict (:class:`FitQuality`: weak or not, and why) and, from logs, a check that each log
@@ -12,6 +16,14 @@ simulator are in :mod:`capsule_mpc.learning.demonstrations` (not imported here: 
 itself does not depend on the simulator).
 """
 
+from .breakaway import (
+    BreakawayEvent,
+    HealingFit,
+    StaticFrictionResult,
+    detect_breakaway,
+    fit_healing,
+    learn_static_friction,
+)
 from .core import (
     LearningResult,
     learn_friction,
@@ -53,25 +65,31 @@ __all__ = [
     "MIN_LOG_RATIO",
     "SAMPLE_COLUMNS",
     "SPEED_FLOOR_MPS",
+    "BreakawayEvent",
     "CSamples",
     "FitQuality",
     "FrictionConstants",
     "FrictionSamples",
+    "HealingFit",
     "LearningDataError",
     "LearningResult",
     "LogOptions",
     "LoopCheck",
     "PolynomialFit",
     "RunLog",
+    "StaticFrictionResult",
     "SteadyLead",
     "assess_fit",
     "check_open_loop",
+    "detect_breakaway",
     "find_run_logs",
     "fit_c_polynomial",
+    "fit_healing",
     "law_mu",
     "learn_friction",
     "learn_from_logs",
     "learn_from_samples_csv",
+    "learn_static_friction",
     "log_samples",
     "measured_steady_lead",
     "model_yaml",

@@ -1,4 +1,10 @@
-"""Learning c(v) end to end: samples -> c per sample -> polynomial -> a LearnedFrictionModel file."""
+"""Learning c(v) end to end: samples -> c per sample -> polynomial -> a LearnedFrictionModel file.
+
+From run logs, the breakaway experiments among them (told apart by their provenance,
+:func:`~capsule_mpc.learning.breakaway.is_breakaway_log`) give the static friction and its
+healing (:mod:`capsule_mpc.learning.breakaway`); the path-following ones give c(v). The model
+records the force model, 95 % intervals of the fitted parameters and the rig the logs ran on.
+"""
 
 from __future__ import annotations
 
@@ -11,7 +17,8 @@ from typing import Literal
 import yaml
 
 from ..atomic import write_text_atomic
-from ..config import LearnedFrictionModel, Scenario
+from ..config import LearnedFrictionModel, LearnedRig, Scenario
+from .breakaway import StaticFrictionResult, is_breakaway_log, learn_static_friction, run_provenance
 from .data import (
     MIN_LOG_RATIO,
     SPEED_FLOOR_MPS,
@@ -25,7 +32,7 @@ from .data import (
 from .fit import PolynomialFit, fit_c_polynomial
 from .logs import LogOptions, find_run_logs, read_run_log, samples_from_run_logs
 from .openloop import LoopCheck, check_open_loop
-from .quality import FitQuality, assess_fit, no_friction_problem
+from .quality import FitQuality, assess_fit, coefficient_ci95, no_friction_problem
 
 __all__ = [
     "LearningResult",
@@ -62,6 +69,10 @@ class LearningResult:
         Per run log: whether it is an open-loop demonstration (empty for samples).
     timings_s : dict of str to float
         Wall time of each stage, s (``samples``, ``loop_check``, ``c``, ``fit``, ``quality``).
+    static : StaticFrictionResult or None
+        The breakaways and the healing law, when breakaway logs were among the inputs.
+    rig_warning : str or None
+        Why no rig is recorded although the logs have provenance (they ran on several rigs).
     """
 
     samples: FrictionSamples
@@ -72,11 +83,15 @@ class LearningResult:
     quality: FitQuality
     loop_checks: tuple[LoopCheck, ...] = ()
     timings_s: dict[str, float] = field(default_factory=dict)
+    static: StaticFrictionResult | None = None
+    rig_warning: str | None = None
 
     @property
     def warnings(self) -> list[str]:
         """Everything that makes the model doubtful, one sentence each (empty: nothing found)."""
         out = [f"weak fit: {reason}" for reason in self.quality.reasons]
+        if self.rig_warning:
+            out.append(self.rig_warning)
         for check in self.loop_checks:
             if check.closed_loop:
                 out.append(
@@ -122,7 +137,8 @@ def learn_friction(
     min_log_ratio : float
         Samples with |ln(v*/|v|)| below this are excluded.
     force_model : str, optional
-        Force model that produced the samples' F and F_N (recorded in the model).
+        Force model that produced the samples' F and F_N (recorded in the model); default
+        ``scenario.force_model``.
 
     Returns
     -------
@@ -153,6 +169,8 @@ def learn_friction(
         raise LearningDataError(f"{_origin(samples)}: {problem}")
     quality = assess_fit(fit, cs.speed_mps, cs.c, scenario.path.speed_mps)
     t3 = time.perf_counter()
+    ci = coefficient_ci95(fit, cs.speed_mps, quality.tau_samples)
+    ci95 = {} if ci is None else {f"p{k + 1}": (float(lo), float(hi)) for k, (lo, hi) in enumerate(ci)}
     model = LearnedFrictionModel(
         coefficients=[float(p) for p in fit.coefficients],
         validity_mps=fit.validity_mps,
@@ -165,10 +183,11 @@ def learn_friction(
         sse=fit.sse,
         r2=fit.r2,
         rmse=fit.rmse,
-        force_model=force_model,
+        force_model=force_model or scenario.force_model,
         robust=fit.robust,
         excluded={**samples.dropped, **cs.excluded},
         sources=list(samples.sources),
+        ci95=ci95 or None,
     )
     return LearningResult(
         samples,
@@ -205,21 +224,76 @@ def learn_from_logs(
     Keyword arguments go to :func:`learn_friction`; the force model is taken from
     ``log_options`` (default ``scenario.force_model``). Each log is checked for closed-loop
     control (:func:`~capsule_mpc.learning.openloop.check_open_loop`); the result's
-    ``loop_checks`` and ``warnings`` report it.
+    ``loop_checks`` and ``warnings`` report it. Breakaway logs among the inputs (by their
+    provenance) are not fitted for c(v): they give the model's static friction and healing
+    (:func:`~capsule_mpc.learning.breakaway.learn_static_friction`, with the same force model).
+    When every log's provenance names one rig, the model records it.
+
+    Raises
+    ------
+    LearningDataError
+        Besides :func:`learn_friction`'s reasons: no path-following log among the inputs, or
+        breakaway logs too few for the healing fit.
     """
     log_options = log_options or LogOptions()
     t0 = time.perf_counter()
     min_rows = log_options.polyorder + 3
-    logs = [read_run_log(p, truth=log_options.truth, min_rows=min_rows) for p in find_run_logs(paths)]
+    found = find_run_logs(paths)
+    breakaway = [p for p in found if is_breakaway_log(p)]
+    following = [p for p in found if p not in breakaway]
+    if not following:
+        raise LearningDataError(
+            f"no path-following run log among the {len(found)} input log(s) ({len(breakaway)} breakaway "
+            "experiment(s)): c(v) is learned from demonstrations on paths (capsule-mpc demonstrate)"
+        )
+    logs = [read_run_log(p, truth=log_options.truth, min_rows=min_rows) for p in following]
     samples = samples_from_run_logs(logs, scenario, log_options)
     t1 = time.perf_counter()
     checks = tuple(check_open_loop(log) for log in logs)
     t2 = time.perf_counter()
     kind = log_options.force_model or scenario.force_model
+    static = learn_static_friction(breakaway, scenario, force_model=kind) if breakaway else None
+    t3 = time.perf_counter()
+    rig, rig_warning = _rig_of(found)
     result = learn_friction(samples, scenario, force_model=kind, **kwargs)  # type: ignore[arg-type]
-    result = replace(result, loop_checks=checks)
-    result.timings_s.update(samples=t1 - t0, loop_check=t2 - t1)
+    model = result.model
+    if static is not None:
+        ci95 = {**(model.ci95 or {}), **static.fit.ci95}
+        model = model.model_copy(
+            update={
+                "static_mu_1s": static.fit.static_mu_1s,
+                "static_healing": static.fit.static_healing,
+                "ci95": ci95,
+                "sources": [*(model.sources or []), *(str(p) for p in breakaway)],
+            }
+        )
+    if rig is not None:
+        model = model.model_copy(update={"rig": rig})
+    model = LearnedFrictionModel.model_validate(model.model_dump())  # re-check the combined record
+    result = replace(result, model=model, loop_checks=checks, static=static, rig_warning=rig_warning)
+    result.timings_s.update(samples=t1 - t0, loop_check=t2 - t1, breakaway=t3 - t2)
     return result
+
+
+def _rig_of(paths: Sequence[Path]) -> tuple[LearnedRig | None, str | None]:
+    """The one rig every log's provenance names, or None (and why, if they name several)."""
+    rigs = set()
+    for path in paths:
+        run = run_provenance(path) or {}
+        preset, seed = run.get("plant_preset"), run.get("plant_seed")
+        if not preset or not isinstance(seed, int):
+            return None, None  # a log without a rig in its provenance: the rig is not known
+        rigs.add((preset, seed))
+    if len(rigs) == 1:
+        preset, seed = rigs.pop()
+        return LearnedRig(preset=preset, seed=seed), None
+    if not rigs:
+        return None, None
+    named = ", ".join(f"{p} seed {s}" for p, s in sorted(rigs)[:4])
+    return None, (
+        f"the logs ran on {len(rigs)} different rigs ({named}{', ...' if len(rigs) > 4 else ''}): the model "
+        "describes none of them; demonstrate on one rig (capsule-mpc demonstrate --plant P --seed S)"
+    )
 
 
 def model_yaml(model: LearnedFrictionModel, warnings: Sequence[str] = ()) -> str:

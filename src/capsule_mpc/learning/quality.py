@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.polynomial import Polynomial
 from numpy.polynomial import polynomial as npoly
 from scipy import stats
 
@@ -53,6 +54,7 @@ __all__ = [
     "SHAPE_P_VALUE",
     "FitQuality",
     "assess_fit",
+    "coefficient_ci95",
     "correlation_time",
     "no_friction_problem",
 ]
@@ -186,6 +188,30 @@ def _band(fit: PolynomialFit, speed: np.ndarray, tau: float, grid: np.ndarray) -
     at = npoly.polyvander(_scaled(grid, fit.validity_mps), fit.degree)
     se = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", at, cov, at), 0.0))
     return np.asarray(stats.t.ppf(0.975, dof) * se)
+
+
+def coefficient_ci95(fit: PolynomialFit, speed_mps: np.ndarray, tau: float) -> np.ndarray | None:
+    """95 % confidence intervals of the raw coefficients of c(v), highest power first, (d + 1, 2).
+
+    The covariance is :func:`_band`'s (least squares in the scaled speed, inflated by the
+    correlation time ``tau``), carried to the raw coefficients by the linear map between the
+    two bases; Student's t with N_eff - p degrees of freedom. None when N_eff leaves no degree
+    of freedom (the intervals are unbounded).
+    """
+    speed = np.asarray(speed_mps, dtype=float)
+    n, p = len(speed), fit.degree + 1
+    dof = n / tau - p
+    if dof < 1 or n <= p:
+        return None
+    vander = npoly.polyvander(_scaled(speed, fit.validity_mps), fit.degree)
+    cov = fit.sse / (n - p) * tau * np.linalg.pinv(vander.T @ vander)
+    basis = np.zeros((p, p))  # column j: the raw coefficients (highest first) of the scaled x^j
+    for j in range(p):
+        raw = Polynomial(np.eye(p)[j], domain=list(fit.validity_mps)).convert().coef
+        basis[:, j] = np.pad(raw, (0, p - len(raw)))[::-1]
+    se = np.sqrt(np.maximum(np.diag(basis @ cov @ basis.T), 0.0))
+    half = float(stats.t.ppf(0.975, dof)) * se
+    return np.column_stack([fit.coefficients - half, fit.coefficients + half])
 
 
 def _shape_p_value(fit: PolynomialFit, c: np.ndarray, tau: float) -> float | None:

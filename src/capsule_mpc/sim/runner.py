@@ -8,7 +8,7 @@ of the path; the run starts ``sim.settle_s`` earlier.
 Start (:func:`start_pose`), as an operator starts a real rig: the EPM is put
 (height ``plate.epm_height_m``) where the controller's *nominal* model says the
 capsule rests when it is at the path's first point; the capsule rests wherever
-static friction left it -- a lead drawn from the run's seed inside a fraction
+static friction left it -- a lead drawn from the rig's seed inside a fraction
 (``plant.start_dead_zone_fraction``) of the true static-friction dead zone, its
 friction healed by ``plant.rest_before_start_s`` at rest. The ``ideal`` preset
 keeps the reference start: the capsule at the path's first point, the EPM at the
@@ -53,6 +53,11 @@ caught up). The runner sleeps only between frames, never inside a controller.
 The controller gets the scenario with ``mpc.enforce_deadline = True`` (a late
 MPC solve then makes it use its shifted plan); that scenario is the one recorded
 in the result.
+
+One rig, several runs: the run's ``seed`` draws the camera noise, drops and faults; the
+rig -- the plant draw (:func:`~.truth.draw_plant_truth`: magnets, friction, tether, servo
+lag, camera bias, start conditions) and the start offset -- is drawn from ``plant_seed``,
+which defaults to ``seed``. Runs that share a ``plant_seed`` run on the same rig.
 
 Faults (``scenario.faults``, :mod:`.faults`): when any is switched on, the run gets a
 :class:`~.faults.FaultInjector` on its own random streams. The camera applies the drop bursts and
@@ -124,6 +129,8 @@ _PROGRESS_WINDOW_M = (0.03, 0.03)
 _DEAD_ZONE_SEARCH_M = 0.035
 #: Candidate leads drawn per search box when searching the dead zone.
 _DEAD_ZONE_TRIES = 20000
+#: Second seed word of the start-offset random stream (``default_rng([rig seed, START_STREAM])``).
+START_STREAM = 2
 #: Search boxes tried in turn, as fractions of the full one (small dead-zone fractions need small boxes).
 _DEAD_ZONE_BOXES = (1.0, 0.1, 0.01, 0.001)
 
@@ -279,7 +286,8 @@ class RunResult:
     controller : str
         The controller's name.
     seed : int
-        Seed of the run's random generator.
+        Seed of the run's random generator (camera noise, drops, faults; the rig's draw is
+        ``truth.seed``).
     path : ReferencePath
         The reference (nominal speed).
     log : dict of str to numpy.ndarray
@@ -448,7 +456,7 @@ def start_pose(
     friction healed for ``rest_before_start_s``) is at most ``start_dead_zone_fraction``: inside
     that fraction of the dead zone, so it does not move while the EPM is held still. Fraction 0:
     at the true equilibrium. ``ideal``: the capsule at the path start, the EPM at the plant's true
-    equilibrium above it. The draw uses ``rng`` (the plant-truth stream of the run).
+    equilibrium above it. The draw uses ``rng`` (the start stream of the rig's seed).
     """
     truth = plant.truth
     height = scenario.plate.epm_height_m
@@ -606,6 +614,7 @@ def simulate(
     plant: CapsulePlant | None = None,
     meta: dict[str, Any] | None = None,
     realtime: bool = False,
+    plant_seed: int | None = None,
 ) -> RunResult:
     """Run one closed-loop simulation.
 
@@ -619,8 +628,8 @@ def simulate(
     path : ReferencePath
         The reference at its nominal speed.
     seed : int
-        Seed of the run: the plant draw and start offset (:func:`~.truth.draw_plant_truth`),
-        camera noise and drops.
+        Seed of the run: camera noise, drops and faults; also the plant draw and start offset
+        (:func:`~.truth.draw_plant_truth`) unless ``plant_seed`` is given.
     progress : bool
         Show a progress bar (appears only if the run takes longer than a second).
     actuator : Actuator, optional
@@ -634,6 +643,11 @@ def simulate(
         Pace the loop to the wall clock at the camera rate and count deadline misses
         (:class:`RealtimeStats`); the controller gets :func:`realtime_scenario`. The run then
         takes as long as the simulated time (settle phase included).
+    plant_seed : int, optional
+        Seed of the rig: the plant draw (its servo lag, camera bias and noise level, start
+        conditions) and the start offset, >= 0; None: ``seed`` (one seed for everything).
+        Several runs with one ``plant_seed`` and their own ``seed`` run on one rig with
+        independent camera noise. Ignored for the draw when ``plant`` is given (its truth is used).
 
     Returns
     -------
@@ -645,7 +659,10 @@ def simulate(
     name = controller if isinstance(controller, str) else (ctrl.name or type(ctrl).__name__)
     if realtime:
         scenario = realtime_scenario(scenario)
-    truth = draw_plant_truth(scenario, seed) if plant is None else plant.truth
+    if plant_seed is not None and plant_seed < 0:
+        raise ValueError(f"plant_seed: must be >= 0, got {plant_seed}")
+    rig_seed = seed if plant_seed is None else int(plant_seed)
+    truth = draw_plant_truth(scenario, rig_seed) if plant is None else plant.truth
     plant = plant if plant is not None else CapsulePlant(scenario, truth=truth)
     act = actuator if actuator is not None else _make_actuator(scenario, truth)
     bias = (truth.camera_bias_x_m, truth.camera_bias_y_m)
@@ -654,7 +671,8 @@ def simulate(
         scenario.camera, np.random.default_rng(seed), bias_m=bias, noise_std_m=truth.camera_noise_std_m,
         faults=faults,
     )  # fmt: skip
-    epm0, capsule0, theta0 = start_pose(scenario, plant, path, np.random.default_rng([seed, 2]))
+    start_rng = np.random.default_rng([rig_seed, START_STREAM])
+    epm0, capsule0, theta0 = start_pose(scenario, plant, path, start_rng)
     plant.reset(capsule0, theta_s=theta0)
     act.reset(epm0)
     plant.evaluate_forces(*epm0.tolist())

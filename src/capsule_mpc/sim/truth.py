@@ -46,7 +46,7 @@ class PlantTruth:
     preset : str
         The preset drawn from.
     seed : int
-        The run's seed.
+        The seed of the draw (the rig's seed: the run's unless ``simulate`` is given a ``plant_seed``).
     values : dict of str to float
         Every drawable field's value (scales dimensionless, SI otherwise); ``tether_drag_n``,
         ``camera_noise_std_m`` filled from the nominal scenario where the preset keeps them.

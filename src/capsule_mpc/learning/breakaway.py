@@ -1,0 +1,464 @@
+"""Static friction from breakaway experiments: the breakaway coefficient after a rest, and its healing.
+
+A breakaway experiment (:mod:`capsule_mpc.learning.demonstrations`): the capsule comes to
+rest, the EPM is held still, then pulled slowly until the capsule slides. What a real rig
+logs is enough to measure the static friction it overcame:
+
+1. **The breakaway instant** (:func:`detect_breakaway`), from the camera positions alone: the
+   capsule's resting position is the median of the frames before it moved, the camera noise
+   the scaled median absolute deviation of those frames about it; the capsule has moved at
+   the first of ``hold_frames`` consecutive frames farther than ``max(min_move_m,
+   noise_factor x noise)`` from its rest, traced back through the frames just before it
+   that are already beyond ``max(min_move_m / 2, 4 x noise)`` (a slip that starts small).
+   It broke away between the last frame at rest and the first moved one (their capture
+   times' midpoint).
+2. **The force it overcame**: the lateral magnetic force ``F_xy`` and the normal force
+   ``F_N`` from the controller's force model (``scenario.force_model``, or the one given)
+   at the lead ``EPM - rest position`` at that instant; the breakaway coefficient is
+   ``mu_s = (|F_xy| - f_s) / F_N`` with the tether drag ``f_s`` of the scenario (the rig's
+   at rest; the capsule has not moved since it came to rest).
+3. **The rest time** ``T``: from the capsule coming to rest (the run's provenance,
+   ``rest_since_t_s``; default the log's first frame) to the breakaway. The capsule heals
+   while the EPM loads it, so T is the rest before the pull plus the loading time.
+
+The healing law fitted to the (T, mu_s) pairs (:func:`fit_healing`) is the log-linear one of
+slide-hold-slide tests (Dieterich 1972; Marone 1998)::
+
+    mu_s(T) = static_mu_1s + static_healing * ln(T / 1 s)
+
+by least squares in ln T, with 95 % confidence intervals from the residual covariance
+s^2 (X^T X)^-1, s^2 = SSR / (n - 2), and Student's t with n - 2 degrees of freedom.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import casadi as ca
+import numpy as np
+from scipy import stats
+
+from ..config import Scenario
+from ..dynamics import normal_force_expr
+from ..magnetics import capsule_force_function
+from .data import LearningDataError
+from .logs import RunLog, read_run_log
+
+__all__ = [
+    "BREAKAWAY_EXPERIMENT",
+    "DEMO_FILE",
+    "BreakawayEvent",
+    "HealingFit",
+    "StaticFrictionResult",
+    "breakaway_event",
+    "detect_breakaway",
+    "fit_healing",
+    "is_breakaway_log",
+    "learn_static_friction",
+    "run_provenance",
+]
+
+#: Name of a demonstration's provenance file beside its ``log.csv``.
+DEMO_FILE = "demonstration.json"
+#: The ``experiment`` of a breakaway run in its provenance.
+BREAKAWAY_EXPERIMENT = "breakaway"
+#: Consistency factor of the median absolute deviation for Gaussian noise.
+_MAD_TO_STD = 1.4826
+#: Fewest frames at rest before the breakaway that the rest position is estimated from.
+_MIN_REST_FRAMES = 5
+#: Frames before the detected motion farther than this many noise standard deviations from the rest
+#: belong to the motion (the detector traces the motion back to its start through them).
+_BACKTRACK_FACTOR = 4.0
+#: Confidence level of the intervals.
+CONFIDENCE = 0.95
+
+
+def run_provenance(log_path: str | Path) -> dict[str, Any] | None:
+    """The ``run`` record of a demonstration's ``demonstration.json`` beside ``log_path``, or None.
+
+    None when there is no such file or it cannot be read as JSON with a ``run`` mapping.
+    """
+    meta = Path(log_path).parent / DEMO_FILE
+    try:
+        data = json.loads(meta.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return None
+    run = data.get("run") if isinstance(data, dict) else None
+    return run if isinstance(run, dict) else None
+
+
+def is_breakaway_log(log_path: str | Path) -> bool:
+    """Whether a run log's provenance says it is a breakaway experiment."""
+    run = run_provenance(log_path)
+    return run is not None and run.get("experiment") == BREAKAWAY_EXPERIMENT
+
+
+@dataclass(frozen=True)
+class BreakawayEvent:
+    """One measured breakaway.
+
+    Attributes
+    ----------
+    path : Path
+        The run log.
+    rest_s : float
+        Time the capsule had rested when it broke away, s (> 0).
+    t_break_s : float
+        Breakaway instant, s (log time).
+    rest_position_m : numpy.ndarray (2,)
+        The capsule's resting position (camera median), m.
+    lead_m : numpy.ndarray (2,)
+        EPM - capsule at the breakaway, m.
+    height_m : float
+        EPM-IPM centre height at the breakaway, m.
+    force_n : numpy.ndarray (3,)
+        ``(F_x, F_y, F_att)`` of the force model there, N.
+    normal_n : float
+        Normal force F_N, N.
+    drag_n : float
+        Tether drag subtracted, N.
+    mu_s : float
+        Breakaway coefficient (|F_xy| - f_s) / F_N, dimensionless.
+    noise_m : float
+        Camera noise estimated from the frames at rest (per axis), m.
+    threshold_m : float
+        Displacement from the rest position that counted as moved, m.
+    """
+
+    path: Path
+    rest_s: float
+    t_break_s: float
+    rest_position_m: np.ndarray
+    lead_m: np.ndarray
+    height_m: float
+    force_n: np.ndarray
+    normal_n: float
+    drag_n: float
+    mu_s: float
+    noise_m: float
+    threshold_m: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict."""
+        out: dict[str, Any] = {}
+        for key, value in self.__dict__.items():
+            out[key] = value.tolist() if isinstance(value, np.ndarray) else value
+        out["path"] = str(self.path)
+        return out
+
+
+def _capture_times(log: RunLog) -> np.ndarray:
+    """Capture time of every frame, s (the delivery time where the log has none)."""
+    if log.capture_t_s is None:
+        return log.t_s
+    return np.where(np.isfinite(log.capture_t_s), log.capture_t_s, log.t_s)
+
+
+def _rest_estimate(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Median position (2,) of resting frames and the per-axis noise (scaled MAD pooled over x, y), m."""
+    rest = np.median(points, axis=0)
+    noise = _MAD_TO_STD * float(np.median(np.abs(points - rest)))
+    return rest, noise
+
+
+def _first_moved(distance: np.ndarray, threshold: float, hold_frames: int) -> int | None:
+    """Index (into ``distance``) of the first of ``hold_frames`` consecutive values above ``threshold``."""
+    above = distance > threshold
+    if hold_frames > 1:
+        runs = np.convolve(above.astype(int), np.ones(hold_frames, dtype=int), mode="valid")
+        starts = np.flatnonzero(runs == hold_frames)
+    else:
+        starts = np.flatnonzero(above)
+    return int(starts[0]) if len(starts) else None
+
+
+def detect_breakaway(
+    log: RunLog,
+    min_move_m: float = 1e-3,
+    noise_factor: float = 6.0,
+    hold_frames: int = 3,
+    pull_start_t_s: float = 0.0,
+) -> tuple[float, np.ndarray, float, float] | None:
+    """When the capsule of a breakaway run started to move, from its camera positions.
+
+    Parameters
+    ----------
+    log : RunLog
+        The run log (camera positions; NaN rows are dropped frames).
+    min_move_m : float
+        Smallest displacement from the rest position that counts as moved, m, > 0.
+    noise_factor : float
+        The displacement must also exceed this many camera-noise standard deviations, > 0.
+    hold_frames : int
+        Consecutive frames that must be displaced (an outlier is not a breakaway), >= 1.
+    pull_start_t_s : float
+        Log time the pull starts, s; the frames up to it seed the rest position.
+
+    Returns
+    -------
+    (float, numpy.ndarray, float, float) or None
+        The breakaway instant (s, log time), the rest position (2,) (m), the camera noise and
+        the threshold used (m); None if the capsule never moved (or too few frames at rest).
+    """
+    if not (min_move_m > 0 and noise_factor > 0 and hold_frames >= 1):
+        raise ValueError("min_move_m and noise_factor: must be > 0; hold_frames: must be >= 1")
+    valid = np.all(np.isfinite(log.capsule_m), axis=1)
+    t_cap = _capture_times(log)[valid]
+    pos = log.capsule_m[valid]
+    seed = t_cap <= pull_start_t_s
+    if seed.sum() < _MIN_REST_FRAMES:
+        seed = np.zeros(len(t_cap), dtype=bool)
+        seed[:_MIN_REST_FRAMES] = True
+    if len(pos) < _MIN_REST_FRAMES + hold_frames:
+        return None
+    rest, noise = _rest_estimate(pos[seed])
+    for _ in range(2):  # the rest from the seed frames, then from every frame before the motion
+        onset = _onset(np.hypot(*(pos - rest).T), noise, min_move_m, noise_factor, hold_frames)
+        if onset is None or onset < _MIN_REST_FRAMES:
+            return None
+        rest, noise = _rest_estimate(pos[:onset])
+    threshold = max(min_move_m, noise_factor * noise)
+    onset = _onset(np.hypot(*(pos - rest).T), noise, min_move_m, noise_factor, hold_frames)
+    if onset is None or onset < 1:
+        return None
+    return 0.5 * float(t_cap[onset - 1] + t_cap[onset]), rest, noise, threshold
+
+
+def _onset(
+    distance: np.ndarray, noise: float, min_move_m: float, noise_factor: float, hold_frames: int
+) -> int | None:
+    """First frame of the motion: the first sustained excursion beyond the threshold, traced back
+    through the frames before it that are already beyond :data:`_BACKTRACK_FACTOR` noise (and half
+    ``min_move_m``), so a slip smaller than the threshold that grows into it is dated by its start."""
+    k = _first_moved(distance, max(min_move_m, noise_factor * noise), hold_frames)
+    if k is None:
+        return None
+    low = max(0.5 * min_move_m, _BACKTRACK_FACTOR * noise)
+    while k > 0 and distance[k - 1] > low:
+        k -= 1
+    return k
+
+
+def breakaway_event(
+    log: RunLog,
+    scenario: Scenario,
+    force_fn: ca.Function | None = None,
+    force_model: Literal["dipole", "lookup"] | None = None,
+    rest_since_t_s: float | None = None,
+    **detect: Any,
+) -> BreakawayEvent | None:
+    """The breakaway of one run log (see the module docstring), or None if the capsule never moved.
+
+    Parameters
+    ----------
+    log : RunLog
+        A breakaway run's log (camera positions).
+    scenario : Scenario
+        Force model, capsule mass and setup (F_N), tether drag.
+    force_fn : casadi.Function, optional
+        The force model ``F = f(lead, height)``, if already built.
+    force_model : {'dipole', 'lookup'}, optional
+        Default ``scenario.force_model``.
+    rest_since_t_s : float, optional
+        Log time the capsule came to rest, s; default: from the run's provenance, else the first
+        frame.
+    **detect
+        Passed to :func:`detect_breakaway`.
+    """
+    found = detect_breakaway(log, **detect)
+    if found is None:
+        return None
+    t_b, rest, noise, threshold = found
+    if rest_since_t_s is None:
+        run = run_provenance(log.path) or {}
+        since = run.get("rest_since_t_s")
+        rest_since_t_s = float(since) if isinstance(since, (int, float)) else float(log.t_s[0])
+    rest_s = t_b - rest_since_t_s
+    if not rest_s > 0:
+        raise LearningDataError(
+            f"{log.path}: the capsule broke away at t = {t_b:.3f} s, not after it came to rest "
+            f"(rest_since_t_s = {rest_since_t_s:.3f} s)"
+        )
+    epm = np.array([np.interp(t_b, log.t_s, log.epm_m[:, k]) for k in range(3)])
+    lead = epm[:2] - rest
+    if force_fn is None:
+        force_fn = capsule_force_function(scenario, force_model or scenario.force_model)
+    force = np.asarray(force_fn(lead, epm[2]), dtype=float).ravel()
+    normal = float(np.asarray(normal_force_expr(scenario, force[2]), dtype=float))
+    if not normal > 0:
+        raise LearningDataError(f"{log.path}: normal force {normal:.4g} N <= 0 at the breakaway")
+    drag = float(scenario.friction.tether_drag_n)
+    mu_s = (math.hypot(force[0], force[1]) - drag) / normal
+    return BreakawayEvent(
+        path=log.path,
+        rest_s=float(rest_s),
+        t_break_s=float(t_b),
+        rest_position_m=rest,
+        lead_m=lead,
+        height_m=float(epm[2]),
+        force_n=force,
+        normal_n=normal,
+        drag_n=drag,
+        mu_s=float(mu_s),
+        noise_m=float(noise),
+        threshold_m=float(threshold),
+    )
+
+
+@dataclass(frozen=True)
+class HealingFit:
+    """mu_s(T) = static_mu_1s + static_healing ln(T / 1 s), fitted by least squares.
+
+    Attributes
+    ----------
+    static_mu_1s : float
+        Breakaway coefficient after 1 s at rest.
+    static_healing : float
+        Its growth per e-fold of rest time.
+    ci95 : dict of str to (float, float)
+        95 % confidence interval of each of the two.
+    n : int
+        Breakaways fitted.
+    dof : int
+        Residual degrees of freedom, n - 2.
+    rmse : float
+        Root-mean-square residual of mu_s.
+    rest_s, mu_s, residuals : numpy.ndarray
+        The fitted points and mu_s - fit.
+    """
+
+    static_mu_1s: float
+    static_healing: float
+    ci95: dict[str, tuple[float, float]]
+    n: int
+    dof: int
+    rmse: float
+    rest_s: np.ndarray = field(repr=False)
+    mu_s: np.ndarray = field(repr=False)
+    residuals: np.ndarray = field(repr=False)
+
+    def __call__(self, rest_s: np.ndarray | float) -> np.ndarray:
+        """mu_s after ``rest_s`` seconds at rest."""
+        return np.asarray(self.static_mu_1s + self.static_healing * np.log(np.asarray(rest_s, dtype=float)))
+
+
+def fit_healing(rest_s: Sequence[float] | np.ndarray, mu_s: Sequence[float] | np.ndarray) -> HealingFit:
+    """Least-squares fit of mu_s(T) = static_mu_1s + static_healing ln(T / 1 s) with 95 % intervals.
+
+    Parameters
+    ----------
+    rest_s : array_like
+        Rest times at the breakaways, s, each > 0.
+    mu_s : array_like
+        Breakaway coefficients.
+
+    Returns
+    -------
+    HealingFit
+
+    Raises
+    ------
+    LearningDataError
+        Fewer than 3 points or fewer than 2 distinct rest times (no interval), non-finite values
+        or a rest time <= 0.
+    """
+    t = np.asarray(rest_s, dtype=float)
+    mu = np.asarray(mu_s, dtype=float)
+    if t.shape != mu.shape or t.ndim != 1:
+        raise ValueError(f"rest_s and mu_s: must be 1-D of equal length, got {t.shape} and {mu.shape}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(mu))):
+        raise LearningDataError("breakaways: rest times and mu_s must be finite")
+    if np.any(t <= 0):
+        raise LearningDataError(f"breakaways: rest times must be > 0 s, got {float(t.min())}")
+    if len(t) < 3 or len(np.unique(t)) < 2:
+        raise LearningDataError(
+            f"breakaways: need at least 3 breakaways at 2 or more rest times for a healing fit with "
+            f"confidence intervals, got {len(t)} at {len(np.unique(t))} rest time(s)"
+        )
+    design = np.column_stack([np.ones_like(t), np.log(t)])
+    beta, *_ = np.linalg.lstsq(design, mu, rcond=None)
+    residuals = mu - design @ beta
+    dof = len(t) - 2
+    cov = float(residuals @ residuals) / dof * np.linalg.inv(design.T @ design)
+    half = float(stats.t.ppf(0.5 + CONFIDENCE / 2, dof)) * np.sqrt(np.diag(cov))
+    names = ("static_mu_1s", "static_healing")
+    ci = {name: (float(beta[k] - half[k]), float(beta[k] + half[k])) for k, name in enumerate(names)}
+    return HealingFit(
+        static_mu_1s=float(beta[0]),
+        static_healing=float(beta[1]),
+        ci95=ci,
+        n=len(t),
+        dof=dof,
+        rmse=float(np.sqrt(np.mean(residuals**2))),
+        rest_s=t,
+        mu_s=mu,
+        residuals=residuals,
+    )
+
+
+@dataclass(frozen=True)
+class StaticFrictionResult:
+    """Breakaways measured in run logs and the healing law fitted to them.
+
+    Attributes
+    ----------
+    events : tuple of BreakawayEvent
+        One per log in which the capsule broke away.
+    fit : HealingFit
+        The healing law.
+    notes : list of str
+        Logs without a breakaway, one sentence each.
+    force_model : str
+        The force model the forces came from.
+    """
+
+    events: tuple[BreakawayEvent, ...]
+    fit: HealingFit
+    notes: list[str]
+    force_model: str
+
+
+def learn_static_friction(
+    paths: Sequence[str | Path],
+    scenario: Scenario,
+    force_model: Literal["dipole", "lookup"] | None = None,
+    **detect: Any,
+) -> StaticFrictionResult:
+    """Measure the breakaway in each breakaway log and fit the healing law to them.
+
+    Parameters
+    ----------
+    paths : sequence of str or Path
+        The breakaway runs' ``log.csv`` files.
+    scenario : Scenario
+        Force model (default), capsule, tether drag.
+    force_model : {'dipole', 'lookup'}, optional
+        Default ``scenario.force_model``.
+    **detect
+        Passed to :func:`detect_breakaway`.
+
+    Raises
+    ------
+    LearningDataError
+        A log cannot be read, or too few breakaways for the fit (:func:`fit_healing`).
+    """
+    kind = force_model or scenario.force_model
+    force_fn = capsule_force_function(scenario, kind)
+    events, notes = [], []
+    for path in paths:
+        log = read_run_log(path)
+        event = breakaway_event(log, scenario, force_fn=force_fn, **detect)
+        if event is None:
+            notes.append(f"{path}: no breakaway found (the capsule never moved clearly from its rest)")
+        else:
+            events.append(event)
+    try:
+        fit = fit_healing([e.rest_s for e in events], [e.mu_s for e in events])
+    except LearningDataError as exc:
+        raise LearningDataError(f"{len(paths)} breakaway log(s): {exc}") from None
+    return StaticFrictionResult(tuple(events), fit, notes, kind)
