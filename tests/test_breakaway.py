@@ -134,11 +134,15 @@ def test_a_capsule_that_never_moves_has_no_breakaway():
 
 # --- simulated breakaways on one rig ---------------------------------------------------------
 
+#: A shorter, quicker pull than the default (1 mm/s over 32 mm): along x the capsule breaks away
+#: within a few millimetres, and the plant's breakaway does not depend on the reload speed.
+FAST_PULL = {"speed_mps": 0.002, "pull_m": 0.012}
+
 
 @pytest.fixture(scope="module")
 def ideal_runs(scenario, table, tmp_path_factory):
     out = tmp_path_factory.mktemp("ideal_breakaway")
-    plan = BreakawayPlan(rest_s=RESTS, directions=("x",))
+    plan = BreakawayPlan(rest_s=RESTS, directions=("x",), **FAST_PULL)
     return out, run_demonstrations(scenario, [], out, seed=5, breakaway=plan)
 
 
@@ -146,7 +150,7 @@ def ideal_runs(scenario, table, tmp_path_factory):
 def lab_runs(lab_scenario, tmp_path_factory):
     """A lab rig (seed 0): two straight demonstrations and three breakaways along x."""
     out = tmp_path_factory.mktemp("lab_breakaway")
-    plan = BreakawayPlan(rest_s=RESTS, directions=("x",))
+    plan = BreakawayPlan(rest_s=RESTS, directions=("x",), **FAST_PULL)
     runs = run_demonstrations(
         lab_scenario, [0.02, 0.03], out, seed=0, path_kinds=("straight_x",), breakaway=plan
     )
@@ -200,7 +204,7 @@ def test_every_run_is_on_the_one_rig_and_the_rig_is_recorded(lab_scenario, lab_r
 
 def test_the_cache_key_includes_the_rig(scenario, ideal_runs):
     out, _ = ideal_runs
-    plan = BreakawayPlan(rest_s=RESTS[:1], directions=("x",))
+    plan = BreakawayPlan(rest_s=RESTS[:1], directions=("x",), **FAST_PULL)
     again = run_demonstrations(scenario, [], out, seed=5, breakaway=plan)
     assert again[0].cached
     other = _with_preset(scenario, "ideal")
