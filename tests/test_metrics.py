@@ -181,6 +181,22 @@ def test_constant_lag_and_offset_give_closed_forms(lag_m, offset_m):
     assert m["cross_track_max_mm"] == pytest.approx(offset_m * 1e3, abs=1e-9)
 
 
+def test_the_start_window_scores_the_first_seconds_only():
+    """A capsule 3 mm off the reference up to t = START_WINDOW_S and on it after: the start RMS is
+    3 mm, the whole run's the same error diluted by the window's length (closed forms)."""
+    from capsule_mpc.metrics import START_WINDOW_S
+
+    t = np.arange(0.0, 8.0 + 1e-9, 0.1)
+    early = t <= START_WINDOW_S + 1e-9
+    capsule = LINE.position(t) + np.where(early[:, None], [0.0, 0.003], [0.0, 0.0])
+    m = run_metrics(line_log(t, capsule), LINE, window_end_s=8.0)
+    assert m["start_tracking_rms_mm"] == pytest.approx(3.0)
+    assert m["tracking_rms_mm"] == pytest.approx(3.0 * math.sqrt(early.sum() / len(t)))
+    # a window shorter than the start window scores what there is
+    short = run_metrics(line_log(t, capsule), LINE, window_end_s=1.0)
+    assert short["start_tracking_rms_mm"] == pytest.approx(short["tracking_rms_mm"])
+
+
 def stopping_short_log():
     """On LINE, the capsule follows the reference exactly, stops at x = 90 mm (t = 9 s) and rests there.
 

@@ -57,7 +57,7 @@ import numpy as np
 from ..budget import Workload
 from ..config import ConfigError, Scenario
 from ..control import available_controllers
-from ..metrics import run_metrics, stack_predictions
+from ..metrics import START_WINDOW_S, run_metrics, stack_predictions
 from ..outputs import output_folder
 from ..paths import ReferencePath
 from .arguments import input_files, refuse_repeats, run_count
@@ -90,6 +90,7 @@ __all__ = [
 SUMMARY_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("tracking_rms_mm", "tracking RMS (mm)", "{:.2f}"),
     ("tracking_max_mm", "tracking max (mm)", "{:.2f}"),
+    ("start_tracking_rms_mm", f"start RMS, first {START_WINDOW_S:g} s (mm)", "{:.2f}"),
     ("cross_track_rms_mm", "cross-track RMS (mm)", "{:.2f}"),
     ("cross_track_max_mm", "cross-track max (mm)", "{:.2f}"),
     ("final_error_mm", "final error (mm)", "{:.1f}"),
