@@ -232,8 +232,8 @@ CASES = [
     Case(
         "demonstrate-runs-over-the-maximum",
         ["demonstrate", "--repeats", "10000", "--out", "{out}"],
-        r"^capsule-mpc demonstrate: --repeats 10000: 3 paths x 5 speeds x 10000 repeats = 150000 runs; "
-        r"at most 10000 \(capsule_mpc\.budget\.MAX_RUNS\)$",
+        r"^capsule-mpc demonstrate: --repeats 10000: 3 paths x 5 speeds x 10000 repeats = 150000 runs "
+        r"and 80000 breakaway runs; at most 10000 in all \(capsule_mpc\.budget\.MAX_RUNS\)$",
     ),
     # --- arguments checked when parsed, or first thing ----------------------------------------------
     Case(

@@ -394,7 +394,9 @@ def test_realtime_run_keeps_pace_with_the_wall_clock(scenario):
     # Frame i starts at wall0 + i * period: the loop takes the simulated time, not less.
     assert run.wall_time_s >= run.sim_time_s
     assert run.wall_time_s == pytest.approx(run.sim_time_s, abs=0.1)
-    assert rt.slept_s > 0.8 * run.sim_time_s  # the steps are fast: most of the time is waiting
+    # The steps are fast: most of the time is waiting (the rest is the plant's and the arm's own
+    # simulation within each frame, slower on a loaded machine).
+    assert rt.slept_s > 0.5 * run.sim_time_s
     assert rt.deadline_misses <= 1 and rt.overruns == 0
     assert run.metrics["deadline_misses"] == rt.deadline_misses
     assert ctrl.scenario.mpc.enforce_deadline and run.scenario.mpc.enforce_deadline
