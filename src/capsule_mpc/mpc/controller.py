@@ -336,7 +336,7 @@ class MPCController(Controller):
         if t_s >= 0 and not self._started:
             self._started = True
             if self.scenario.mpc.start_blend_s > 0:
-                self._start_offset = pos - self.path.position(np.zeros(1))[0]
+                self._start_offset = pos - self.path.start_m
         self._calibrate_rest_offset(t_s, epm, measurement)
         self.approach.observe(measurement)
         u_approach = self.approach.step(t_s, epm, self.u_prev, self.disturbance_n[0:2])
