@@ -302,9 +302,37 @@ class LearnedFrictionModel(_Strict):
         ..., description="Speed range (min, max) the polynomial was fitted on, m/s, 0 < min < max."
     )
     degree: Integer | None = Field(None, ge=0, description="Polynomial degree (len(coefficients)-1).")
-    mu0: Number | None = Field(None, ge=0, description="mu0 used in the fit (informational).")
-    v_star_mps: Number | None = Field(None, gt=0, description="v* used in the fit, m/s.")
-    tether_drag_n: Number | None = Field(None, ge=0, description="f_s used in the fit, N.")
+    mu0: Number | None = Field(
+        None,
+        ge=0,
+        le=2,
+        description=(
+            "Sliding friction mu0 of the law, [0, 2]; the controller uses it (None: friction.mu0). "
+            "learn-friction records the friction.mu0 it fitted with."
+        ),
+    )
+    v_star_mps: Number | None = Field(
+        None, gt=0, description="v* of the law, m/s, > 0; the controller uses it (None: friction.v_star_mps)."
+    )
+    tether_drag_n: Number | None = Field(
+        None,
+        ge=0,
+        le=0.5,
+        description=(
+            "Tether drag f_s at the start of a run, N, [0, 0.5]; the controller uses it "
+            "(None: friction.tether_drag_n). learn-friction records the f_s it fitted with."
+        ),
+    )
+    tether_drag_growth_n_per_m: Number | None = Field(
+        None,
+        ge=0,
+        le=1,
+        description=(
+            "Growth of the tether drag with the tether paid out (the capsule's progress along the "
+            "path since the run's start), N/m, [0, 1]: the controller's drag is f_s + this x "
+            "progress. None: 0."
+        ),
+    )
     mass_kg: Number | None = Field(None, gt=0, description="Capsule mass used in the fit, kg.")
     n_samples: Integer | None = Field(None, ge=0, description="Number of samples fitted.")
     sse: Number | None = Field(None, ge=0, description="Sum of squared residuals of c.")
@@ -856,8 +884,9 @@ class MPCConfig(_Strict):
         lt=1,
         description=(
             "Cap of the crawl's force: the model's lateral force along the approach (plus the "
-            "estimated disturbance) stays below this fraction of the model's breakaway "
-            "(friction.mu0 F_N + friction.tether_drag_n), (0, 1): a capsule that breaks away from "
+            "estimated disturbance) stays below this fraction of the model's breakaway (the "
+            "learned static friction after the capsule's rest, else mu0, times F_N, plus the tether "
+            "drag), (0, 1): a capsule that breaks away from "
             "rest lurches millimetres, so the crawl never tries to break it loose."
         ),
     )

@@ -22,7 +22,7 @@ from typing import Literal
 import casadi as ca
 
 from .config import Scenario
-from .friction import SteadyFrictionLaw
+from .friction import FrictionBelief
 from .magnetics import capsule_force_function
 
 __all__ = [
@@ -92,7 +92,8 @@ def capsule_model(
     """
     kind = scenario.force_model if force_model is None else force_model
     force_fn = capsule_force_function(scenario, kind)
-    law = SteadyFrictionLaw.from_scenario(scenario)
+    belief = FrictionBelief.from_scenario(scenario)
+    law = belief.law
     eps = scenario.friction.smoothing_eps_mps
     mass = scenario.capsule.mass_kg
 
@@ -104,8 +105,9 @@ def capsule_model(
     f_n = normal_force_expr(scenario, force[2])
     speed = ca.sqrt(ca.sumsqr(vel) + eps**2)
     mu = law.casadi_mu(vel, range_smoothing_mps)
-    # A capsule off the plate (F_N < 0) feels no friction; the controller keeps F_N > 0.
-    resist = mu * ca.fmax(f_n, 0) + scenario.friction.tether_drag_n
+    # A capsule off the plate (F_N < 0) feels no friction; the controller keeps F_N > 0. The drag
+    # is its value at the run's start: the MPC adds the growth with progress as a parameter.
+    resist = mu * ca.fmax(f_n, 0) + belief.tether_drag_n
     acc = (force[0:2] - resist * vel / speed) / mass
     xdot = ca.vertcat(vel, acc, u)
     ode = ca.Function("capsule_ode", [x, u], [xdot], ["x", "u"], ["xdot"])

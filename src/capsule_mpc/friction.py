@@ -24,6 +24,7 @@ from .config import PAPER_C_COEFFICIENTS, LearnedFrictionModel, Scenario
 __all__ = [
     "C_RANGE_SMOOTHING_MPS",
     "MU_SMOOTHING",
+    "FrictionBelief",
     "FrictionRangeWarning",
     "NegativeFrictionWarning",
     "RateStateFriction",
@@ -112,7 +113,9 @@ class SteadyFrictionLaw:
     def from_model(cls, model: LearnedFrictionModel, scenario: Scenario) -> SteadyFrictionLaw:
         """A law from a learned-model record, with mu0, v* and eps from the scenario."""
         fr = scenario.friction
-        return cls(model.coefficients, fr.mu0, fr.v_star_mps, model.validity_mps, fr.smoothing_eps_mps)
+        mu0 = fr.mu0 if model.mu0 is None else model.mu0
+        v_star = fr.v_star_mps if model.v_star_mps is None else model.v_star_mps
+        return cls(model.coefficients, mu0, v_star, model.validity_mps, fr.smoothing_eps_mps)
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> SteadyFrictionLaw:
@@ -179,6 +182,61 @@ class SteadyFrictionLaw:
             c = c * v_c + float(coef)
         mu = self.mu0 - c * ca.log(self.v_star_mps / smooth)
         return 0.5 * (mu + ca.sqrt(mu**2 + MU_SMOOTHING**2))
+
+
+#: Shortest rest time the static law mu_s(T) = mu_s(1 s) + h ln(T / 1 s) is evaluated at, s: the
+#: breakaway experiments start at 0.5 s, and ln T has no floor at 0.
+MIN_REST_S = 0.1
+
+
+@dataclass(frozen=True)
+class FrictionBelief:
+    """What the controller believes about friction and drag: one family, the paper's law a member.
+
+    * sliding: ``mu(v) F_N`` with the steady law ``mu(v) = mu0 - c(v) ln(v*/|v|)`` (:attr:`law`);
+    * tether drag ``f_s + g s`` against the motion, ``s`` the capsule's progress along the path
+      since the run's start (the tether paid out);
+    * breakaway from rest: ``mu_s(T) F_N + f_s + g s`` after a rest of ``T``, with
+      ``mu_s(T) = mu_s(1 s) + h ln(T / 1 s)`` (healing) when the model has a static part, else the
+      sliding ``mu0`` (the paper's law has no static part).
+
+    Built from ``friction.learned`` (its own mu0, v*, f_s and growth where it records them) or the
+    paper's c(v) with the scenario's ``friction`` values; never from the plant's truth.
+    """
+
+    law: SteadyFrictionLaw
+    tether_drag_n: float
+    tether_growth_n_per_m: float
+    static_mu_1s: float | None
+    static_healing: float
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario) -> FrictionBelief:
+        """The controller's belief: ``friction.learned`` if set, else the paper's c(v)."""
+        model = scenario.controller_friction()
+        fr = scenario.friction
+        return cls(
+            law=SteadyFrictionLaw.from_model(model, scenario),
+            tether_drag_n=float(fr.tether_drag_n if model.tether_drag_n is None else model.tether_drag_n),
+            tether_growth_n_per_m=float(model.tether_drag_growth_n_per_m or 0.0),
+            static_mu_1s=None if model.static_mu_1s is None else float(model.static_mu_1s),
+            static_healing=float(model.static_healing or 0.0),
+        )
+
+    def drag_n(self, progress_m: float) -> float:
+        """Tether drag after ``progress_m`` (>= 0, m) of progress, N."""
+        return self.tether_drag_n + self.tether_growth_n_per_m * max(float(progress_m), 0.0)
+
+    def breakaway_mu(self, rest_s: float) -> float:
+        """Breakaway friction coefficient after resting ``rest_s`` (floored at :data:`MIN_REST_S`)."""
+        if self.static_mu_1s is None:
+            return self.law.mu0
+        rest = max(float(rest_s), MIN_REST_S)
+        return max(self.static_mu_1s + self.static_healing * math.log(rest), 0.0)
+
+    def breakaway_n(self, normal_n: float, rest_s: float, progress_m: float = 0.0) -> float:
+        """Lateral force that breaks the capsule loose after resting ``rest_s``, N."""
+        return self.breakaway_mu(rest_s) * max(float(normal_n), 0.0) + self.drag_n(progress_m)
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from scipy.optimize import root
 
 from .config import Scenario
 from .dynamics import normal_force_expr
+from .friction import FrictionBelief
 from .magnetics import capsule_force_function, equilibrium_lead
 
 __all__ = ["steady_lead"]
@@ -72,7 +73,7 @@ def steady_lead(
     lead = ca.MX.sym("lead", 2)
     force = fn(lead, h)
     f_n = cast(ca.MX, normal_force_expr(scenario, force[2]))
-    resid = force[0:2] - (scenario.friction.tether_drag_n + mu * f_n) * ca.DM(u)
+    resid = force[0:2] - (FrictionBelief.from_scenario(scenario).tether_drag_n + mu * f_n) * ca.DM(u)
     g = ca.Function("steady_residual", [lead], [resid, ca.jacobian(resid, lead)])
     eq = equilibrium_lead(lambda x: np.asarray(fn(x, h)).ravel())
     # Start a few mm ahead of the magnetic centre: the friction pulls the capsule back.

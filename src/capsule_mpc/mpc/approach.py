@@ -28,10 +28,12 @@ target, watch the capsule, let go when it arrives. Phases (one :class:`FinalAppr
     the lead, hence the force, grow until it moves. The lead is capped by the controller's own
     model (never the plant's truth): the model force along û (force model plus the estimated
     constant disturbance) stays below ``mpc.approach_force_fraction`` of the model's breakaway
-    ``mu0 F_N + f_s``, and ``|lead - lead_eq| <= limits.max_lead_m``. The crawl ends when the
-    capsule is about to reach the target (``d <= v̂ * RELEASE_LEAD_S``), has passed it, has not
-    come closer by the tolerance for ``mpc.approach_attempt_s`` (it is stuck below the cap), or
-    when the approach's time is up. A capsule still creeping on is never let go short of the
+    (:meth:`capsule_mpc.friction.FrictionBelief.breakaway_n`: the learned static friction after the
+    capsule's rest so far where the model has one, else ``mu0 F_N``; plus the tether drag), and
+    ``|lead - lead_eq| <= limits.max_lead_m``. The crawl ends when the capsule is about to reach
+    the target (``d <= v̂ * RELEASE_LEAD_S``), has passed it, has not come closer by the
+    tolerance for ``mpc.approach_attempt_s`` (it is stuck below the cap), or when the approach's
+    time is up. A capsule still creeping on is never let go short of the
     target (stopped, it would have to break loose again): out of time, the EPM holds the lead.
 ``release``
     The EPM backs off along -û to the lead it had when the crawl began minus
@@ -65,6 +67,7 @@ from ..config import Scenario
 from ..control import Measurement
 from ..dynamics import normal_force_expr
 from ..estimation import fit_window
+from ..friction import FrictionBelief
 from ..magnetics import equilibrium_lead
 from ..paths import ReferencePath
 
@@ -116,6 +119,8 @@ class FinalApproach:
         self.scenario = scenario
         self.enabled = cfg.final_approach
         self.target_m = np.asarray(path.end_m, dtype=float)
+        self.path_length_m = path.length_m
+        self.friction = FrictionBelief.from_scenario(scenario)
         self.end_s = path.duration_s
         self.force = force
         self.lead_eq_m = np.asarray(lead_eq_m, dtype=float)
@@ -278,12 +283,12 @@ class FinalApproach:
         limit = _EPM_SPEED_FACTOR * self.speed_mps
         along = float(np.clip(along, -limit, limit))
         lead = epm[:2] - fit.position_m
-        if along > 0 and self._at_cap(lead, epm[2], disturbance_xy_n):
+        if along > 0 and self._at_cap(t_s, lead, epm[2], disturbance_xy_n):
             self._capped = True
             along = 0.0
         return along
 
-    def _at_cap(self, lead_m: np.ndarray, height_m: float, disturbance_xy_n: np.ndarray) -> bool:
+    def _at_cap(self, t_s: float, lead_m: np.ndarray, height_m: float, disturbance_xy_n: np.ndarray) -> bool:
         """Whether more lead along û would pass the model's force cap or the coupling limit."""
         scenario = self.scenario
         ahead = lead_m + self._dir * self.dt_s * _EPM_SPEED_FACTOR * self.speed_mps
@@ -291,7 +296,9 @@ class FinalApproach:
             return True
         f = np.asarray(self.force(ahead, height_m)).ravel()
         normal_n = float(normal_force_expr(scenario, float(f[2])))
-        breakaway_n = scenario.friction.mu0 * max(normal_n, 0.0) + scenario.friction.tether_drag_n
+        # At rest since the crawl last moved it (or since it began), and slow over the window before.
+        rest_s = t_s - self._progress_t + scenario.mpc.approach_window_s
+        breakaway_n = self.friction.breakaway_n(normal_n, rest_s, self.path_length_m)
         along_n = float((f[:2] + disturbance_xy_n) @ self._dir)
         return along_n > scenario.mpc.approach_force_fraction * breakaway_n
 

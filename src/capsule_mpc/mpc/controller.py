@@ -38,6 +38,7 @@ from ..config import Scenario
 from ..control import Command, Controller, Measurement, StepStats, register_controller
 from ..dynamics import CapsuleModel, capsule_model
 from ..estimation import CapsuleEstimator
+from ..friction import FrictionBelief
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
 from ..safety import safe_command
@@ -163,6 +164,8 @@ class MPCController(Controller):
         self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * self.dt_s
         self.estimator = CapsuleEstimator(scenario.camera.noise_std_m, cfg.estimator_accel_std_mps2)
         self.disturbance_n = np.zeros(N_DIST)
+        self.friction_belief = FrictionBelief.from_scenario(scenario)
+        self._drag_growth_n = 0.0
         self.friction_rls = FrictionOffsetRLS(cfg, self.dt_s) if cfg.friction_adaptation == "rls" else None
         self.u_prev = np.zeros(3)
         self.slope_prev = np.zeros(3)  # the last command's change over its frame, m/s^2
@@ -208,6 +211,13 @@ class MPCController(Controller):
         starts = times - ocp.steps_s  # input k applies from stage k's time on
         ff = np.array([self._offline_plan.epm_velocity_at(t)[:2] for t in starts]).T
         return np.vstack([pos, vel, ff])
+
+    def _progress_m(self, t_s: float) -> float:
+        """The tether paid out at ``t_s``, m: the reference's progress along the path (the capsule
+        follows it within millimetres; a projection of the estimate would jump where a closed path
+        passes its start again)."""
+        duration = self.path.duration_s
+        return self.path.length_m * min(max(t_s, 0.0) / duration, 1.0) if duration > 0 else 0.0
 
     def _update_disturbance(self, v_est: np.ndarray) -> None:
         cfg = self.scenario.mpc
@@ -298,7 +308,10 @@ class MPCController(Controller):
         assert stack is not None
         solver = self.solver
         offset = 0.0 if self.friction_rls is None else self.friction_rls.offset
-        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, self.disturbance_n, offset, self.slope_prev)
+        # The model's drag grows with the tether paid out: its growth so far joins the estimated
+        # extra friction (both oppose the motion), a feed-forward the estimator need not learn.
+        dist = self.disturbance_n + np.array([0.0, 0.0, self._drag_growth_n])
+        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, dist, offset, self.slope_prev)
         if self.plan is None:
             return solver.solve_converged(p, self._initial_guess(x0))
         guess = stack.ocp.shift(self.plan.w)
@@ -343,6 +356,9 @@ class MPCController(Controller):
         if u_approach is not None:
             return self._approach_command(u_approach, epm)
         x0 = np.concatenate([pos, vel, epm])
+        self._drag_growth_n = (
+            self.friction_belief.drag_n(self._progress_m(t_s)) - self.friction_belief.tether_drag_n
+        )
         if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
             self._update_disturbance(vel)
             self._update_friction(t_s, x0)

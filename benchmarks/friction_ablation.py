@@ -1,0 +1,347 @@
+"""Friction ablation: what the controller's friction model is worth in closed loop, draw by draw.
+
+For each plant draw (``--plant``, seeds ``--first`` .. ``--first + --draws - 1``) the MPC runs the
+same path on the same plant, with the robot arm in the loop (Ruckig + UR5 IK, ``sim.actuator:
+robot``), once per friction model it is given:
+
+``none``
+    no friction and no tether drag in the model (mu = 0, f_s = 0);
+``paper``
+    the paper's c(v) with the config's mu0 and f_s (the default controller);
+``learned``
+    learned on this draw: ``capsule-mpc demonstrate`` on the draw (the ``follow`` runs at
+    ``--speeds`` on straight paths along x and y, and the breakaway experiments), then
+    ``capsule-mpc learn-friction`` on those logs (the config's force model);
+``online``
+    ``learned`` plus the online update (``mpc.friction_adaptation: rls``) with the fast
+    disturbance integrator as a residual on top (``--residual-gain``, ``--residual-cap``);
+``oracle``
+    the plant's own friction: its steady rate-and-state law as c(v) with its mu0, its tether drag
+    and drag growth, its breakaway after rest -- what no real rig gives a controller, the bound.
+
+The ``paper_0.8v`` heuristic runs on the same draw, and every run of a draw is scored on one
+window: t = 0 to the latest end among them (:func:`capsule_mpc.cli.compare.rescore_on_common_window`).
+Prints, per variant, mean +- sd (worst) over the draws of the tracking RMS, cross-track RMS, the
+start window's tracking RMS (first 1.5 s), the final error, the runs ending within
+``--final-tol``, stalls and solver failures, and the paired difference to ``paper``; the learned
+breakaway after 2 s at rest against the plant's. Writes it all, with each draw's numbers and the
+command, to ``--out`` (JSON).
+
+    .venv/bin/python benchmarks/friction_ablation.py --plant lab --draws 20 \\
+        --out results/benchmarks/friction_ablation_lab.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from capsule_mpc.cli.compare import rescore_on_common_window
+from capsule_mpc.config import LearnedFrictionModel, Scenario, load_config
+from capsule_mpc.friction import FrictionBelief
+from capsule_mpc.paths import path_from_scenario
+from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
+from capsule_mpc.sim.oracle import oracle_friction_model
+
+VARIANTS = ("none", "paper", "learned", "online", "oracle")
+METRICS = ("tracking_rms_mm", "cross_track_rms_mm", "start_tracking_rms_mm", "final_error_mm")
+#: Rest time at which the learned breakaway is checked against the plant's, s.
+CHECK_REST_S = 2.0
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _cli(*args: str) -> None:
+    """Run a ``capsule-mpc`` command (the one next to this Python), raising with its output on failure."""
+    exe = Path(sys.executable).with_name("capsule-mpc")
+    proc = subprocess.run([str(exe), *args], capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"capsule-mpc {' '.join(args)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+
+
+def plant_scenario(config: Path, preset: str) -> Scenario:
+    scenario = load_config(config)
+    return scenario.model_copy(update={"plant": scenario.plant.model_copy(update={"preset": preset})})
+
+
+def oracle_model(scenario: Scenario, seed: int) -> LearnedFrictionModel:
+    """The plant draw's own friction (the bound), its breakaway taken at the path's start."""
+    start = path_from_scenario(scenario).start_m
+    return oracle_friction_model(
+        scenario, draw_plant_truth(scenario, seed), (float(start[0]), float(start[1]))
+    )
+
+
+def variant_scenario(
+    base: Scenario,
+    variant: str,
+    model_path: Path | None,
+    oracle: LearnedFrictionModel,
+    gain: float,
+    cap: float,
+) -> Scenario:
+    """The controller's scenario of one variant (the plant is drawn from the base scenario)."""
+    fr, mpc = base.friction, base.mpc
+    if variant == "paper":
+        return base
+    if variant == "none":
+        learned: Any = LearnedFrictionModel(
+            coefficients=[0.0],
+            validity_mps=fr.paper_c.validity_mps,
+            mu0=0.0,
+            tether_drag_n=0.0,
+            force_model=base.force_model,
+        )
+    elif variant == "oracle":
+        learned = oracle
+    else:
+        assert model_path is not None
+        learned = LearnedFrictionModel.model_validate(yaml.safe_load(model_path.read_text()))
+    scenario = base.model_copy(update={"friction": fr.model_copy(update={"learned": learned})})
+    if variant == "online":
+        update = {"friction_adaptation": "rls", "disturbance_gain": gain, "disturbance_max_n": cap}
+        scenario = scenario.model_copy(update={"mpc": mpc.model_copy(update=update)})
+    return scenario
+
+
+def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
+    """Every variant (and ``paper_0.8v``) on one draw, scored on the draw's common window."""
+    work = Path(args.work) / f"{args.plant}_{seed}"
+    base = plant_scenario(args.config, args.plant)
+    path = path_from_scenario(base)
+    oracle = oracle_model(base, seed)
+    out: dict[str, Any] = {"seed": seed}
+    model_path = None
+    if {"learned", "online"} & set(args.variants):
+        t0 = time.perf_counter()
+        demo_cfg = work / "config.yaml"
+        work.mkdir(parents=True, exist_ok=True)
+        demo_cfg.write_text(
+            yaml.safe_dump({"base": str(Path(args.config).resolve()), "plant": {"preset": args.plant}})
+        )
+        _cli(
+            "demonstrate",
+            "--config",
+            str(demo_cfg),
+            "--plant",
+            args.plant,
+            "--seed",
+            str(seed),
+            "--paths",
+            "straight_x",
+            "straight_y",
+            "--speeds",
+            *map(str, args.speeds),
+            "--out",
+            str(work / "demos"),
+        )
+        model_path = work / "model.yaml"
+        _cli(
+            "learn-friction",
+            "--config",
+            str(demo_cfg),
+            "--log",
+            str(work / "demos"),
+            "--out",
+            str(model_path),
+        )
+        learned = LearnedFrictionModel.model_validate(yaml.safe_load(model_path.read_text()))
+        mine = FrictionBelief.from_scenario(
+            base.model_copy(update={"friction": base.friction.model_copy(update={"learned": learned})})
+        )
+        truth_mu = FrictionBelief.from_scenario(
+            base.model_copy(update={"friction": base.friction.model_copy(update={"learned": oracle})})
+        ).breakaway_mu(CHECK_REST_S)
+        out["learning"] = {
+            "seconds": time.perf_counter() - t0,
+            "breakaway_mu_learned": mine.breakaway_mu(CHECK_REST_S)
+            if learned.static_mu_1s is not None
+            else None,
+            "breakaway_mu_plant": truth_mu,
+            "static_mu_1s": learned.static_mu_1s,
+            "static_healing": learned.static_healing,
+            "r2": learned.r2,
+            "rmse": learned.rmse,
+        }
+    results = {
+        "paper_0.8v": simulate(
+            base,
+            "paper_0.8v",
+            path,
+            seed,
+            progress=False,
+            plant=CapsulePlant(base, truth=draw_plant_truth(base, seed)),
+        )
+    }
+    for variant in args.variants:
+        scenario = variant_scenario(base, variant, model_path, oracle, args.residual_gain, args.residual_cap)
+        plant = CapsulePlant(base, truth=draw_plant_truth(base, seed))  # truth from the base: the same rig
+        results[variant] = simulate(scenario, "mpc", path, seed, progress=False, plant=plant)
+    out["window_end_s"] = rescore_on_common_window(results, path, base)
+    out["runs"] = {
+        name: {key: _num(r.metrics.get(key)) for key in (*METRICS, "stalled", "solver_failures", "arm_ok")}
+        for name, r in results.items()
+    }
+    print(
+        f"draw {seed}: " + ", ".join(f"{n} {r['tracking_rms_mm']:.2f}" for n, r in out["runs"].items()),
+        flush=True,
+    )
+    return out
+
+
+def _num(value: Any) -> Any:
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return float(value) if math.isfinite(float(value)) else None
+    return value
+
+
+def _spread(values: list[float]) -> dict[str, float]:
+    a = np.asarray(values, dtype=float)
+    return {
+        "mean": float(a.mean()),
+        "sd": float(a.std(ddof=1)) if a.size > 1 else 0.0,
+        "worst": float(a.max()),
+        "n": int(a.size),
+    }
+
+
+def summarise(draws: list[dict[str, Any]], variants: list[str], final_tol_mm: float) -> dict[str, Any]:
+    summary: dict[str, Any] = {}
+    for v in variants:
+        runs = [d["runs"][v] for d in draws]
+        entry: dict[str, Any] = {m: _spread([r[m] for r in runs]) for m in METRICS}
+        entry["final_within_tol"] = sum(r["final_error_mm"] <= final_tol_mm for r in runs)
+        entry["stalled"] = sum(bool(r["stalled"]) for r in runs)
+        entry["solver_failures"] = int(sum(r["solver_failures"] or 0 for r in runs))
+        entry["arm_ok"] = sum(bool(r["arm_ok"]) for r in runs)
+        if v != "paper" and "paper" in variants:
+            entry["vs_paper"] = {}
+            for m in METRICS:
+                diff = [d["runs"][v][m] - d["runs"]["paper"][m] for d in draws]
+                base = np.mean([d["runs"]["paper"][m] for d in draws])
+                entry["vs_paper"][m] = {
+                    **_spread(diff),
+                    "relative": float(np.mean(diff) / base),
+                    "better": int(sum(x < 0 for x in diff)),
+                }
+        summary[v] = entry
+    learning = [d["learning"] for d in draws if "learning" in d and d["learning"]["breakaway_mu_learned"]]
+    if learning:
+        rel = [abs(x["breakaway_mu_learned"] / x["breakaway_mu_plant"] - 1) for x in learning]
+        summary["breakaway"] = {
+            "rest_s": CHECK_REST_S,
+            "within_10pct": int(sum(r <= 0.1 for r in rel)),
+            "n": len(rel),
+            "relative_error": _spread(rel),
+        }
+    return summary
+
+
+def print_table(summary: dict[str, Any], variants: list[str], n: int, final_tol_mm: float) -> None:
+    print(f"\n{n} draws; mean +- sd (worst); paired difference to paper: mean (better on k of {n})")
+    print(
+        "| model | tracking RMS (mm) | cross-track RMS (mm) | first 1.5 s (mm) | final error (mm) "
+        f"| final <= {final_tol_mm} mm | stalled | solver failures |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for v in variants:
+        s = summary[v]
+        cells = []
+        for m in METRICS:
+            c = f"{s[m]['mean']:.2f} +- {s[m]['sd']:.2f} ({s[m]['worst']:.2f})"
+            if "vs_paper" in s:
+                d = s["vs_paper"][m]
+                c += f"; {d['mean']:+.2f} ({d['better']})"
+            cells.append(c)
+        print(
+            f"| {v} | "
+            + " | ".join(cells)
+            + f" | {s['final_within_tol']}/{n} | {s['stalled']} | {s['solver_failures']} |"
+        )
+    if "breakaway" in summary:
+        b = summary["breakaway"]
+        err = b["relative_error"]
+        print(
+            f"\nlearned breakaway after {b['rest_s']:g} s at rest within 10 % of the plant's: "
+            f"{b['within_10pct']}/{b['n']} (|relative error| {err['mean']:.3f} +- {err['sd']:.3f}, "
+            f"worst {err['worst']:.3f})"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--config", type=Path, default=ROOT / "configs" / "rectangle.yaml")
+    parser.add_argument("--plant", choices=("lab", "hard"), default="lab")
+    parser.add_argument("--first", type=int, default=0, help="first draw's seed (default 0)")
+    parser.add_argument("--draws", type=int, default=20, help="plant draws (default 20)")
+    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS))
+    parser.add_argument(
+        "--speeds",
+        type=float,
+        nargs="+",
+        default=[0.005, 0.01, 0.02, 0.04],
+        help="demonstration speeds, m/s (default 0.005 0.01 0.02 0.04)",
+    )
+    parser.add_argument(
+        "--residual-gain", type=float, default=0.05, help="online: mpc.disturbance_gain (0.05)"
+    )
+    parser.add_argument(
+        "--residual-cap", type=float, default=0.1, help="online: mpc.disturbance_max_n, N (0.1)"
+    )
+    parser.add_argument(
+        "--final-tol", type=float, default=0.5, help="final error counted as reached, mm (0.5)"
+    )
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--work", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation_work"
+    )
+    parser.add_argument(
+        "--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json"
+    )
+    args = parser.parse_args(argv)
+    if args.draws < 1 or args.first < 0 or args.workers < 1:
+        parser.error("--draws and --workers must be >= 1, --first >= 0")
+    seeds = list(range(args.first, args.first + args.draws))
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(args.workers) as pool:
+        draws = list(pool.map(run_draw, [args] * len(seeds), seeds))
+    summary = summarise(draws, args.variants, args.final_tol)
+    print_table(summary, args.variants, len(draws), args.final_tol)
+    report = {
+        "command": " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])]),
+        "config": str(args.config),
+        "plant": args.plant,
+        "seeds": seeds,
+        "residual_gain": args.residual_gain,
+        "residual_cap_n": args.residual_cap,
+        "demonstration_speeds_mps": args.speeds,
+        "summary": summary,
+        "draws": draws,
+        "seconds": time.perf_counter() - t0,
+        "machine": {
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "cpus": os.cpu_count(),
+        },
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=1))
+    print(f"wrote {args.out} ({report['seconds']:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
