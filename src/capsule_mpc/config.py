@@ -516,7 +516,7 @@ class PathConfig(_Strict):
 
 
 class LimitsConfig(_Strict):
-    """What the EPM may do: every command honours these (DESIGN.md §3)."""
+    """What the EPM may do: every command honours these."""
 
     speed_mps: Number = Field(0.08, gt=0, le=1.0, description="Max EPM speed per axis, m/s, (0, 1].")
     accel_mps2: Number = Field(0.5, gt=0, le=10.0, description="Max EPM acceleration per axis, m/s^2.")
@@ -1314,7 +1314,7 @@ def _drawn(description: str, **kw: Any) -> Any:
 
 
 class PlantConfig(_Strict):
-    """The simulated truth: what only the plant uses, never the controller (DESIGN.md §4).
+    """The simulated truth: what only the plant uses, never the controller.
 
     The scenario's other sections are the nominal rig, i.e. what the controller believes. The
     plant draws its own truth around them from the run's seed: each field left at None takes a

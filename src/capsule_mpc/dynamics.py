@@ -42,7 +42,7 @@ _SCHEMES = {"implicit_euler": 1, "radau2": 2, "radau3": 3}
 
 
 def normal_force_expr(scenario: Scenario, f_att: ca.SX | ca.MX | float) -> ca.SX | ca.MX | float:
-    """Normal force F_N (N) from the attraction toward the EPM, per setup (DESIGN.md §1)."""
+    """Normal force F_N (N) from the attraction toward the EPM, per setup."""
     weight = scenario.capsule.mass_kg * scenario.plate.gravity_mps2
     if scenario.plate.setup == "below_plate":
         return f_att - weight

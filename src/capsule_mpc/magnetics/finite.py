@@ -9,7 +9,7 @@ component *toward the EPM* (positive = attraction). In the ``on_plate`` setup
 the EPM sits below the plate with its strong face up, the mirror image of this
 geometry, so the same three numbers apply.
 
-Capsule orientation (assumption, DESIGN.md §2): the capsule lies flat on the
+Capsule orientation (assumption): the capsule lies flat on the
 plate and turns about the vertical so that its axis, and the IPM moment, point
 along the horizontal component of the EPM field at the capsule centre, with
 the moment aligned to the field (the minimum-energy, attracting orientation;

@@ -3,7 +3,7 @@
 A real plate is not uniform: wear, residue and surface finish change the friction from
 place to place. The plant (the truth) multiplies its friction coefficient by
 :meth:`FrictionField.scale` at the capsule's position; the controller keeps the nominal
-coefficient (DESIGN.md §4, truth and belief).
+coefficient (truth, never the controller's belief).
 
 The field is a grid of multipliers over the plate (centred on the origin), read by
 bilinear interpolation, times the multipliers of any :class:`FrictionPatch` rectangles

@@ -1,4 +1,4 @@
-"""The plant's truth: one seeded draw of the real rig around the nominal scenario (DESIGN.md §4).
+"""The plant's truth: one seeded draw of the real rig around the nominal scenario.
 
 The scenario's sections describe the nominal rig, which is what a controller
 believes. The simulator draws what the rig really is from ``scenario.plant``
