@@ -41,7 +41,7 @@ import platform
 import subprocess
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -90,6 +90,7 @@ def variant_scenario(
     oracle: LearnedFrictionModel,
     gain: float,
     cap: float,
+    time_s: float,
 ) -> Scenario:
     """The controller's scenario of one variant (the plant is drawn from the base scenario)."""
     fr, mpc = base.friction, base.mpc
@@ -110,7 +111,12 @@ def variant_scenario(
         learned = LearnedFrictionModel.model_validate(yaml.safe_load(model_path.read_text()))
     scenario = base.model_copy(update={"friction": fr.model_copy(update={"learned": learned})})
     if variant == "online":
-        update = {"friction_adaptation": "rls", "disturbance_gain": gain, "disturbance_max_n": cap}
+        update = {
+            "friction_adaptation": "rls",
+            "friction_adaptation_time_s": time_s,
+            "disturbance_gain": gain,
+            "disturbance_max_n": cap,
+        }
         scenario = scenario.model_copy(update={"mpc": mpc.model_copy(update=update)})
     return scenario
 
@@ -185,7 +191,9 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
         )
     }
     for variant in args.variants:
-        scenario = variant_scenario(base, variant, model_path, oracle, args.residual_gain, args.residual_cap)
+        scenario = variant_scenario(
+            base, variant, model_path, oracle, args.residual_gain, args.residual_cap, args.online_time
+        )
         plant = CapsulePlant(base, truth=draw_plant_truth(base, seed))  # truth from the base: the same rig
         results[variant] = simulate(scenario, "mpc", path, seed, progress=False, plant=plant)
     out["window_end_s"] = rescore_on_common_window(results, path, base)
@@ -281,6 +289,38 @@ def print_table(summary: dict[str, Any], variants: list[str], n: int, final_tol_
         )
 
 
+def _report(
+    args: argparse.Namespace,
+    argv: list[str] | None,
+    seeds: list[int],
+    draws: list[dict[str, Any]],
+    seconds: float,
+) -> dict[str, Any]:
+    """The report of the draws done so far, written to ``args.out``."""
+    report = {
+        "command": " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])]),
+        "config": str(args.config),
+        "plant": args.plant,
+        "seeds": seeds,
+        "draws_done": len(draws),
+        "residual_gain": args.residual_gain,
+        "online_time_s": args.online_time,
+        "residual_cap_n": args.residual_cap,
+        "demonstration_speeds_mps": args.speeds,
+        "summary": summarise(draws, args.variants, args.final_tol),
+        "draws": draws,
+        "seconds": seconds,
+        "machine": {
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "cpus": os.cpu_count(),
+        },
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=1))
+    return report
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=ROOT / "configs" / "rectangle.yaml")
@@ -302,6 +342,9 @@ def main(argv: list[str] | None = None) -> int:
         "--residual-cap", type=float, default=0.1, help="online: mpc.disturbance_max_n, N (0.1)"
     )
     parser.add_argument(
+        "--online-time", type=float, default=0.3, help="online: mpc.friction_adaptation_time_s, s (0.3)"
+    )
+    parser.add_argument(
         "--final-tol", type=float, default=0.5, help="final error counted as reached, mm (0.5)"
     )
     parser.add_argument("--workers", type=int, default=2)
@@ -316,29 +359,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--draws and --workers must be >= 1, --first >= 0")
     seeds = list(range(args.first, args.first + args.draws))
     t0 = time.perf_counter()
+    draws: list[dict[str, Any]] = []
     with ProcessPoolExecutor(args.workers) as pool:
-        draws = list(pool.map(run_draw, [args] * len(seeds), seeds))
-    summary = summarise(draws, args.variants, args.final_tol)
-    print_table(summary, args.variants, len(draws), args.final_tol)
-    report = {
-        "command": " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])]),
-        "config": str(args.config),
-        "plant": args.plant,
-        "seeds": seeds,
-        "residual_gain": args.residual_gain,
-        "residual_cap_n": args.residual_cap,
-        "demonstration_speeds_mps": args.speeds,
-        "summary": summary,
-        "draws": draws,
-        "seconds": time.perf_counter() - t0,
-        "machine": {
-            "platform": platform.platform(),
-            "python": platform.python_version(),
-            "cpus": os.cpu_count(),
-        },
-    }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=1))
+        futures = [pool.submit(run_draw, args, seed) for seed in seeds]
+        for future in as_completed(futures):
+            draws.append(future.result())
+            draws.sort(key=lambda d: d["seed"])
+            # Written after every draw: a long campaign stopped early keeps what it measured.
+            report = _report(args, argv, seeds, draws, time.perf_counter() - t0)
+    print_table(report["summary"], args.variants, len(draws), args.final_tol)
     print(f"wrote {args.out} ({report['seconds']:.0f} s)")
     return 0
 
