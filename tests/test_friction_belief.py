@@ -6,19 +6,21 @@ drag feed-forward."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from capsule_mpc import Scenario
-from capsule_mpc.config import LearnedFrictionModel
+from capsule_mpc.config import LearnedFrictionModel, load_config, packaged_config_path
 from capsule_mpc.friction import MIN_REST_S, FrictionBelief, SteadyFrictionLaw
 from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
 from capsule_mpc.mpc.approach import FinalApproach
 from capsule_mpc.paths import ReferencePath
-from capsule_mpc.sim import CapsulePlant, draw_plant_truth
+from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
 from capsule_mpc.sim.oracle import oracle_friction_model
 
 PATH = ReferencePath(np.array([[0.0, 0.01], [0.0, 0.0]]), False, 0.02)
@@ -155,3 +157,29 @@ def test_the_mpc_feeds_the_drag_growth_forward(scenario):
         ctrl.step(t, Measurement(t, t, path.position(np.array([t]))[0]), epm)
     assert ctrl._drag_growth_n == pytest.approx(growth * 0.02 * 1.0)
     assert ctrl._progress_m(100.0) == pytest.approx(path.length_m)
+
+
+LEARNED_LAB5 = Path(__file__).parent / "data" / "learned_lab5_lookup.yaml"
+
+
+def test_a_model_learned_on_the_rig_starts_the_capsule_closer_than_the_papers(lab_scenario, table):
+    """The start from rest on `lab` draw 5 (one leg of the rectangle, the arm in the loop, the force
+    map in the controller): the friction learned on that draw's demonstrations brings the capsule
+    onto the path sooner than the paper's c(v). (Over `lab` draws 0-19 the learned model's start
+    window is better on 15; benchmarks/friction_ablation.py.)"""
+    base = load_config(packaged_config_path("rectangle_lookup"))
+    base = base.model_copy(
+        update={
+            "plant": base.plant.model_copy(update={"preset": "lab"}),
+            "mpc": base.mpc.model_copy(update={"compile_c": False}),  # no C build in the default suite
+        }
+    )
+    learned = LearnedFrictionModel.model_validate(yaml.safe_load(LEARNED_LAB5.read_text()))
+    with_model = base.model_copy(update={"friction": base.friction.model_copy(update={"learned": learned})})
+    leg = ReferencePath(np.array([[-0.05, -0.03], [-0.01, -0.03]]), False, base.path.speed_mps)
+    start = {}
+    for name, sc in (("paper", base), ("learned", with_model)):
+        result = simulate(sc, "mpc", leg, 5, progress=False)
+        start[name] = result.metrics["start_tracking_rms_mm"]
+        assert not result.flags.stalled and result.metrics["arm_ok"]
+    assert start["learned"] < start["paper"] - 0.3, start
