@@ -150,6 +150,7 @@ def test_cli_sweep_writes_a_file_per_run_and_compares_schema(cli_sweep, table):
     assert SPEC_FILE in manifest["files"]
 
 
+@pytest.mark.slow  # ~25 s quiet (a Dask cluster's start and a second sweep); `make test-slow`
 def test_same_seeds_same_results_on_one_worker_and_on_dask(cli_sweep, tmp_path, table):
     """The CLI's pool had 2 workers; here 1, and a Dask LocalCluster (processes, as a cluster's)."""
     _, out, _ = cli_sweep
