@@ -85,10 +85,15 @@ def oracle_model(scenario: Scenario, seed: int) -> LearnedFrictionModel:
     )
 
 
+def with_friction(base: Scenario, learned: LearnedFrictionModel) -> Scenario:
+    """``base`` with ``learned`` as the controller's friction model."""
+    return base.model_copy(update={"friction": base.friction.model_copy(update={"learned": learned})})
+
+
 def variant_scenario(
     base: Scenario,
     variant: str,
-    model_path: Path | None,
+    learned_on_draw: LearnedFrictionModel | None,
     oracle: LearnedFrictionModel,
     gain: float,
     cap: float,
@@ -99,7 +104,7 @@ def variant_scenario(
     if variant == "paper":
         return base
     if variant == "none":
-        learned: Any = LearnedFrictionModel(
+        learned = LearnedFrictionModel(
             coefficients=[0.0],
             validity_mps=fr.paper_c.validity_mps,
             mu0=0.0,
@@ -109,9 +114,9 @@ def variant_scenario(
     elif variant == "oracle":
         learned = oracle
     else:
-        assert model_path is not None
-        learned = LearnedFrictionModel.model_validate(yaml.safe_load(model_path.read_text()))
-    scenario = base.model_copy(update={"friction": fr.model_copy(update={"learned": learned})})
+        assert learned_on_draw is not None
+        learned = learned_on_draw
+    scenario = with_friction(base, learned)
     if variant == "online":
         update = {
             "friction_adaptation": "rls",
@@ -130,7 +135,7 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
     path = path_from_scenario(base)
     oracle = oracle_model(base, seed)
     out: dict[str, Any] = {"seed": seed}
-    model_path = None
+    learned: LearnedFrictionModel | None = None
     if {"learned", "online"} & set(args.variants):
         t0 = time.perf_counter()
         demo_cfg = work / "config.yaml"
@@ -168,12 +173,8 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
             str(model_path),
         )
         learned = LearnedFrictionModel.model_validate(yaml.safe_load(model_path.read_text()))
-        mine = FrictionBelief.from_scenario(
-            base.model_copy(update={"friction": base.friction.model_copy(update={"learned": learned})})
-        )
-        truth_mu = FrictionBelief.from_scenario(
-            base.model_copy(update={"friction": base.friction.model_copy(update={"learned": oracle})})
-        ).breakaway_mu(CHECK_REST_S)
+        mine = FrictionBelief.from_scenario(with_friction(base, learned))
+        truth_mu = FrictionBelief.from_scenario(with_friction(base, oracle)).breakaway_mu(CHECK_REST_S)
         out["learning"] = {
             "seconds": time.perf_counter() - t0,
             "demonstrations_failed": status == 1,
@@ -198,7 +199,7 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
     }
     for variant in args.variants:
         scenario = variant_scenario(
-            base, variant, model_path, oracle, args.residual_gain, args.residual_cap, args.online_time
+            base, variant, learned, oracle, args.residual_gain, args.residual_cap, args.online_time
         )
         plant = CapsulePlant(base, truth=draw_plant_truth(base, seed))  # truth from the base: the same rig
         results[variant] = simulate(scenario, "mpc", path, seed, progress=False, plant=plant)

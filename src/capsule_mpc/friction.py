@@ -111,7 +111,8 @@ class SteadyFrictionLaw:
 
     @classmethod
     def from_model(cls, model: LearnedFrictionModel, scenario: Scenario) -> SteadyFrictionLaw:
-        """A law from a learned-model record, with mu0, v* and eps from the scenario."""
+        """A law from a learned-model record: its own mu0 and v* where it records them, else the
+        scenario's; eps from the scenario."""
         fr = scenario.friction
         mu0 = fr.mu0 if model.mu0 is None else model.mu0
         v_star = fr.v_star_mps if model.v_star_mps is None else model.v_star_mps
@@ -223,9 +224,13 @@ class FrictionBelief:
             static_healing=float(model.static_healing or 0.0),
         )
 
+    def drag_growth_n(self, progress_m: float) -> float:
+        """How much the tether drag has grown after ``progress_m`` (>= 0, m) of progress, N."""
+        return self.tether_growth_n_per_m * max(float(progress_m), 0.0)
+
     def drag_n(self, progress_m: float) -> float:
         """Tether drag after ``progress_m`` (>= 0, m) of progress, N."""
-        return self.tether_drag_n + self.tether_growth_n_per_m * max(float(progress_m), 0.0)
+        return self.tether_drag_n + self.drag_growth_n(progress_m)
 
     def breakaway_mu(self, rest_s: float) -> float:
         """Breakaway friction coefficient after resting ``rest_s`` (floored at :data:`MIN_REST_S`)."""

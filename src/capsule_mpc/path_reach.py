@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError, Scenario
-from .friction import FrictionRangeWarning, NegativeFrictionWarning, SteadyFrictionLaw
+from .friction import FrictionBelief, FrictionRangeWarning, NegativeFrictionWarning
 from .magnetics import capsule_force_function, model_equilibrium_lead
 from .paths import ReferencePath
 from .steady import steady_lead
@@ -90,7 +90,8 @@ def _steady_leads(
     """The nominal model's steady lead along each segment (unit ``directions``) at the path's speed,
     m (2,) each; refused beyond the coupling limit from the rest lead ``rest_m``."""
 
-    law = SteadyFrictionLaw.from_scenario(scenario)
+    belief = FrictionBelief.from_scenario(scenario)
+    law = belief.law
     with warnings.catch_warnings():  # the controller warns about its law's range where it uses it
         warnings.simplefilter("ignore", FrictionRangeWarning)
         warnings.simplefilter("ignore", NegativeFrictionWarning)
@@ -104,7 +105,9 @@ def _steady_leads(
         if key not in cache:
             where = f"path: segment {i} -> {i + 1} along {_heading(u)} at {path.speed_mps:g} m/s"
             try:
-                lead = steady_lead(scenario, mu, u, height_m=height_m, force_fn=force_fn)
+                lead = steady_lead(
+                    scenario, mu, u, height_m=height_m, force_fn=force_fn, drag_n=belief.tether_drag_n
+                )
             except RuntimeError as exc:
                 raise ConfigError(
                     f"{where}: the nominal {scenario.force_model} model finds no steady lead (the magnet "

@@ -33,6 +33,7 @@ def steady_lead(
     force_model: str | None = None,
     height_m: float | None = None,
     force_fn: ca.Function | None = None,
+    drag_n: float | None = None,
 ) -> np.ndarray:
     """The lead (EPM - capsule, m) at which a capsule slides steadily with friction ``mu``.
 
@@ -51,6 +52,9 @@ def steady_lead(
     force_fn : casadi.Function, optional
         The force model of ``force_model``, if already built (the 'lookup' B-spline takes
         about a second to build).
+    drag_n : float, optional
+        The tether drag, N; default the controller's belief at the run's start
+        (:class:`~capsule_mpc.friction.FrictionBelief`).
 
     Returns
     -------
@@ -73,7 +77,8 @@ def steady_lead(
     lead = ca.MX.sym("lead", 2)
     force = fn(lead, h)
     f_n = cast(ca.MX, normal_force_expr(scenario, force[2]))
-    resid = force[0:2] - (FrictionBelief.from_scenario(scenario).tether_drag_n + mu * f_n) * ca.DM(u)
+    drag = FrictionBelief.from_scenario(scenario).tether_drag_n if drag_n is None else drag_n
+    resid = force[0:2] - (drag + mu * f_n) * ca.DM(u)
     g = ca.Function("steady_residual", [lead], [resid, ca.jacobian(resid, lead)])
     eq = equilibrium_lead(lambda x: np.asarray(fn(x, h)).ravel())
     # Start a few mm ahead of the magnetic centre: the friction pulls the capsule back.

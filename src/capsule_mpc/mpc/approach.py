@@ -110,17 +110,26 @@ class FinalApproach:
         The model's equilibrium lead (the coupling limit's centre), m.
     dt_s : float
         The controller's frame period, s.
+    friction : FrictionBelief, optional
+        The controller's friction belief (its breakaway caps the crawl); default: built from
+        ``scenario``.
     """
 
     def __init__(
-        self, scenario: Scenario, path: ReferencePath, force: ca.Function, lead_eq_m: np.ndarray, dt_s: float
+        self,
+        scenario: Scenario,
+        path: ReferencePath,
+        force: ca.Function,
+        lead_eq_m: np.ndarray,
+        dt_s: float,
+        friction: FrictionBelief | None = None,
     ) -> None:
         cfg = scenario.mpc
         self.scenario = scenario
         self.enabled = cfg.final_approach
         self.target_m = np.asarray(path.end_m, dtype=float)
         self.path_length_m = path.length_m
-        self.friction = FrictionBelief.from_scenario(scenario)
+        self.friction = FrictionBelief.from_scenario(scenario) if friction is None else friction
         self.end_s = path.duration_s
         self.force = force
         self.lead_eq_m = np.asarray(lead_eq_m, dtype=float)

@@ -191,7 +191,9 @@ class MPCController(Controller):
         self._calibrated = False
         self.fallback_steps = 0
         self.deadline_misses = 0
-        self.approach = FinalApproach(scenario, path, self.stack.force, self.stack.ocp.lead_eq_m, self.dt_s)
+        self.approach = FinalApproach(
+            scenario, path, self.stack.force, self.stack.ocp.lead_eq_m, self.dt_s, self.friction_belief
+        )
         if self.approach.enabled:
             self.approach.warm_up(scenario.plate.epm_height_m)
 
@@ -356,9 +358,7 @@ class MPCController(Controller):
         if u_approach is not None:
             return self._approach_command(u_approach, epm)
         x0 = np.concatenate([pos, vel, epm])
-        self._drag_growth_n = (
-            self.friction_belief.drag_n(self._progress_m(t_s)) - self.friction_belief.tether_drag_n
-        )
+        self._drag_growth_n = self.friction_belief.drag_growth_n(self._progress_m(t_s))
         if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
             self._update_disturbance(vel)
             self._update_friction(t_s, x0)
