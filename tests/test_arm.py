@@ -17,9 +17,9 @@ from capsule_mpc.arm import (
     ArmError,
     ArmKinematics,
     CartesianLimits,
+    EPMTrajectoryError,
     ExportCheckError,
     IKTracker,
-    PlanError,
     SmoothingError,
     UnreachableTargetError,
     VelocitySmoother,
@@ -516,7 +516,7 @@ def test_a_deviation_beyond_the_tolerance_is_refused_even_past_the_row_checks(
     t, p = t[keep], p[keep].copy()
     p[30:, 0] += 0.05
     with pytest.raises(
-        PlanError, match=r"data row 31 \(t_s = 1\), epm_x_m: moves \+50\.67 mm from data row 30"
+        EPMTrajectoryError, match=r"data row 31 \(t_s = 1\), epm_x_m: moves \+50\.67 mm from data row 30"
     ):
         export_arm_trajectory(scenario, t, p, tmp_path / "a")
     monkeypatch.setattr("capsule_mpc.arm.export.check_epm_plan", lambda *args: None)

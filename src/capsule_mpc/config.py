@@ -41,6 +41,8 @@ from pydantic import (
     model_validator,
 )
 
+from .errors import ConfigError, cut
+
 __all__ = [
     "PLANT_FIXED",
     "PLANT_PRESET_RANGES",
@@ -80,8 +82,6 @@ PAPER_C_COEFFICIENTS: tuple[float, ...] = (-1.189e5, 1.173e4, -404.7, 7.44, 0.03
 PAPER_C_VALIDITY_MPS: tuple[float, float] = (0.005, 0.04)
 
 
-#: Longest line of a :class:`ConfigError` message, and most lines, characters.
-_MAX_LINE, _MAX_LINES = 500, 20
 #: Longest value shown in a message, characters.
 _MAX_SHOWN = 80
 #: ``repr`` of a value in a message: nested containers and long strings elided with "...".
@@ -94,28 +94,9 @@ class LearnedModelWarning(UserWarning):
     """A learned friction model is loaded without knowing which force model it was fitted with."""
 
 
-class ConfigError(ValueError):
-    """A scenario file or value is invalid; the message names the field and the allowed range.
-
-    The message is bounded: a line longer than 500 characters ends in "...", and lines past the
-    20th are replaced by their count.
-    """
-
-    def __init__(self, message: str) -> None:
-        lines = [_cut(line, _MAX_LINE) for line in str(message).splitlines() or [""]]
-        if len(lines) > _MAX_LINES:
-            lines = [*lines[: _MAX_LINES - 1], f"  ... and {len(lines) - _MAX_LINES + 1} more"]
-        super().__init__("\n".join(lines))
-
-
-def _cut(text: str, limit: int) -> str:
-    """``text``, ending in "..." after ``limit`` - 3 characters if it is longer than ``limit``."""
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def _shown(value: Any) -> str:
     """``value``'s repr for a message, at most :data:`_MAX_SHOWN` characters."""
-    return _cut(_REPR.repr(value), _MAX_SHOWN)
+    return cut(_REPR.repr(value), _MAX_SHOWN)
 
 
 def _number(value: Any) -> Any:
@@ -1795,7 +1776,7 @@ _RANGE_TEXT = {
 def _format_errors(exc: ValidationError, where: str) -> str:
     lines = []
     for err in exc.errors():
-        loc = _cut(".".join(str(p) for p in err["loc"]), _MAX_SHOWN) or "<top>"
+        loc = cut(".".join(str(p) for p in err["loc"]), _MAX_SHOWN) or "<top>"
         bound = _RANGE_TEXT.get(err["type"])
         if bound is not None:
             msg = f"{bound[0]} {err.get('ctx', {}).get(bound[1])!s:.12}".replace(".0 ", " ")

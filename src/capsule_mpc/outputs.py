@@ -48,7 +48,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .atomic import ENCODING, recording_writes, write_text_atomic
-from .config import ConfigError
+from .errors import ConfigError, OutputError
 from .interrupt import exit_status
 
 __all__ = [
@@ -90,11 +90,6 @@ OUTPUT_NAMES = (
 _OUTPUT_DEPTH = 3
 #: Exit status of a command stopped by an error it did not handle (as Python's own).
 _EXIT_ERROR = 1
-
-
-class OutputError(ConfigError):
-    """An output folder that cannot be used (a file, not writable, in use by another command, or
-    a folder the command must not write into)."""
 
 
 class OutputFolder:

@@ -15,7 +15,7 @@
 """
 
 from .checks import ExportCheck, check_epm_plan, default_max_deviation_m, verify_arm_trajectory
-from .errors import ArmError, ExportCheckError, PlanError, SmoothingError, UnreachableTargetError
+from .errors import ArmError, EPMTrajectoryError, ExportCheckError, SmoothingError, UnreachableTargetError
 from .export import (
     ArmExport,
     check_run_trajectory,
@@ -52,12 +52,12 @@ __all__ = [
     "ArmKinematics",
     "CartesianLimits",
     "CartesianTrajectory",
+    "EPMTrajectoryError",
     "ExportCheck",
     "ExportCheckError",
     "IKStats",
     "IKTracker",
     "JointTrajectory",
-    "PlanError",
     "RobotArmActuator",
     "SmoothingError",
     "SmoothingStats",

@@ -42,7 +42,7 @@ import pinocchio as pin
 
 from ..budget import MAX_SIM_TIME_S
 from ..config import Scenario
-from .errors import ExportCheckError, PlanError
+from .errors import EPMTrajectoryError, ExportCheckError
 from .kinematics import ArmKinematics, JointTrajectory
 from .smoothing import CartesianLimits, CartesianTrajectory
 
@@ -249,17 +249,19 @@ def check_epm_plan(
 
     Raises
     ------
-    PlanError
+    EPMTrajectoryError
         At the first failing row (1-based data row and field named, with the allowed range), or
         for fewer than two rows or mismatched shapes.
     """
     t = np.asarray(t_s, dtype=float)
     p = np.asarray(positions_m, dtype=float)
     if t.ndim != 1 or p.shape != (t.shape[0], 3):
-        raise PlanError(f"positions: must have shape ({t.shape[0]}, 3) to match the times, got {p.shape}")
+        raise EPMTrajectoryError(
+            f"positions: must have shape ({t.shape[0]}, 3) to match the times, got {p.shape}"
+        )
     if t.shape[0] < 2:
         got = "no data rows" if t.shape[0] == 0 else "1 data row"
-        raise PlanError(f"the plan needs at least 2 data rows (a start and an end), got {got}")
+        raise EPMTrajectoryError(f"the plan needs at least 2 data rows (a start and an end), got {got}")
     limits = CartesianLimits.from_scenario(scenario)
     # Non-finite values and zero time steps are reported by the first two checks; the later ones
     # must not warn about them on the way.
@@ -277,7 +279,9 @@ def check_epm_plan(
         return
     first = min(found)
     k = first.index
-    raise PlanError(first.reason, row=k + 1, field=PLAN_FIELDS[first.axis], t_s=float(t[k]), position_m=p[k])
+    raise EPMTrajectoryError(
+        first.reason, row=k + 1, field=PLAN_FIELDS[first.axis], t_s=float(t[k]), position_m=p[k]
+    )
 
 
 @dataclass(frozen=True)

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ArmError", "ExportCheckError", "PlanError", "SmoothingError", "UnreachableTargetError"]
+from ..errors import CapsuleMPCError
+
+__all__ = ["ArmError", "EPMTrajectoryError", "ExportCheckError", "SmoothingError", "UnreachableTargetError"]
 
 
-class ArmError(ValueError):
+class ArmError(CapsuleMPCError, ValueError):
     """Something the arm cannot do at a time and EPM position; raised before any joint command
     of the offending run is sent.
 
@@ -54,8 +56,8 @@ class UnreachableTargetError(ArmError):
         )
 
 
-class PlanError(ArmError):
-    """An EPM plan refused before anything is computed or written (``reason``), naming the data row
+class EPMTrajectoryError(ArmError):
+    """An EPM trajectory refused before anything is computed or written (``reason``), naming the data row
     (1-based, counted after the header; None for the plan as a whole) and the field.
 
     Parameters

@@ -424,7 +424,7 @@ def export_arm_trajectory(
 
     Raises
     ------
-    PlanError
+    EPMTrajectoryError
         A row of the plan is malformed or beyond the limits (1-based data row and field named).
     UnreachableTargetError, SmoothingError
         The arm cannot follow (time and position named).

@@ -22,7 +22,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from ..config import ConfigError
+from ..errors import ConfigError, PlanError
 from ..interrupt import TERMINATING_SIGNALS, exit_status, interruptible
 
 __all__ = ["main"]
@@ -79,8 +79,6 @@ def _exit_now(status: int) -> None:
 
 def _run(argv: Sequence[str] | None) -> int:
     """Parse ``argv`` and run its command; a plan the command needed but could not solve exits 1."""
-    from ..planner import PlanError  # here, not at the top: ``import capsule_mpc.cli`` stays light
-
     args = build_parser().parse_args(argv)
     try:
         status: int = args.func(args)

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import Scenario
+from ..errors import LearningDataError
 
 __all__ = [
     "EXCLUSION_REASONS",
@@ -59,10 +60,6 @@ EXCLUSION_REASONS = (
     "outside_force_map",
     "unsteady",
 )
-
-
-class LearningDataError(ValueError):
-    """A samples or log file is unusable; the message names the file, the column or row, and the rule."""
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from ..config import Scenario
 from ..dynamics import N_INPUTS, N_STATES, capsule_model
+from ..errors import PlanError
 from ..friction import C_RANGE_SMOOTHING_MPS
 from ..interrupt import interrupted, interruptible, raise_if_interrupted, run_interruptibly, solver_call
 from ..magnetics import model_equilibrium_lead
@@ -63,10 +64,6 @@ _ROOT_DEFECT_TOL = 1e-9
 _BAR_FORMAT = "{desc}: {n_fmt} iterations [{elapsed}{postfix}]"
 #: Redraw period of the progress bar, s.
 _TICK_S = 0.5
-
-
-class PlanError(RuntimeError):
-    """A plan was needed (e.g. by the ``plan`` controller) but its solve failed; the message says how."""
 
 
 @dataclass(frozen=True)
