@@ -10,8 +10,9 @@ from hypothesis import strategies as st
 from capsule_mpc import Scenario
 from capsule_mpc.arm import ArmKinematics, CartesianLimits, RobotArmActuator, UnreachableTargetError
 from capsule_mpc.config import config_from_dict
+from capsule_mpc.interfaces import make_actuator
 from capsule_mpc.paths import ReferencePath
-from capsule_mpc.sim import make_actuator, simulate
+from capsule_mpc.sim import simulate
 
 PLANT_DT = 1e-3
 ARM_DT = 1.0 / 500.0

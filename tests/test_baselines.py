@@ -7,7 +7,7 @@ import pytest
 
 from capsule_mpc.baselines import FollowPath, PaperSlowFollow
 from capsule_mpc.config import config_from_dict
-from capsule_mpc.control import Measurement, available_controllers, make_controller
+from capsule_mpc.interfaces import Measurement, available_controllers, make_controller
 from capsule_mpc.magnetics import capsule_force_function, equilibrium_lead
 from capsule_mpc.paths import ReferencePath, rectangle
 from capsule_mpc.sim import CapsulePlant, simulate

@@ -12,7 +12,7 @@ import pytest
 
 from capsule_mpc.cli import main
 from capsule_mpc.config import CameraConfig, FaultsConfig
-from capsule_mpc.control import Measurement
+from capsule_mpc.interfaces import Measurement
 from capsule_mpc.mpc import MPCController
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import Camera, draw_plant_truth, simulate

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from capsule_mpc import Scenario
-from capsule_mpc.control import Command, Controller, Measurement
 from capsule_mpc.estimation import fit_window
+from capsule_mpc.interfaces import Command, Controller, Measurement
 from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
 from capsule_mpc.mpc.approach import FinalApproach
 from capsule_mpc.paths import ReferencePath

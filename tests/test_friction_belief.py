@@ -142,7 +142,7 @@ def test_the_approach_caps_its_force_at_the_learned_breakaway(scenario):
 def test_the_mpc_feeds_the_drag_growth_forward(scenario):
     """The tether drag grows with the reference's progress; the MPC passes that growth as extra
     friction against the motion (none without growth)."""
-    from capsule_mpc.control import Measurement
+    from capsule_mpc.interfaces import Measurement
     from capsule_mpc.mpc import MPCController
 
     growth = 0.2

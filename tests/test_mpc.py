@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from capsule_mpc.control import Measurement
 from capsule_mpc.dynamics import capsule_model, discrete_step
+from capsule_mpc.interfaces import Measurement
 from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack, safe_command
 from capsule_mpc.mpc.controller import model_scenario
 from capsule_mpc.paths import ReferencePath

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from capsule_mpc.control import Measurement
 from capsule_mpc.dynamics import capsule_model, discrete_step
+from capsule_mpc.interfaces import Measurement
 from capsule_mpc.mpc import MPCController, build_mpc_stack
 from capsule_mpc.mpc.controller import model_scenario
 from capsule_mpc.mpc.problem import INPUT_SCALE, N_INPUT, N_PATH, N_STATE

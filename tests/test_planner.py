@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from capsule_mpc.arm import read_epm_plan_csv
 from capsule_mpc.cli import main
 from capsule_mpc.config import config_from_dict
-from capsule_mpc.control import Measurement, available_controllers
+from capsule_mpc.interfaces import Measurement, available_controllers
 from capsule_mpc.magnetics import capsule_force_function, equilibrium_lead
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.planner import (

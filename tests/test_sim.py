@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from capsule_mpc import ConfigError
 from capsule_mpc.config import config_from_dict
-from capsule_mpc.control import Command, Controller, Measurement, StepStats
+from capsule_mpc.interfaces import Command, Controller, Measurement, Registry, StepStats, make_actuator
 from capsule_mpc.paths import ReferencePath, rectangle
 from capsule_mpc.sim import (
     REQUIRED_COLUMNS,
@@ -22,7 +22,6 @@ from capsule_mpc.sim import (
     PathProgress,
     SimpleArm,
     UniformForce,
-    make_actuator,
     read_log,
     read_predictions,
     simulate,
@@ -243,11 +242,12 @@ def test_simple_arm_property(scenario, commands):
 
 
 def test_unavailable_actuator_is_a_clear_error(scenario, monkeypatch):
-    # As before the Ruckig + Pinocchio arm registers 'robot': no provider module defines it.
-    monkeypatch.setattr("capsule_mpc.actuation._ACTUATORS", {"simple": SimpleArm})
-    monkeypatch.setattr("capsule_mpc.actuation._PROVIDERS", ("capsule_mpc._no_such_arm",))
+    # No provider module defines 'robot' (the arm's package is absent).
+    registry = Registry("sim.actuator", ("capsule_mpc._no_such_arm",))
+    registry.register("simple")(SimpleArm)
+    monkeypatch.setattr("capsule_mpc.interfaces.actuators", registry)
     assert isinstance(make_actuator(tweak(scenario, "sim", actuator="simple")), SimpleArm)
-    with pytest.raises(ConfigError, match=r"sim\.actuator: 'robot' is not available"):
+    with pytest.raises(ConfigError, match=r"sim\.actuator: must be one of \['simple'\], got 'robot'"):
         make_actuator(tweak(scenario, "sim", actuator="robot"))
 
 

@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from .config import Scenario
-from .control import Command, Controller, Measurement, StepStats, register_controller
+from .interfaces import Command, Controller, Measurement, StepStats, register_controller
 from .magnetics import model_equilibrium_lead
 from .paths import ReferencePath
 

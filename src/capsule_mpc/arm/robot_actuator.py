@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 
-from ..actuation import Actuator, register_actuator
 from ..config import Scenario
+from ..interfaces import Actuator, register_actuator
 from .kinematics import ArmKinematics, IKTracker, JointTrajectory, joint_trajectory
 from .smoothing import CartesianLimits, CartesianTrajectory, VelocitySmoother
 

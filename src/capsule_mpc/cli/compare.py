@@ -56,7 +56,7 @@ import numpy as np
 
 from ..budget import Workload
 from ..config import ConfigError, Scenario
-from ..control import available_controllers
+from ..interfaces import available_controllers
 from ..metrics import START_WINDOW_S, run_metrics, stack_predictions
 from ..outputs import output_folder
 from ..paths import ReferencePath

@@ -313,7 +313,7 @@ def run(args: argparse.Namespace) -> int:
         unknown controller (a bad config or waypoint file raises :class:`~capsule_mpc.ConfigError`,
         which ``main`` turns into 2).
     """
-    from ..control import available_controllers
+    from ..interfaces import available_controllers
     from ..plots import plot_errors, plot_trajectories
     from ..sim import simulate, write_run
 

@@ -40,7 +40,7 @@ import numpy as np
 from .. import __version__
 from ..atomic import write_text_atomic
 from ..config import Scenario, dump_config
-from ..control import Command, Controller, Measurement, StepStats
+from ..interfaces import Command, Controller, Measurement, StepStats
 from ..paths import ReferencePath, rectangle
 from ..sim import simulate, write_run
 

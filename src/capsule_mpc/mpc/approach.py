@@ -64,10 +64,10 @@ import numpy as np
 import ruckig
 
 from ..config import Scenario
-from ..control import Measurement
 from ..dynamics import normal_force_expr
 from ..estimation import fit_window
 from ..friction import FrictionBelief
+from ..interfaces import Measurement
 from ..magnetics import equilibrium_lead
 from ..paths import ReferencePath
 

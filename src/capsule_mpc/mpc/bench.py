@@ -47,7 +47,7 @@ import numpy as np
 import yaml
 
 from ..config import Scenario, config_from_dict, dump_config, load_config, packaged_config_path
-from ..control import Command, Measurement
+from ..interfaces import Command, Measurement
 from ..magnetics import cache_directory, force_map
 from ..paths import ReferencePath, path_from_scenario
 from .controller import MPCController, build_mpc_stack

@@ -35,10 +35,10 @@ import casadi as ca
 import numpy as np
 
 from ..config import Scenario
-from ..control import Command, Controller, Measurement, StepStats, register_controller
 from ..dynamics import CapsuleModel, capsule_model
 from ..estimation import CapsuleEstimator
 from ..friction import FrictionBelief
+from ..interfaces import Command, Controller, Measurement, StepStats, register_controller
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
 from ..safety import safe_command

@@ -56,9 +56,9 @@ from typing import TypeVar
 import casadi as ca
 import numpy as np
 
-from ..actuation import servo_time_constant_s
 from ..config import Scenario, stage_end_times_s
 from ..dynamics import CapsuleModel
+from ..interfaces import servo_time_constant_s
 
 __all__ = [
     "A_SCALE",

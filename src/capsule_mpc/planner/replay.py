@@ -29,7 +29,7 @@ import numpy as np
 
 from ..baselines import DEFAULT_POSITION_GAIN_PER_S
 from ..config import Scenario
-from ..control import Command, Controller, Measurement, StepStats, register_controller
+from ..interfaces import Command, Controller, Measurement, StepStats, register_controller
 from ..paths import ReferencePath
 from ..safety import safe_command
 from .core import Plan, PlanError, cached_plan

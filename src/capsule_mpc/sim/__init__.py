@@ -1,6 +1,6 @@
 """The simulated rig: plant, camera, actuator, closed-loop runner and run logs."""
 
-from .actuation import Actuator, SimpleArm, make_actuator, register_actuator
+from .actuation import SimpleArm
 from .friction_field import FrictionField, FrictionPatch
 from .log import LOG_COLUMNS, REQUIRED_COLUMNS, read_log, read_predictions, write_log, write_run
 from .plant import CapsulePlant, ForceField, MapForces, TrueForces, UniformForce
@@ -11,7 +11,6 @@ from .truth import PlantTruth, draw_plant_truth, nominal_plant_truth
 __all__ = [
     "LOG_COLUMNS",
     "REQUIRED_COLUMNS",
-    "Actuator",
     "Camera",
     "CapsulePlant",
     "ForceField",
@@ -27,12 +26,10 @@ __all__ = [
     "TrueForces",
     "UniformForce",
     "draw_plant_truth",
-    "make_actuator",
     "nominal_plant_truth",
     "read_log",
     "read_predictions",
     "realtime_scenario",
-    "register_actuator",
     "simulate",
     "start_pose",
     "write_log",

@@ -1,7 +1,7 @@
 """A simple arm model: the EPM follows velocity commands within speed, acceleration and workspace limits.
 
-The interface and the registry are in :mod:`capsule_mpc.actuation` (re-exported here);
-this module registers the model as ``sim.actuator: simple``.
+The interface and the registry are in :mod:`capsule_mpc.interfaces`; this module registers the
+model as ``sim.actuator: simple``.
 """
 
 from __future__ import annotations
@@ -10,15 +10,10 @@ import math
 
 import numpy as np
 
-from ..actuation import Actuator, make_actuator, register_actuator, servo_time_constant_s
 from ..config import Scenario
+from ..interfaces import Actuator, register_actuator, servo_time_constant_s
 
-__all__ = [
-    "Actuator",
-    "SimpleArm",
-    "make_actuator",
-    "register_actuator",
-]
+__all__ = ["SimpleArm"]
 
 
 @register_actuator("simple")

@@ -28,7 +28,7 @@ frame).
 A run ends at the first of:
 
 * *at rest*: t >= the path's nominal duration, the controller says it is finished
-  (:attr:`~capsule_mpc.control.Controller.finished`: the MPC's final approach is over) and the
+  (:attr:`~capsule_mpc.interfaces.Controller.finished`: the MPC's final approach is over) and the
   capsule has been at rest (slower than ``sim.rest_speed_mps``) for ``sim.rest_hold_s``; never
   while it moves;
 * *decoupled* / *dropped*: the plant failed (see :mod:`.plant`); a last row is
@@ -71,7 +71,7 @@ step as lasting at least the solve time the controller reports (an injected late
 its command).
 
 Predictions: after each step the runner records
-:meth:`~capsule_mpc.control.Controller.predicted_capsule_path` (``None`` for
+:meth:`~capsule_mpc.interfaces.Controller.predicted_capsule_path` (``None`` for
 controllers that do not predict), one entry per logged frame.
 """
 
@@ -88,11 +88,11 @@ from tqdm import tqdm
 
 from ..budget import TIMEOUT_FACTOR
 from ..config import Scenario
-from ..control import Command, Controller, StepStats, make_controller
+from ..interfaces import Actuator, Command, Controller, StepStats, make_actuator, make_controller
 from ..magnetics import model_equilibrium_lead
 from ..metrics import run_metrics
 from ..paths import ReferencePath
-from .actuation import Actuator, SimpleArm, make_actuator
+from .actuation import SimpleArm
 from .columns import INT_COLUMNS, LOG_COLUMNS, STR_COLUMNS
 from .faults import FaultEvent, FaultInjector, fault_metrics
 from .plant import OK, CapsulePlant
@@ -112,7 +112,7 @@ __all__ = [
     "start_pose",
 ]
 
-#: Each actuator limit counter (:meth:`~capsule_mpc.actuation.Actuator.limit_counts`) in words:
+#: Each actuator limit counter (:meth:`~capsule_mpc.interfaces.Actuator.limit_counts`) in words:
 #: (what the limit did, what the count counts).
 LIMIT_WORDS: dict[str, tuple[str, str]] = {
     "workspace_clamped_steps": ("clamped by the workspace", "axis-steps"),
@@ -211,7 +211,7 @@ class RunFlags:
 
 
 def limit_text(limit_counts: dict[str, int]) -> str:
-    """The actuator's limit counts (:meth:`~capsule_mpc.actuation.Actuator.limit_counts`) in words.
+    """The actuator's limit counts (:meth:`~capsule_mpc.interfaces.Actuator.limit_counts`) in words.
 
     Only the limits that acted are named; an empty string if none did. The simple arm counts
     workspace clamps and acceleration limits per plant step and axis ("axis-steps"), speed clips
@@ -310,7 +310,7 @@ class RunResult:
         Free-form provenance (config path, waypoints file), written to run.json.
     predictions : list of (numpy.ndarray (N, 2) or None)
         The controller's predicted capsule path after each logged frame's step
-        (:meth:`~capsule_mpc.control.Controller.predicted_capsule_path`), m; None where it
+        (:meth:`~capsule_mpc.interfaces.Controller.predicted_capsule_path`), m; None where it
         predicts nothing (and on a final failure row, where no step was taken).
     realtime : RealtimeStats or None
         Wall-clock pacing figures of a real-time run; None otherwise.
@@ -624,7 +624,7 @@ def simulate(
         The nominal rig (what the controller believes), the controller's settings, and the
         ``plant`` section the simulated truth is drawn from.
     controller : Controller or str
-        A controller instance or a registry name (:func:`capsule_mpc.control.make_controller`).
+        A controller instance or a registry name (:func:`capsule_mpc.interfaces.make_controller`).
     path : ReferencePath
         The reference at its nominal speed.
     seed : int

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..config import CameraConfig
-from ..control import Measurement
+from ..interfaces import Measurement
 
 if TYPE_CHECKING:
     from .faults import FaultInjector
