@@ -364,15 +364,16 @@ def short_settle(scenario, settle_s=0.5):
 
 
 class SlowFollow(Controller):
-    """The ``follow`` baseline, with every ``every``-th step taking ``delay_s`` longer."""
+    """The ``follow`` baseline, each step taking ``step_s`` longer and every ``every``-th one
+    ``delay_s`` instead, slept on ``sleep`` (the real clock's, or a :class:`VirtualClock`'s)."""
 
     name = "slow_follow"
 
-    def __init__(self, every, delay_s):
+    def __init__(self, every, delay_s, step_s=0.0, sleep=time.sleep):
         from capsule_mpc.baselines import FollowPath
 
-        self.inner, self.every, self.delay_s = FollowPath(), every, delay_s
-        self.n = 0
+        self.inner, self.every, self.delay_s, self.step_s = FollowPath(), every, delay_s, step_s
+        self.sleep, self.n = sleep, 0
 
     def reset(self, scenario, path, epm_position_m):
         self.scenario = scenario
@@ -380,24 +381,56 @@ class SlowFollow(Controller):
 
     def step(self, t_s, measurement, epm_position_m):
         self.n += 1
-        if self.n % self.every == 0:
-            time.sleep(self.delay_s)
+        took = self.delay_s if self.n % self.every == 0 else self.step_s
+        if took > 0:
+            self.sleep(took)
         return self.inner.step(t_s, measurement, epm_position_m)
 
 
-def test_realtime_run_keeps_pace_with_the_wall_clock(scenario):
-    ctrl = SlowFollow(every=10**9, delay_s=0.0)  # never slow
+class VirtualClock:
+    """The real-time loop's wall clock (``perf_counter`` and ``sleep``), advanced only by sleeping
+    on it: the loop's own work takes no time and a controller's step takes exactly what it sleeps,
+    so the pacing is checked to the microsecond whatever else runs on the machine."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def perf_counter(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        assert seconds >= 0
+        self.now += seconds
+
+
+@pytest.fixture
+def virtual_clock(monkeypatch):
+    """A :class:`VirtualClock` that the simulator's real-time loop runs on."""
+    from capsule_mpc.sim import runner
+
+    clock = VirtualClock()
+    monkeypatch.setattr(runner, "time", clock)
+    return clock
+
+
+def test_realtime_run_keeps_pace_with_the_wall_clock(scenario, virtual_clock):
+    step_s = 0.004
+    ctrl = SlowFollow(every=10**9, delay_s=0.0, step_s=step_s, sleep=virtual_clock.sleep)  # never slow
     run = simulate(short_settle(scenario), ctrl, SHORT, seed=2, realtime=True)
     rt = run.realtime
+    period_s = 1 / scenario.camera.rate_hz
     assert rt is not None and rt.frames == len(run.log["t_s"]) == len(run.step_stats)
-    assert rt.period_ms == pytest.approx(1e3 / scenario.camera.rate_hz)
-    # Frame i starts at wall0 + i * period: the loop takes the simulated time, not less.
+    assert rt.period_ms == pytest.approx(1e3 * period_s)
+    # Frame i starts at wall0 + i * period: the loop takes the simulated time, not less (the last
+    # frame's step on top; simulated time is on the 1 ms plant grid).
+    assert run.sim_time_s == pytest.approx((rt.frames - 1) * period_s, abs=1e-3)
     assert run.wall_time_s >= run.sim_time_s
-    assert run.wall_time_s == pytest.approx(run.sim_time_s, abs=0.1)
-    # The steps are fast: most of the time is waiting (the rest is the plant's and the arm's own
-    # simulation within each frame, slower on a loaded machine).
-    assert rt.slept_s > 0.5 * run.sim_time_s
-    assert rt.deadline_misses <= 1 and rt.overruns == 0
+    assert run.wall_time_s == pytest.approx(run.sim_time_s + step_s, abs=1e-3)
+    # The steps are fast: the rest of each frame is spent waiting for the next slot.
+    assert rt.slept_s == pytest.approx((rt.frames - 1) * (period_s - step_s), abs=1e-9)
+    assert rt.deadline_misses == 0 and rt.overruns == 0
+    assert rt.worst_step_ms == pytest.approx(1e3 * step_s)
+    np.testing.assert_allclose(run.log["controller_ms"], 1e3 * step_s)
     assert run.metrics["deadline_misses"] == rt.deadline_misses
     assert ctrl.scenario.mpc.enforce_deadline and run.scenario.mpc.enforce_deadline
     assert not scenario.mpc.enforce_deadline  # the caller's scenario is untouched
@@ -405,20 +438,35 @@ def test_realtime_run_keeps_pace_with_the_wall_clock(scenario):
     assert not run.flags.decoupled and not run.flags.dropped
 
 
-def test_slow_controller_misses_deadlines_but_commands_stay_finite_and_limited(scenario):
+def test_a_realtime_run_on_the_real_clock_sleeps_and_is_never_ahead_of_it(scenario):
+    """The same pacing on the machine's clock (the simple arm: little work per frame). How much the
+    loop sleeps depends on the machine's load; that it sleeps, and never runs ahead, does not."""
+    ctrl = SlowFollow(every=10**9, delay_s=0.0)  # never slow
+    simple = tweak(short_settle(scenario), "sim", actuator="simple")
+    run = simulate(simple, ctrl, SHORT, seed=2, realtime=True)
+    rt = run.realtime
+    assert rt is not None and rt.frames == len(run.log["t_s"]) > 30
+    assert run.wall_time_s >= run.sim_time_s
+    assert 0 < rt.slept_s <= run.wall_time_s
+    assert rt.worst_step_ms == pytest.approx(run.log["controller_ms"].max())
+
+
+def test_slow_controller_misses_deadlines_but_commands_stay_finite_and_limited(scenario, virtual_clock):
     sc = short_settle(scenario, 0.3)
     period_s = 1 / sc.camera.rate_hz
-    ctrl = SlowFollow(every=6, delay_s=1.5 * period_s)
+    ctrl = SlowFollow(every=6, delay_s=1.5 * period_s, step_s=0.004, sleep=virtual_clock.sleep)
     run = simulate(sc, ctrl, SHORT, seed=2, realtime=True)
     rt, log = run.realtime, run.log
     slow = rt.frames // 6
     assert rt.overruns == slow  # exactly the slow steps took longer than a frame
-    assert rt.deadline_misses >= slow
-    assert rt.worst_step_ms >= 1.5 * period_s * 1e3
-    assert rt.max_late_ms >= 0.4 * period_s * 1e3
+    # Each slow step ends half a frame late; the fast step after it starts late but ends in its slot.
+    assert rt.deadline_misses == slow
+    assert rt.worst_step_ms == pytest.approx(1.5 * period_s * 1e3)
+    assert rt.max_late_ms == pytest.approx(0.5 * period_s * 1e3)
     # The schedule is caught up after each slow step (5 fast frames absorb 0.5 frame of delay).
-    assert run.wall_time_s == pytest.approx(run.sim_time_s, abs=0.15)
-    assert np.all(log["controller_ms"][5::6] >= 1.5 * period_s * 1e3)
+    assert run.sim_time_s <= run.wall_time_s <= run.sim_time_s + 1.5 * period_s + 1e-3
+    np.testing.assert_allclose(log["controller_ms"][5::6], 1.5 * period_s * 1e3)
+    np.testing.assert_allclose(np.delete(log["controller_ms"], np.s_[5::6]), 4.0)
     cmd = np.column_stack([log["cmd_vx_mps"], log["cmd_vy_mps"], log["cmd_vz_mps"]])
     epm_v = np.column_stack([log["epm_vx_mps"], log["epm_vy_mps"], log["epm_vz_mps"]])
     assert np.all(np.isfinite(cmd)) and np.all(np.isfinite(epm_v))
