@@ -33,6 +33,10 @@ from capsule_mpc.sim import draw_plant_truth
 
 REPO = Path(__file__).resolve().parents[1]
 RECTANGLE = REPO / "configs" / "rectangle.yaml"
+#: The rectangle scenario with a short settle and tail: a run of the short path below stops 1 s after
+#: its nominal end instead of creeping on for up to 15 s (what the sweep does with a run does not
+#: depend on how the run ended).
+QUICK = f"base: {RECTANGLE}\nsim: {{settle_s: 0.3, tail_s: 1.0}}\n"
 #: A short L path (35 mm at 20 mm/s): a run of follow or paper_0.8v takes about a second.
 SHORT_CSV = "x_m,y_m\n0.0,0.0\n0.02,0.0\n0.02,0.015\n"
 SHORT = ReferencePath(np.array([[0.0, 0.0], [0.02, 0.0], [0.02, 0.015]]), False, 0.02)
@@ -54,6 +58,22 @@ def _physical(runs: list[dict]) -> list[dict]:
         }
         for run in runs
     ]
+
+
+def _quick(scenario):
+    """``scenario`` with the short settle and tail of :data:`QUICK`."""
+    return scenario.model_copy(
+        update={"sim": scenario.sim.model_copy(update={"settle_s": 0.3, "tail_s": 1.0})}
+    )
+
+
+@pytest.fixture
+def no_figures(monkeypatch):
+    """Sweeps in this process write no figures (about 9 s of matplotlib a sweep; every figure of a
+    sweep is checked by test_cli_sweep_writes_a_file_per_run_and_compares_schema)."""
+    import capsule_mpc.cli.sweep.campaign as campaign
+
+    monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed: [])
 
 
 def crash_on_seed_1(task: SeedTask) -> dict:
@@ -85,16 +105,17 @@ def test_controllers_get_the_nominal_scenario_only_the_plant_the_varied_value(
 
     seen = []
     real = sim.simulate
+    quick = _quick(lab_scenario)
 
     def spy(scenario, name, path, seed, **kw):
         seen.append((scenario, kw["plant"].truth))
         return real(scenario, name, path, seed, **kw)
 
     monkeypatch.setattr(sim, "simulate", spy)
-    task = SeedTask(lab_scenario, SHORT, LAB_SEED, ("follow",), (parse_vary(MU0),))
+    task = SeedTask(quick, SHORT, LAB_SEED, ("follow",), (parse_vary(MU0),))
     entry = run_seed(task)
     (scenario, truth), varied = seen[0], entry["varied"]["mu0_scale"]
-    assert scenario is lab_scenario and scenario.plant.mu0_scale is None  # the controller's belief
+    assert scenario is quick and scenario.plant.mu0_scale is None  # the controller's belief
     assert truth.mu0_scale == varied == entry["plant"]["mu0_scale"]
     assert 0.8 <= varied <= 1.2 and set(entry["controllers"]["follow"]) >= {"tracking_rms_mm", "decoupled"}
 
@@ -104,8 +125,10 @@ def cli_sweep(tmp_path_factory):
     """``capsule-mpc sweep``: 2 lab seeds, 2 controllers, --vary, 2 workers; (status, out, stdout)."""
     root = tmp_path_factory.mktemp("sweep")
     (root / "short.csv").write_text(SHORT_CSV)
+    (root / "quick.yaml").write_text(QUICK)
     out = root / "out"
-    args = ["sweep", "--config", str(RECTANGLE), "--waypoints", str(root / "short.csv"), "--runs", "2"]
+    config, waypoints = str(root / "quick.yaml"), str(root / "short.csv")
+    args = ["sweep", "--config", config, "--waypoints", waypoints, "--runs", "2"]
     args += ["--seed", str(LAB_SEED), "--controllers", *CONTROLLERS, "--vary", MU0, "--workers", "2"]
     printed = io.StringIO()
     with redirect_stdout(printed):
@@ -158,7 +181,7 @@ def test_same_seeds_same_results_on_one_worker_and_on_dask(cli_sweep, tmp_path, 
     spec = json.loads((out / SPEC_FILE).read_text())
     from capsule_mpc.cli.simulate import prepare_run
 
-    scenario, path, _ = prepare_run(RECTANGLE, out.parent / "short.csv", None, None)
+    scenario, path, _ = prepare_run(out.parent / "quick.yaml", out.parent / "short.csv", None, None)
     common = {"controllers": CONTROLLERS, "vary": [parse_vary(MU0)], "progress": False}
     one = sweep(scenario, path, tmp_path / "one", LAB_SEED, 2, workers=1, **common)
     on_dask = sweep(scenario, path, tmp_path / "dask", LAB_SEED, 2, executor="dask", workers=1, **common)
@@ -169,12 +192,15 @@ def test_same_seeds_same_results_on_one_worker_and_on_dask(cli_sweep, tmp_path, 
 
 @pytest.fixture
 def ideal_rectangle():
-    """The rectangle scenario with the ideal plant: every seed uses the nominal (cached) force map."""
-    scenario = load_config(RECTANGLE)
+    """The rectangle scenario with the ideal plant (every seed uses the nominal, cached force map),
+    quick runs."""
+    scenario = _quick(load_config(RECTANGLE))
     return scenario.model_copy(update={"plant": scenario.plant.model_copy(update={"preset": "ideal"})})
 
 
-def test_a_crashed_worker_loses_its_run_only_and_a_resume_reruns_it(tmp_path, ideal_rectangle, table):
+def test_a_crashed_worker_loses_its_run_only_and_a_resume_reruns_it(
+    tmp_path, ideal_rectangle, table, no_figures
+):
     """Seed 1 kills its worker: seeds 0 and 2 finish, seed 1 is recorded as crashed; resumed, only
     seed 1 runs again."""
     out = tmp_path / "crash"
@@ -240,10 +266,14 @@ def _worker_pids(parent: int) -> list[int]:
 
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="lists the worker processes from /proc")
-def test_ctrl_c_stops_the_workers_keeps_finished_runs_and_the_same_arguments_resume(tmp_path, capsys):
+def test_ctrl_c_stops_the_workers_keeps_finished_runs_and_the_same_arguments_resume(
+    tmp_path, capsys, no_figures
+):
     (tmp_path / "wp.csv").write_text(SHORT_CSV)
+    (tmp_path / "quick.yaml").write_text(QUICK)
     out = tmp_path / "sw"
-    args = ["sweep", "--config", str(RECTANGLE), "--waypoints", str(tmp_path / "wp.csv"), "--plant", "ideal"]
+    args = ["sweep", "--config", str(tmp_path / "quick.yaml"), "--waypoints", str(tmp_path / "wp.csv")]
+    args += ["--plant", "ideal"]
     args += ["--controllers", "follow", "--runs", "3", "--seed", "0", "--workers", "1", "--out", str(out)]
     env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))
     code = "import sys; from capsule_mpc.cli import main; sys.exit(main())"
