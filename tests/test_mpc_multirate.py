@@ -31,9 +31,15 @@ def coarse(fast):
     )
 
 
-def _gap_rows(ocp, w: np.ndarray) -> np.ndarray:
-    """The linear gap rows (N x 10) of ``w``'s constraints."""
-    _, merit = nlp_functions(ocp)
+@pytest.fixture(scope="module")
+def coarse_ocp(coarse):
+    """``coarse``'s problem and its merit function (value and constraints), built once."""
+    ocp = build_mpc_stack(coarse).ocp
+    return ocp, nlp_functions(ocp)[1]
+
+
+def _gap_rows(ocp, w: np.ndarray, merit) -> np.ndarray:
+    """The linear gap rows (N x 10) of ``w``'s constraints (``merit``: the problem's merit function)."""
     g = np.asarray(merit(w, np.zeros(ocp.n_p))[1]).ravel()
     return g.reshape(ocp.horizon, N_STATE + N_PATH)[:, :N_STATE]
 
@@ -118,18 +124,18 @@ def test_dynamics_rows_are_the_models_implicit_euler_on_each_stages_step(coarse)
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
-def test_shift_advances_the_plan_one_frame_and_keeps_its_gaps_closed(coarse, seed):
+def test_shift_advances_the_plan_one_frame_and_keeps_its_gaps_closed(coarse_ocp, seed):
     """Shifting a plan whose positions integrate its rates gives one whose gaps are closed too;
     a plan at constant rates comes out as the same motion one frame later (a closed form)."""
-    ocp = build_mpc_stack(coarse).ocp
+    ocp, merit = coarse_ocp
     rng = np.random.default_rng(seed)
     x0 = np.concatenate([rng.normal(0, 0.01, 4), rng.normal(0, 0.01, 2), [0.09]])
     u_prev = rng.normal(0, 0.01, 3)
     xs, us = _integrated_plan(ocp, x0, rng.normal(0, 0.02, (2, N)), rng.normal(0, 0.03, (3, N)), u_prev)
     w = ocp.pack_variables(xs, us, rng.random((2, N)), x0, u_prev)
-    assert np.abs(_gap_rows(ocp, w)).max() < 1e-9
+    assert np.abs(_gap_rows(ocp, w, merit)).max() < 1e-9
     shifted = ocp.shift(w)
-    assert np.abs(_gap_rows(ocp, shifted)).max() < 1e-9
+    assert np.abs(_gap_rows(ocp, shifted, merit)).max() < 1e-9
     # Constant rates: the shifted plan is the same motion sampled one frame later (past the
     # horizon too, where it goes on at the last rates).
     vel, cmd = rng.normal(0, 0.02, 2), rng.normal(0, 0.03, 3)
