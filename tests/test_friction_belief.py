@@ -172,6 +172,9 @@ def test_a_model_learned_on_the_rig_starts_the_capsule_closer_than_the_papers(la
         update={
             "plant": base.plant.model_copy(update={"preset": "lab"}),
             "mpc": base.mpc.model_copy(update={"compile_c": False}),  # no C build in the default suite
+            # Cut off 1 s after the leg's nominal end (the start window is the first 1.5 s; the runs
+            # would otherwise go on for 11-17 s while the final approach brings the capsule to rest).
+            "sim": base.sim.model_copy(update={"tail_s": 1.0}),
         }
     )
     learned = LearnedFrictionModel.model_validate(yaml.safe_load(LEARNED_LAB5.read_text()))
@@ -181,5 +184,6 @@ def test_a_model_learned_on_the_rig_starts_the_capsule_closer_than_the_papers(la
     for name, sc in (("paper", base), ("learned", with_model)):
         result = simulate(sc, "mpc", leg, 5, progress=False)
         start[name] = result.metrics["start_tracking_rms_mm"]
-        assert not result.flags.stalled and result.metrics["arm_ok"]
+        assert not (result.flags.stalled or result.flags.decoupled or result.flags.dropped)
+        assert math.isfinite(result.metrics["arrival_time_s"]) and result.metrics["arm_ok"]  # it got there
     assert start["learned"] < start["paper"] - 0.3, start
