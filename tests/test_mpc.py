@@ -279,17 +279,20 @@ def test_the_start_reference_joins_the_path_smoothly(fast, offset, blend, t0):
     assert np.allclose(slope, (jvel - vel)[:, 1], rtol=0, atol=bound + 1e-12)
 
 
-def test_joining_the_path_from_the_rest_position_tracks_better_on_the_lab_rig(lab_scenario):
+@pytest.mark.parametrize(
+    "seed", [1, pytest.param(5, marks=pytest.mark.slow), pytest.param(12, marks=pytest.mark.slow)]
+)
+def test_joining_the_path_from_the_rest_position_tracks_better_on_the_lab_rig(lab_scenario, seed):
     """Lab draws whose capsule rests millimetres off the path's start (in the static-friction dead
     zone): joining the path over 2 s beats dragging the capsule sideways onto it at once, on the
-    whole run's tracking error scored against the path itself."""
+    whole run's tracking error scored against the path itself. (One draw in the default suite, the
+    others with ``make test-slow``.)"""
     path = ReferencePath(np.array([[-0.05, -0.03], [0.0, -0.03]]), closed=False, speed_mps=0.02)
-    for seed in (1, 5, 12):
-        rms = {}
-        for blend in (0.0, 2.0):
-            sc = lab_scenario.model_copy(update={
-                "mpc": lab_scenario.mpc.model_copy(update={"compile_c": False, "start_blend_s": blend}),
-                "sim": lab_scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
-            })  # fmt: skip
-            rms[blend] = simulate(sc, MPCController(), path, seed=seed).metrics["tracking_rms_mm"]
-        assert rms[2.0] < rms[0.0], (seed, rms)
+    rms = {}
+    for blend in (0.0, 2.0):
+        sc = lab_scenario.model_copy(update={
+            "mpc": lab_scenario.mpc.model_copy(update={"compile_c": False, "start_blend_s": blend}),
+            "sim": lab_scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
+        })  # fmt: skip
+        rms[blend] = simulate(sc, MPCController(), path, seed=seed).metrics["tracking_rms_mm"]
+    assert rms[2.0] < rms[0.0], (seed, rms)
