@@ -29,6 +29,8 @@ from capsule_mpc.outputs import LOCK_NAME, MANIFEST_NAME, read_manifest
 
 REPO = Path(__file__).resolve().parents[1]
 RECTANGLE = str(REPO / "configs" / "rectangle.yaml")
+#: The rectangle with runs cut off 1 s after the short path's nominal end (for the commands that run).
+QUICK = str(REPO / "tests" / "data" / "rectangle_quick.yaml")
 PACKAGE = Path(capsule_mpc.__file__).resolve().parent
 #: A short L path (35 mm at the config's 20 mm/s): a plan of ~100 steps, a run of ~2 s.
 SHORT_PATH = "x_m,y_m\n0.0,0.0\n0.02,0.0\n0.02,0.015\n"
@@ -39,9 +41,9 @@ LONG_NAME = "a" * 300
 #: Every command that writes into an ``--out`` folder, with valid arguments but ``--out`` (run in a
 #: folder holding ``wp.csv`` and ``plan.csv``).
 COMMANDS: dict[str, list[str]] = {
-    "simulate": ["simulate", "--config", RECTANGLE, "--waypoints", "wp.csv", "--controller", "follow"],
-    "compare": ["compare", "--config", RECTANGLE, "--waypoints", "wp.csv", "--controllers", "follow"],
-    "sweep": ["sweep", "--config", RECTANGLE, "--waypoints", "wp.csv", "--controllers", "follow",
+    "simulate": ["simulate", "--config", QUICK, "--waypoints", "wp.csv", "--controller", "follow"],
+    "compare": ["compare", "--config", QUICK, "--waypoints", "wp.csv", "--controllers", "follow"],
+    "sweep": ["sweep", "--config", QUICK, "--waypoints", "wp.csv", "--controllers", "follow",
               "--runs", "1"],
     "plan": ["plan", "--config", RECTANGLE, "--waypoints", "wp.csv"],
     "arm-export": ["arm-export", "--config", RECTANGLE, "--plan", "plan.csv"],

@@ -351,10 +351,10 @@ def test_a_sweep_stopped_by_a_signal_exits_128_plus_n_and_leaves_no_process(tmp_
     """A signal to the ``capsule-mpc`` process alone (as ``kill`` sends it), once runs are written."""
     psutil = pytest.importorskip("psutil")
     (tmp_path / "wp.csv").write_text(SHORT_PATH)
-    # Runs cut off 1 s after the path's end (not up to 15 s of creeping): the first is written sooner.
-    (tmp_path / "quick.yaml").write_text(f"base: {RECTANGLE}\nsim: {{settle_s: 0.3, tail_s: 1.0}}\n")
     out = tmp_path / "sw"
-    args = ["sweep", "--config", "quick.yaml", "--waypoints", "wp.csv", "--plant", "ideal", "--controllers",
+    # Runs cut off 1 s after the path's end (not up to 15 s of creeping): the first is written sooner.
+    quick = REPO / "tests" / "data" / "rectangle_quick.yaml"
+    args = ["sweep", "--config", str(quick), "--waypoints", "wp.csv", "--plant", "ideal", "--controllers",
             "follow", "--runs", "40", "--workers", "2", "--executor", executor, "--no-progress",
             "--out", str(out)]  # fmt: skip
     env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))

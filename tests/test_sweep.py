@@ -32,11 +32,9 @@ from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import draw_plant_truth
 
 REPO = Path(__file__).resolve().parents[1]
-RECTANGLE = REPO / "configs" / "rectangle.yaml"
-#: The rectangle scenario with a short settle and tail: a run of the short path below stops 1 s after
-#: its nominal end instead of creeping on for up to 15 s (what the sweep does with a run does not
-#: depend on how the run ended).
-QUICK = f"base: {RECTANGLE}\nsim: {{settle_s: 0.3, tail_s: 1.0}}\n"
+#: The rectangle with a short settle and tail: a run of the short path below stops 1 s after its
+#: nominal end instead of creeping on for up to 15 s.
+QUICK = REPO / "tests" / "data" / "rectangle_quick.yaml"
 #: A short L path (35 mm at 20 mm/s): a run of follow or paper_0.8v takes about a second.
 SHORT_CSV = "x_m,y_m\n0.0,0.0\n0.02,0.0\n0.02,0.015\n"
 SHORT = ReferencePath(np.array([[0.0, 0.0], [0.02, 0.0], [0.02, 0.015]]), False, 0.02)
@@ -62,8 +60,9 @@ def _physical(runs: list[dict]) -> list[dict]:
 
 def _quick(scenario):
     """``scenario`` with the short settle and tail of :data:`QUICK`."""
+    sim = load_config(QUICK).sim
     return scenario.model_copy(
-        update={"sim": scenario.sim.model_copy(update={"settle_s": 0.3, "tail_s": 1.0})}
+        update={"sim": scenario.sim.model_copy(update={"settle_s": sim.settle_s, "tail_s": sim.tail_s})}
     )
 
 
@@ -125,10 +124,8 @@ def cli_sweep(tmp_path_factory):
     """``capsule-mpc sweep``: 2 lab seeds, 2 controllers, --vary, 2 workers; (status, out, stdout)."""
     root = tmp_path_factory.mktemp("sweep")
     (root / "short.csv").write_text(SHORT_CSV)
-    (root / "quick.yaml").write_text(QUICK)
     out = root / "out"
-    config, waypoints = str(root / "quick.yaml"), str(root / "short.csv")
-    args = ["sweep", "--config", config, "--waypoints", waypoints, "--runs", "2"]
+    args = ["sweep", "--config", str(QUICK), "--waypoints", str(root / "short.csv"), "--runs", "2"]
     args += ["--seed", str(LAB_SEED), "--controllers", *CONTROLLERS, "--vary", MU0, "--workers", "2"]
     printed = io.StringIO()
     with redirect_stdout(printed):
@@ -181,7 +178,7 @@ def test_same_seeds_same_results_on_one_worker_and_on_dask(cli_sweep, tmp_path, 
     spec = json.loads((out / SPEC_FILE).read_text())
     from capsule_mpc.cli.simulate import prepare_run
 
-    scenario, path, _ = prepare_run(out.parent / "quick.yaml", out.parent / "short.csv", None, None)
+    scenario, path, _ = prepare_run(QUICK, out.parent / "short.csv", None, None)
     common = {"controllers": CONTROLLERS, "vary": [parse_vary(MU0)], "progress": False}
     one = sweep(scenario, path, tmp_path / "one", LAB_SEED, 2, workers=1, **common)
     on_dask = sweep(scenario, path, tmp_path / "dask", LAB_SEED, 2, executor="dask", workers=1, **common)
@@ -194,7 +191,7 @@ def test_same_seeds_same_results_on_one_worker_and_on_dask(cli_sweep, tmp_path, 
 def ideal_rectangle():
     """The rectangle scenario with the ideal plant (every seed uses the nominal, cached force map),
     quick runs."""
-    scenario = _quick(load_config(RECTANGLE))
+    scenario = load_config(QUICK)
     return scenario.model_copy(update={"plant": scenario.plant.model_copy(update={"preset": "ideal"})})
 
 
@@ -270,10 +267,8 @@ def test_ctrl_c_stops_the_workers_keeps_finished_runs_and_the_same_arguments_res
     tmp_path, capsys, no_figures
 ):
     (tmp_path / "wp.csv").write_text(SHORT_CSV)
-    (tmp_path / "quick.yaml").write_text(QUICK)
     out = tmp_path / "sw"
-    args = ["sweep", "--config", str(tmp_path / "quick.yaml"), "--waypoints", str(tmp_path / "wp.csv")]
-    args += ["--plant", "ideal"]
+    args = ["sweep", "--config", str(QUICK), "--waypoints", str(tmp_path / "wp.csv"), "--plant", "ideal"]
     args += ["--controllers", "follow", "--runs", "3", "--seed", "0", "--workers", "1", "--out", str(out)]
     env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))
     code = "import sys; from capsule_mpc.cli import main; sys.exit(main())"
