@@ -173,7 +173,9 @@ def test_simulate_realtime_reports_deadline_misses(tmp_path, short_path, quick_c
     rt = run["realtime"]
     assert rt["frames"] > 30 and rt["period_ms"] == pytest.approx(1e3 / 30)
     assert run["metrics"]["deadline_misses"] == rt["deadline_misses"]
-    assert run["timing"]["wall_time_s"] == pytest.approx(run["timing"]["sim_time_s"], abs=0.15)
+    # Paced by the wall clock: never ahead of the simulated time (how closely it keeps pace depends
+    # on the machine's load; the pacing itself is checked on a virtual clock in tests/test_sim.py).
+    assert run["timing"]["wall_time_s"] >= run["timing"]["sim_time_s"]
     assert load_config(out / "config.yaml").mpc.enforce_deadline  # what the controller ran with
     text = capsys.readouterr().out
     assert f"deadline misses {rt['deadline_misses']} " in text and "worst step" in text
