@@ -121,9 +121,10 @@ def test_compare_controllers_rejects_zero_runs(tmp_path, scenario):
 
 @pytest.fixture
 def rectangle_config():
+    """The rectangle with runs cut off 1 s after the short path's nominal end (tests/data)."""
     from pathlib import Path
 
-    return Path(__file__).resolve().parents[1] / "configs" / "rectangle.yaml"
+    return Path(__file__).resolve().parent / "data" / "rectangle_quick.yaml"
 
 
 #: A short path (35 mm at 20 mm/s) so a run takes about a second.

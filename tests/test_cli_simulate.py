@@ -46,10 +46,13 @@ def test_simulate_writes_a_complete_run(tmp_path, short_path, capsys, table):
     assert "results in" in capsys.readouterr().out
 
 
-def test_compare_runs_every_controller_on_the_same_seed(tmp_path, short_path, table, monkeypatch):
+def test_compare_runs_every_controller_on_the_same_seed(
+    tmp_path, short_path, quick_config, table, monkeypatch
+):
     monkeypatch.setattr("capsule_mpc.cli.compare.available_controllers", lambda: ["follow", "paper_0.8v"])
     out = tmp_path / "cmp"
-    assert main(["compare", "--out", str(out), "--waypoints", str(short_path), "--no-progress"]) == 0
+    args = ["compare", "--config", str(quick_config), "--out", str(out), "--waypoints", str(short_path)]
+    assert main([*args, "--no-progress"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["seed"] == load_config().sim.seed
     assert set(summary["controllers"]) == {"follow", "paper_0.8v"}
