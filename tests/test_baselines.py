@@ -35,7 +35,8 @@ def test_short_closed_loop_run_does_not_decouple(scenario, name):
 
 def test_offset_calibrated_from_the_camera_is_the_actual_rest_lead(lab_scenario):
     """On the lab rig the capsule rests anywhere in the dead zone: the baseline measures where."""
-    scenario = lab_scenario
+    # The offset is measured in the settle phase: the run is cut off 0.5 s after 1.25 x the path's time.
+    scenario = lab_scenario.model_copy(update={"sim": lab_scenario.sim.model_copy(update={"tail_s": 0.5})})
     ctrl = make_controller("follow")
     res = simulate(scenario, ctrl, L_PATH, seed=3)
     truth = res.truth
@@ -57,6 +58,7 @@ def test_offset_calibrated_from_the_camera_is_the_actual_rest_lead(lab_scenario)
 def test_offset_falls_back_to_the_model_without_frames(scenario):
     data = scenario.model_dump(mode="json", exclude_none=True)
     data["sim"]["settle_s"] = 0.0
+    data["sim"]["tail_s"] = 0.5  # the offset is set at the first step: a short run
     no_settle = config_from_dict(data)
     ctrl = make_controller("follow")
     simulate(no_settle, ctrl, L_PATH, seed=0)
