@@ -36,6 +36,8 @@ from capsule_mpc.outputs import LOCK_NAME, read_manifest
 
 REPO = Path(__file__).resolve().parents[1]
 RECTANGLE = REPO / "configs" / "rectangle.yaml"
+#: The rectangle with runs cut off 1 s after the short path's nominal end.
+QUICK = REPO / "tests" / "data" / "rectangle_quick.yaml"
 #: A short L path (35 mm at the config's 20 mm/s): a ~100-step plan that IPOPT solves in ~25 iterations.
 SHORT_PATH = "x_m,y_m\n0.0,0.0\n0.02,0.0\n0.02,0.015\n"
 #: Seconds a subprocess may take to reach the solve (NLP build under load) and then to exit.
@@ -313,7 +315,7 @@ def test_plan_interrupted_while_its_nlp_is_built_exits_at_once(tmp_path):
 def test_compare_interrupted_in_the_planner_stage_records_nothing(tmp_path):
     (tmp_path / "wp.csv").write_text(SHORT_PATH)
     out = tmp_path / "cmp"
-    args = ["compare", "--config", str(RECTANGLE), "--waypoints", "wp.csv", "--out", str(out),
+    args = ["compare", "--config", str(QUICK), "--waypoints", "wp.csv", "--out", str(out),
             "--controllers", "follow", "plan"]  # fmt: skip
     status, stdout, err, _ = _run_and_interrupt(args, IPOPT_RUNNING, tmp_path, setup=SLOW_IPOPT)
     assert status == 130, err
@@ -352,9 +354,7 @@ def test_a_sweep_stopped_by_a_signal_exits_128_plus_n_and_leaves_no_process(tmp_
     psutil = pytest.importorskip("psutil")
     (tmp_path / "wp.csv").write_text(SHORT_PATH)
     out = tmp_path / "sw"
-    # Runs cut off 1 s after the path's end (not up to 15 s of creeping): the first is written sooner.
-    quick = REPO / "tests" / "data" / "rectangle_quick.yaml"
-    args = ["sweep", "--config", str(quick), "--waypoints", "wp.csv", "--plant", "ideal", "--controllers",
+    args = ["sweep", "--config", str(QUICK), "--waypoints", "wp.csv", "--plant", "ideal", "--controllers",
             "follow", "--runs", "40", "--workers", "2", "--executor", executor, "--no-progress",
             "--out", str(out)]  # fmt: skip
     env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))
