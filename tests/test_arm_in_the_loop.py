@@ -20,6 +20,7 @@ from capsule_mpc.arm import (
     check_run_trajectory,
     run_trajectory_since,
 )
+from capsule_mpc.cli.compare import rescore_on_common_window
 from capsule_mpc.config import config_from_dict
 from capsule_mpc.mpc import build_mpc_stack
 from capsule_mpc.paths import rectangle
@@ -55,8 +56,10 @@ def short_rectangle():
 
 @pytest.fixture(scope="module")
 def runs(lab_robot, short_rectangle):
-    """The MPC and follow on the same lab draw with the robot arm in the loop."""
-    return {name: simulate(lab_robot, name, short_rectangle, seed=1) for name in ("mpc", "follow")}
+    """The MPC and the two baselines on the same lab draw with the robot arm in the loop."""
+    return {
+        name: simulate(lab_robot, name, short_rectangle, seed=1) for name in ("mpc", "follow", "paper_0.8v")
+    }
 
 
 def _commands(run) -> np.ndarray:
@@ -72,6 +75,19 @@ def test_the_mpc_beats_follow_with_the_arm_in_the_loop_and_its_joint_commands_pa
     assert mpc["arm_ok"] and runs["mpc"].flags.arm_failure == ""
     cart, joints = runs["mpc"].arm_run
     assert cart.t_s[0] >= -1e-9 and len(joints.t_s) == len(cart.t_s) > 1000  # 500 Hz from t = 0
+
+
+def test_the_mpc_beats_both_baselines_on_a_common_window(lab_robot, short_rectangle, runs):
+    """Scored on one common window, as ``compare`` scores a seed's runs: the MPC beats follow and the
+    paper's paper_0.8v on tracking and cross-track error (on the whole rectangle, without the arm:
+    test_mpc.py's test_mpc_beats_both_baselines_on_the_lab_rig, in the slow suite)."""
+    scored = {name: replace(run, metrics=dict(run.metrics)) for name, run in runs.items()}
+    window = rescore_on_common_window(scored, short_rectangle, lab_robot)
+    assert all(run.metrics["window_end_s"] == pytest.approx(window) for run in scored.values())
+    mpc = scored["mpc"].metrics
+    for name in ("follow", "paper_0.8v"):
+        assert mpc["tracking_rms_mm"] < scored[name].metrics["tracking_rms_mm"], name
+        assert mpc["cross_track_rms_mm"] < scored[name].metrics["cross_track_rms_mm"], name
 
 
 def test_every_sent_command_is_within_speed_acceleration_and_jerk(lab_robot, runs):

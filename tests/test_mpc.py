@@ -53,6 +53,7 @@ def test_mpc_beats_follow_on_the_same_run(fast, mpc_run):
     assert mpc_run.metrics["solver_failures"] <= 0.01 * len(mpc_run.step_stats)
 
 
+@pytest.mark.slow  # ~13 CPU s; by default on 1.5 sides, with the arm: test_arm_in_the_loop.py
 def test_mpc_beats_both_baselines_on_the_lab_rig(lab_scenario):
     """A lab plant draw (magnets, mounting, friction field, servo lag, delay, camera bias) and an
     operator start inside the dead zone, on the paper's rectangle: the MPC beats follow and
