@@ -269,7 +269,11 @@ def test_a_stalled_arm_brakes_to_rest_and_then_follows_again(lab_scenario):
 
 
 @pytest.mark.parametrize("command", ["compare", "sweep"])
-def test_fault_counts_reach_the_summary_of_compare_and_sweep(tmp_path, command):
+def test_fault_counts_reach_the_summary_of_compare_and_sweep(tmp_path, command, monkeypatch):
+    import capsule_mpc.cli.sweep.campaign as campaign
+
+    # the sweep's 12 figures are not the subject (test_sweep.py checks them)
+    monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed: [])
     config = tmp_path / "c.yaml"
     config.write_text(
         "base: paper\nsim:\n  settle_s: 0.2\n  tail_s: 1.0\n"
