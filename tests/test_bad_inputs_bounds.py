@@ -401,10 +401,10 @@ def test_run_needs_counts_the_frames_of_a_run_to_its_cut_off(scenario):
     log (up to the frames of one plant step of rounding)."""
     import numpy as np
 
+    from capsule_mpc.budget import TIMEOUT_FACTOR
     from capsule_mpc.interfaces import Command, Controller, StepStats
     from capsule_mpc.paths import ReferencePath
     from capsule_mpc.sim import simulate
-    from capsule_mpc.sim.runner import TIMEOUT_FACTOR
 
     class Still(Controller):
         def reset(self, scenario, path, epm_position_m):

@@ -18,9 +18,9 @@ from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
 from capsule_mpc.mpc.approach import FinalApproach
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.safety import safe_command
+from capsule_mpc.sim import simulate
 from capsule_mpc.sim.actuation import SimpleArm
 from capsule_mpc.sim.plant import CapsulePlant
-from capsule_mpc.sim.runner import simulate
 
 DT = 1.0 / 30.0
 #: A short straight path ending at the origin, approached along -y (as the rectangle's last side).
