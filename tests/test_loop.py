@@ -118,3 +118,32 @@ def test_the_loop_refuses_to_step_before_reset_and_after_the_end(scenario):
     with pytest.raises(RuntimeError, match="over"):
         loop.step()
     assert loop.result().flags.at_rest
+
+
+def test_run_outcome_says_how_each_run_ended(scenario):
+    from capsule_mpc.config import config_from_dict
+    from capsule_mpc.sim import RunOutcome
+
+    done = ClosedLoop(scenario, "follow", SHORT, seed=0).run()
+    assert done.flags.outcome is RunOutcome.COMPLETED and not done.failed
+    data = scenario.model_dump(mode="json", exclude_none=True)
+    data["friction"]["mu0"] = 1.5
+    lost = ClosedLoop(config_from_dict(data), Explode(), SHORT, seed=0).run()
+    assert lost.flags.outcome is RunOutcome.DECOUPLED and lost.failed
+    loop = ClosedLoop(scenario, "follow", SHORT, seed=0)
+    loop.reset()
+    loop.step()
+    assert loop.flags.outcome is RunOutcome.RUNNING
+
+
+def test_step_outcomes_agree_with_the_logged_status(scenario):
+    from capsule_mpc.interfaces import StepOutcome
+
+    res = ClosedLoop(scenario, "mpc", SHORT, seed=0).run()
+    outcomes = [s.outcome for s in res.step_stats]
+    assert outcomes[0] is StepOutcome.NO_MEASUREMENT  # one frame of camera latency
+    assert StepOutcome.SOLVED in outcomes
+    for stats in res.step_stats:
+        assert stats.failed == (stats.outcome in (StepOutcome.LATE, StepOutcome.FAILED, StepOutcome.INVALID))
+        if stats.outcome in (StepOutcome.LATE, StepOutcome.FAILED, StepOutcome.APPROACH):
+            assert stats.status.startswith(stats.outcome.value)

@@ -5,7 +5,15 @@ from .friction_field import FrictionField, FrictionPatch
 from .log import LOG_COLUMNS, REQUIRED_COLUMNS, read_log, read_predictions, write_log, write_run
 from .loop import ClosedLoop, FaultInjection, Frame, Observer, Pacer, ProgressBar, simulate
 from .plant import CapsulePlant, ForceField, MapForces, TrueForces, UniformForce
-from .runner import PathProgress, RealtimeStats, RunFlags, RunResult, realtime_scenario, start_pose
+from .runner import (
+    PathProgress,
+    RealtimeStats,
+    RunFlags,
+    RunOutcome,
+    RunResult,
+    realtime_scenario,
+    start_pose,
+)
 from .sensing import Camera
 from .truth import PlantTruth, draw_plant_truth, nominal_plant_truth
 
@@ -28,6 +36,7 @@ __all__ = [
     "ProgressBar",
     "RealtimeStats",
     "RunFlags",
+    "RunOutcome",
     "RunResult",
     "SimpleArm",
     "TrueForces",

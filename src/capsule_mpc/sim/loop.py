@@ -102,12 +102,21 @@ from tqdm import tqdm
 
 from ..budget import TIMEOUT_FACTOR
 from ..config import Scenario
-from ..interfaces import Actuator, Command, Controller, Measurement, StepStats, make_actuator, make_controller
+from ..interfaces import (
+    Actuator,
+    Command,
+    Controller,
+    Measurement,
+    StepOutcome,
+    StepStats,
+    make_actuator,
+    make_controller,
+)
 from ..paths import ReferencePath
 from .actuation import SimpleArm
 from .columns import INT_COLUMNS, LOG_COLUMNS, STR_COLUMNS
 from .faults import FaultInjector, fault_metrics
-from .plant import OK, CapsulePlant
+from .plant import FAILURE_DECOUPLED, OK, CapsulePlant
 from .runner import (
     START_STREAM,
     PathProgress,
@@ -548,7 +557,7 @@ class ClosedLoop:
         row = self._state_row(t)
         frame = Frame(index=j, t_s=t, k=k, row=row)
         if status != OK:
-            return self._fail(frame)
+            return self._fail(frame, decoupled=status == FAILURE_DECOUPLED)
         for obs in self.observers:
             obs.frame_start(self, frame)
         frame.measurement = meas = self.camera.frame(t, self.plant.position_m)
@@ -564,7 +573,11 @@ class ClosedLoop:
         frame.prediction = ctrl.predicted_capsule_path()
         self.predictions.append(frame.prediction)
         vel = _check_command(cmd)
-        stats = cmd.stats if isinstance(cmd, Command) else StepStats(status="invalid", failed=True)
+        stats = (
+            cmd.stats
+            if isinstance(cmd, Command)
+            else StepStats(status="invalid", failed=True, outcome=StepOutcome.INVALID)
+        )
         if vel is None:
             self.flags.invalid_commands += 1
             vel = np.zeros(3)
@@ -589,11 +602,10 @@ class ClosedLoop:
             self.flags.timed_out = self.done = True
         return frame
 
-    def _fail(self, frame: Frame) -> Frame:
+    def _fail(self, frame: Frame, *, decoupled: bool) -> Frame:
         """The plant failed (decoupled or dropped) before the frame: log a last row and end the run."""
         flags, plant = self.flags, self.plant
-        flags.decoupled = plant.failure.startswith("decoupled")
-        flags.dropped = not flags.decoupled
+        flags.decoupled, flags.dropped = decoupled, not decoupled
         flags.failure, flags.failure_t_s = plant.failure, frame.t_s
         row = frame.row
         row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), self.cmd_applied.tolist()))

@@ -3,6 +3,7 @@ its progress along the path and its score. The loop itself is :mod:`.loop`."""
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,6 +25,7 @@ __all__ = [
     "PathProgress",
     "RealtimeStats",
     "RunFlags",
+    "RunOutcome",
     "RunResult",
     "check_arm_run",
     "limit_text",
@@ -88,6 +90,23 @@ class PathProgress:
         return self.progress_m
 
 
+class RunOutcome(enum.Enum):
+    """How a run ended, for code to act on (:meth:`RunFlags.describe` says it in words)."""
+
+    #: Still running (the loop has not ended).
+    RUNNING = "running"
+    #: At rest after the path, within ``sim.completion_tol_m`` of its end.
+    COMPLETED = "completed"
+    #: At rest after the path, farther than ``sim.completion_tol_m`` from its end.
+    STALLED = "stalled"
+    #: Cut off at ``1.25 x`` the path's duration + ``sim.tail_s`` while the capsule still moved.
+    TIMED_OUT = "timed_out"
+    #: The capsule lost the magnet (the lead grew past the coupling limit).
+    DECOUPLED = "decoupled"
+    #: The capsule fell off the plate (the magnetic attraction vanished).
+    DROPPED = "dropped"
+
+
 @dataclass
 class RunFlags:
     """How a run ended."""
@@ -102,6 +121,21 @@ class RunFlags:
     failure_t_s: float = math.nan
     invalid_commands: int = 0
     arm_failure: str = ""
+
+    @property
+    def outcome(self) -> RunOutcome:
+        """How the run ended, as a value (:class:`RunOutcome`)."""
+        if self.decoupled:
+            return RunOutcome.DECOUPLED
+        if self.dropped:
+            return RunOutcome.DROPPED
+        if self.completed:
+            return RunOutcome.COMPLETED
+        if self.stalled:
+            return RunOutcome.STALLED
+        if self.timed_out:
+            return RunOutcome.TIMED_OUT
+        return RunOutcome.RUNNING
 
     def describe(
         self, final_error_mm: float, path_left_mm: float = math.nan, end_t_s: float = math.nan
