@@ -214,7 +214,7 @@ class ReferencePath:
         A point's closest point on the path lies on a piece whose midpoint is within that half
         length of it, so within the distance to the nearest midpoint plus that half length."""
         if self._tree is None:
-            from scipy.spatial import cKDTree
+            from scipy.spatial import cKDTree  # lazy: SciPy's spatial module only for this query
 
             seg_len = np.diff(self._arc_m)
             pieces = np.maximum(1, np.ceil(seg_len / (self.length_m / len(seg_len)))).astype(int)

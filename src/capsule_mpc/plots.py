@@ -72,7 +72,7 @@ RunMetrics = Mapping[str, Any]
 
 
 def _pyplot() -> Any:
-    import matplotlib
+    import matplotlib  # lazy: Matplotlib only when a figure is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

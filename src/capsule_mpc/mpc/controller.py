@@ -41,6 +41,7 @@ from ..friction import FrictionBelief
 from ..interfaces import Command, Controller, Measurement, StepOutcome, StepStats, register_controller
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
+from ..planner import cached_plan
 from ..safety import safe_command
 from .adaptation import FrictionOffsetRLS, friction_regression
 from .approach import FinalApproach
@@ -172,8 +173,6 @@ class MPCController(Controller):
         self.plan: _Plan | None = None
         self._offline_plan = None
         if cfg.feedforward == "plan":
-            from ..planner import cached_plan  # lazy: the planner imports mpc.problem
-
             offline = cached_plan(scenario, path)
             if offline.success:
                 self._offline_plan = offline

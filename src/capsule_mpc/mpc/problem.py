@@ -57,7 +57,7 @@ import casadi as ca
 import numpy as np
 
 from ..config import Scenario, stage_end_times_s
-from ..dynamics import CapsuleModel
+from ..dynamics import FN_SCALE, S_SCALE, TANGENT_EPS_MPS, U_SCALE, X_SCALE, CapsuleModel, n_slacks
 from ..interfaces import servo_time_constant_s
 
 __all__ = [
@@ -80,10 +80,6 @@ __all__ = [
     "n_slacks",
 ]
 
-#: Slacks per stage: coupling (lead), normal force (both bounds).
-n_slacks = 2
-#: Speed below which the reference counts as standing still, m/s (smooths the path frame).
-TANGENT_EPS_MPS = 1e-4
 #: Reference rows per stage: capsule position (2), capsule velocity (2), EPM velocity feed-forward (2).
 N_REF = 6
 #: Disturbance parameters: constant force (x, y) and extra friction magnitude, N.
@@ -100,17 +96,9 @@ N_INPUT = _NU_MODEL + 2 + n_slacks + 1
 N_PATH = 11
 #: Stage-state columns of the command's slope (the EPM acceleration of the step that ends there).
 _SLOPE = slice(_NX_MODEL + _NU_MODEL, N_STATE)
-#: Variable scales: the NLP works in mm, cm/s and unit-order slacks, so the QP sees a
-#: well-conditioned problem. Physical value = scale * NLP value.
-X_SCALE = np.array([1e-3, 1e-3, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
-U_SCALE = np.array([1e-2, 1e-2, 1e-2])
 #: Scale of the command's slope (EPM acceleration), m/s^2, and of the jerk rows, m/s^3.
 A_SCALE = np.array([0.1, 0.1, 0.1])
 J_SCALE = 1.0
-#: Slack scales: coupling slack in units of max_lead^2 (dimensionless), normal-force slack in N.
-S_SCALE = np.array([1.0, 0.1])
-#: Normal-force constraint scale, N.
-FN_SCALE = 0.1
 #: Scales of the stage state (model state, command) and input (dc, capsule velocity, slacks).
 STATE_SCALE = np.concatenate([X_SCALE, U_SCALE, A_SCALE])
 #: Scale of the jerk rows' slack (a slope change beyond the jerk limit), m/s^2.

@@ -415,7 +415,7 @@ def check_arm_run(
     trajectories = getattr(act, "joint_trajectory", None)
     if trajectories is None or not getattr(act, "record", False):
         return None
-    from ..arm import ArmError, check_run_trajectory, run_trajectory_since
+    from ..arm import ArmError, check_run_trajectory, run_trajectory_since  # lazy: Pinocchio
 
     cart, joints = run_trajectory_since(act.cartesian_trajectory(), act.joint_trajectory())  # type: ignore[attr-defined]
     if cart.t_s.shape[0] < 2:

@@ -49,9 +49,10 @@ import yaml
 from ..config import Scenario, config_from_dict, dump_config, load_config, packaged_config_path
 from ..interfaces import Command, Measurement, StepOutcome
 from ..magnetics import cache_directory, force_map
+from ..mpc.controller import MPCController, build_mpc_stack
+from ..mpc.solver import QP_SOLVERS
 from ..paths import ReferencePath, path_from_scenario
-from .controller import MPCController, build_mpc_stack
-from .solver import QP_SOLVERS
+from ..sim import simulate
 
 __all__ = [
     "DEFAULT_FRAMES",
@@ -88,7 +89,7 @@ _BUILD_TIMEOUT_S = 1800.0
 #: The fresh process: imports timed from its first statement, then one build.
 _CHILD = (
     "import time; _t0 = time.perf_counter(); "
-    "from capsule_mpc.mpc.bench import _fresh_build_main; _fresh_build_main(_t0)"
+    "from capsule_mpc.experiments.bench import _fresh_build_main; _fresh_build_main(_t0)"
 )
 #: Run metrics copied into the report.
 _METRICS = (
@@ -304,7 +305,6 @@ def closed_loop_timing(scenario: Scenario, path: ReferencePath, seed: int) -> di
         ``slowest_frames``, ``frame_times`` (per-frame ``controller_ms`` and ``solve_ms``),
         ``build_in_process_s``, ``metrics`` (tracking) and ``wall_s``.
     """
-    from ..sim import simulate  # the simulator sits right of the controller in the data flow
 
     t0 = time.perf_counter()
     solver = build_mpc_stack(scenario).solver
