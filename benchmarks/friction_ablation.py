@@ -20,7 +20,7 @@ robot``), once per friction model it is given:
     and drag growth, its breakaway after rest -- what no real rig gives a controller, the bound.
 
 The ``paper_0.8v`` heuristic runs on the same draw, and every run of a draw is scored on one
-window: t = 0 to the latest end among them (:func:`capsule_mpc.cli.compare.rescore_on_common_window`).
+window: t = 0 to the latest end among them (:func:`capsule_mpc.experiments.compare.rescore_on_common_window`).
 Prints, per variant, mean +- sd (worst) over the draws of the tracking RMS, cross-track RMS, the
 start window's tracking RMS (first 1.5 s), the final error, the runs ending within
 ``--final-tol``, stalls and solver failures, and the paired difference to ``paper``; the learned
@@ -48,8 +48,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from capsule_mpc.cli.compare import rescore_on_common_window
 from capsule_mpc.config import LearnedFrictionModel, Scenario, load_config
+from capsule_mpc.experiments.compare import rescore_on_common_window
 from capsule_mpc.friction import FrictionBelief
 from capsule_mpc.paths import path_from_scenario
 from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate

@@ -40,16 +40,16 @@ def _refuse(name: str):
 
 #: (module, attribute) of every entry point of work a refused command must not reach.
 WORK = [
-    ("capsule_mpc.cli.simulate", "force_map"),
+    ("capsule_mpc.experiments.runs", "force_map"),
     ("capsule_mpc.magnetics", "force_map"),
-    ("capsule_mpc.cli.info", "check_epm_height"),
+    ("capsule_mpc.experiments.runs", "check_epm_height"),
     ("capsule_mpc.sim", "simulate"),
     ("capsule_mpc.learning.demonstrations", "run_demonstrations"),
     ("capsule_mpc.cli.demonstrate", "run_demonstrations"),
     ("capsule_mpc.planner", "plan_path"),
     ("capsule_mpc.planner", "cached_plan"),
     ("capsule_mpc.experiments.bench", "run_benchmark"),
-    ("capsule_mpc.cli.sweep", "sweep"),
+    ("capsule_mpc.experiments.sweep.campaign", "sweep"),
     ("capsule_mpc.cli.arm", "export_arm_trajectory"),
     ("capsule_mpc.cli.docs", "write_reference_docs"),
 ]
@@ -64,6 +64,8 @@ PREIMPORT = [
     "capsule_mpc.experiments.bench",
     "capsule_mpc.learning.logs",
     "capsule_mpc.learning.demonstrations",
+    "capsule_mpc.experiments.runs",
+    "capsule_mpc.experiments.sweep.campaign",
     "capsule_mpc.cli.simulate",
     "capsule_mpc.cli.info",
     "capsule_mpc.cli.demonstrate",

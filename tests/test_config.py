@@ -12,8 +12,10 @@ import pytest
 import yaml
 
 from capsule_mpc import ConfigError, dump_config, load_config
-from capsule_mpc.cli.info import _mm, check_epm_height, scenario_figures
+from capsule_mpc.cli.info import scenario_figures
 from capsule_mpc.config import config_from_dict, packaged_config_path
+from capsule_mpc.path_reach import check_epm_height
+from capsule_mpc.path_reach import format_mm as _mm
 
 PAPER = yaml.safe_load(packaged_config_path("paper").read_text())
 

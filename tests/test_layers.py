@@ -37,7 +37,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 )
 LAYER_OF = {part: i for i, parts in enumerate(LAYERS) for part in parts}
 #: Third-party modules heavy enough to load only when used (inside the function that uses them).
-HEAVY = ("matplotlib", "scipy.spatial", "distributed", "dask", "multiprocessing", "threading", "logging")
+HEAVY = ("matplotlib", "scipy.spatial", "distributed", "dask")
 #: Package modules that load a heavy dependency (the arm loads Pinocchio).
 HEAVY_OWN = ("capsule_mpc.arm",)
 
