@@ -10,6 +10,7 @@ import argparse
 import functools
 import io
 import operator
+import re
 import types
 import typing
 from contextlib import redirect_stdout
@@ -41,7 +42,9 @@ def _type_name(annotation: Any) -> str:
     text = (
         str(annotation) if typing.get_origin(annotation) else getattr(annotation, "__name__", str(annotation))
     )
-    return text.replace("typing.", "").replace("pathlib.", "").replace("NoneType", "None")
+    text = text.replace("typing.", "").replace("pathlib.", "").replace("NoneType", "None")
+    # A section is named where it is imported from (capsule_mpc.config), not by its module.
+    return re.sub(r"capsule_mpc\.config\.\w+\.", "capsule_mpc.config.", text)
 
 
 def _submodel(annotation: Any) -> type[BaseModel] | None:
