@@ -474,7 +474,9 @@ def max_path_speed(scenario: Scenario, path: ReferencePath) -> float:
     start-up lag can no longer be made up within the horizon.
     """
     vel, acc, _ = scenario.arm.cartesian_limits(scenario.limits)
-    horizon_s = float(scenario.prediction_times_s()[-1])
+    from .mpc.grid import prediction_times_s  # the mpc package imports this module
+
+    horizon_s = float(prediction_times_s(scenario)[-1])
     seg = np.diff(path.vertices_m, axis=0)
     share = np.max(np.abs(seg) / np.hypot(seg[:, 0], seg[:, 1])[:, None], axis=0)  # max |d_k| per axis
     a_t = np.asarray(acc[:2]) * horizon_s

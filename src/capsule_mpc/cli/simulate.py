@@ -194,12 +194,13 @@ def write_prediction_figure(result: RunResult, out: str | Path) -> Path | None:
     Returns the file, or None if the run holds no prediction.
     """
     from ..metrics import stack_predictions
+    from ..mpc.grid import prediction_steps_s
     from ..plots import plot_prediction
 
     stacked = stack_predictions(result.predictions)
     if stacked is None:
         return None
-    first_s, step_s = result.scenario.prediction_steps_s()[[0, -1]]
+    first_s, step_s = prediction_steps_s(result.scenario)[[0, -1]]
     return plot_prediction(
         result.log, stacked, result.path, Path(out), float(step_s), result.controller, float(first_s)
     )

@@ -52,7 +52,7 @@ from .rig import (
     PathConfig,
     PlateConfig,
 )
-from .scenario import Scenario, stage_end_times_s
+from .scenario import Scenario
 from .sim import SimConfig
 
 __all__ = [
@@ -87,5 +87,4 @@ __all__ = [
     "load_config",
     "packaged_config_path",
     "read_yaml",
-    "stage_end_times_s",
 ]

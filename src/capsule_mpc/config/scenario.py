@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from ._fields import StrictModel
@@ -26,7 +25,7 @@ from .rig import (
 )
 from .sim import SimConfig
 
-__all__ = ["Scenario", "stage_end_times_s"]
+__all__ = ["Scenario"]
 
 
 class Scenario(StrictModel):
@@ -120,17 +119,6 @@ class Scenario(StrictModel):
             )
         return self
 
-    def prediction_steps_s(self) -> np.ndarray:
-        """Durations of the MPC's N prediction stages, s: one camera frame, then ``mpc.dt_s``
-        (one frame when None)."""
-        frame = 1.0 / self.camera.rate_hz
-        step = frame if self.mpc.dt_s is None else float(self.mpc.dt_s)
-        return np.concatenate([[frame], np.full(self.mpc.horizon - 1, step)])
-
-    def prediction_times_s(self) -> np.ndarray:
-        """Look-ahead times of the MPC's stages 1..N from the frame it plans at, s."""
-        return stage_end_times_s(self.prediction_steps_s())
-
     def controller_friction(self) -> LearnedFrictionModel:
         """The steady-state friction law the controller uses: ``friction.learned`` or the paper's."""
         learned = self.friction.learned
@@ -146,13 +134,3 @@ class Scenario(StrictModel):
             path = self.source_path.parent / path
         data = read_yaml(path)
         return validate(LearnedFrictionModel, data, f"friction.learned ({path})")
-
-
-def stage_end_times_s(steps_s: np.ndarray) -> np.ndarray:
-    """End times of consecutive stages, s: ``steps_s`` is a first step, then equal ones (the MPC's
-    grid, :meth:`Scenario.prediction_steps_s`). A uniform grid's are products ``k dt``, the times
-    it always had (a cumulative sum rounds differently and shifts knot look-ups)."""
-    steps = np.asarray(steps_s, dtype=float)
-    if np.all(steps == steps[0]):
-        return steps[0] * np.arange(1, len(steps) + 1)
-    return steps[0] + steps[-1] * np.arange(len(steps))

@@ -44,6 +44,7 @@ from ..paths import ReferencePath
 from ..safety import safe_command
 from .adaptation import FrictionOffsetRLS, friction_regression
 from .approach import FinalApproach
+from .grid import prediction_steps_s
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 
@@ -90,7 +91,7 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
         return _STACKS[key]
     t0 = time.perf_counter()
     cfg = scenario.mpc
-    steps = scenario.prediction_steps_s()  # one frame, then mpc.dt_s
+    steps = prediction_steps_s(scenario)  # one frame, then mpc.dt_s
     model = capsule_model(model_scenario(scenario))
     force = capsule_force_function(scenario)
     lead_eq = model_equilibrium_lead(scenario)

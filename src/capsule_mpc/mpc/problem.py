@@ -57,8 +57,9 @@ import casadi as ca
 import numpy as np
 
 from ..actuation import servo_time_constant_s
-from ..config import Scenario, stage_end_times_s
+from ..config import Scenario
 from ..dynamics import CapsuleModel
+from .grid import stage_end_times_s
 
 __all__ = [
     "A_SCALE",
