@@ -18,6 +18,7 @@ from .friction import LearnedFrictionModel, LearnedModelWarning
 from .scenario import Scenario
 
 __all__ = [
+    "MOVED_KEYS",
     "check_learned_force_model",
     "config_from_dict",
     "dump_config",
@@ -258,6 +259,47 @@ def validate(model: type[Any], data: dict[str, Any], where: str) -> Any:
         raise ConfigError(_format_errors(exc, where)) from None
 
 
+#: Keys that moved into a section, by their old path, with their new one: a file or mapping that
+#: still uses one is refused naming both.
+MOVED_KEYS: dict[str, str] = {
+    **{
+        f"mpc.approach_{name}": f"mpc.approach.{name}"
+        for name in (
+            "speed_mps",
+            "force_fraction",
+            "max_attempts",
+            "attempt_s",
+            "max_s",
+            "backoff_m",
+            "window_s",
+            "observe_s",
+        )
+    },
+    "mpc.friction_adaptation": "mpc.adaptation.mode",
+    "mpc.friction_adaptation_time_s": "mpc.adaptation.time_s",
+    "mpc.friction_offset_min": "mpc.adaptation.offset_min",
+    "mpc.friction_offset_max": "mpc.adaptation.offset_max",
+    "mpc.friction_offset_prior_std": "mpc.adaptation.offset_prior_std",
+    "mpc.friction_adaptation_min_speed_mps": "mpc.adaptation.min_speed_mps",
+}
+
+
+def _validate_scenario(data: dict[str, Any], where: str) -> Scenario:
+    """:func:`validate` a scenario mapping, first refusing every key of :data:`MOVED_KEYS` it uses."""
+    moved = []
+    for old, new in MOVED_KEYS.items():
+        *sections, key = old.split(".")
+        node: Any = data
+        for section in sections:
+            node = node.get(section) if isinstance(node, dict) else None
+        if isinstance(node, dict) and key in node:
+            moved.append(f"{old}: moved to {new}")
+    if moved:
+        raise ConfigError(f"invalid {where}:\n  " + "\n  ".join(moved))
+    scenario: Scenario = validate(Scenario, data, where)
+    return scenario
+
+
 def load_config(path: str | Path | None = None) -> Scenario:
     """Load and validate a scenario.
 
@@ -279,7 +321,7 @@ def load_config(path: str | Path | None = None) -> Scenario:
     """
     path = packaged_config_path("paper") if path is None else Path(path)
     data = _resolve_base(path, read_yaml(path))
-    scenario: Scenario = validate(Scenario, data, f"config {path}")
+    scenario = _validate_scenario(data, f"config {path}")
     scenario.source_path = path.resolve()
     check_learned_force_model(scenario, f"config {path}")
     return scenario
@@ -287,7 +329,7 @@ def load_config(path: str | Path | None = None) -> Scenario:
 
 def config_from_dict(data: dict[str, Any]) -> Scenario:
     """Validate a scenario given as a mapping (same rules and errors as :func:`load_config`)."""
-    scenario: Scenario = validate(Scenario, dict(data), "config")
+    scenario = _validate_scenario(dict(data), "config")
     learned = scenario.friction.learned
     if isinstance(learned, LearnedFrictionModel) or (isinstance(learned, Path) and learned.is_absolute()):
         check_learned_force_model(scenario, "config")

@@ -8,7 +8,128 @@ from pydantic import Field, StrictBool
 
 from ._fields import Integer, Number, StrictModel
 
-__all__ = ["MPCConfig"]
+__all__ = ["AdaptationConfig", "ApproachConfig", "MPCConfig"]
+
+
+class AdaptationConfig(StrictModel):
+    """Online friction adaptation (``capsule_mpc.mpc.adaptation``): an offset on the model's
+    friction coefficient, estimated in closed loop."""
+
+    mode: Literal["off", "rls"] = Field(
+        "off",
+        description=(
+            "off: the force-disturbance estimator takes the friction the model gets wrong; rls: "
+            "recursive least squares with forgetting of a friction-coefficient offset replaces it."
+        ),
+    )
+    time_s: Number = Field(
+        0.3,
+        gt=0,
+        le=60,
+        description=(
+            "rls: forgetting time constant, s, (0, 60]; the forgetting factor per frame is exp(-dt / this)."
+        ),
+    )
+    offset_min: Number = Field(
+        -0.2,
+        ge=-1,
+        le=0,
+        description="rls: lower bound of the friction-coefficient offset, dimensionless, [-1, 0].",
+    )
+    offset_max: Number = Field(
+        0.5,
+        gt=0,
+        le=2,
+        description="rls: upper bound of the friction-coefficient offset, dimensionless, (0, 2].",
+    )
+    offset_prior_std: Number = Field(
+        0.1,
+        gt=0,
+        le=1,
+        description=(
+            "rls: prior standard deviation of the offset, and the cap of its standard deviation, (0, 1]."
+        ),
+    )
+    min_speed_mps: Number = Field(
+        0.003,
+        gt=0,
+        le=0.05,
+        description=(
+            "rls: the estimate learns only on frames where the estimated capsule speed is at least "
+            "this on the frame and the one before, m/s, (0, 0.05]."
+        ),
+    )
+
+
+class ApproachConfig(StrictModel):
+    """The final approach (``capsule_mpc.mpc.approach``): after the path's nominal end, crawl the
+    capsule onto the final waypoint when the MPC left it short of (or past) it."""
+
+    speed_mps: Number = Field(
+        1.5e-3,
+        gt=0,
+        le=0.01,
+        description=(
+            "Crawl speed, m/s, (0, 0.01]; halved after an overshoot. The approach starts only once "
+            "the capsule is slower than this."
+        ),
+    )
+    force_fraction: Number = Field(
+        0.6,
+        gt=0,
+        lt=1,
+        description=(
+            "Cap of the crawl's lateral force (with the estimated disturbance), as a fraction of the "
+            "model's breakaway force after the capsule's rest, (0, 1)."
+        ),
+    )
+    max_attempts: Integer = Field(
+        3, ge=1, le=20, description="Crawls tried before the approach holds, [1, 20]."
+    )
+    attempt_s: Number = Field(
+        4.0,
+        gt=0,
+        le=60,
+        description=(
+            "A crawl ends when the capsule has not come closer to the final waypoint by "
+            "mpc.final_tolerance_m for this long, s, (0, 60]."
+        ),
+    )
+    max_s: Number = Field(
+        12.0,
+        gt=0,
+        le=300,
+        description=(
+            "Time the approach may take from its first crawl, s, (0, 300]; then it releases, "
+            "observes and holds."
+        ),
+    )
+    backoff_m: Number = Field(
+        2e-3,
+        ge=0,
+        le=0.01,
+        description=(
+            "After a crawl the EPM backs off to the lead it had when the crawl began, minus this, m, "
+            "[0, 0.01]."
+        ),
+    )
+    window_s: Number = Field(
+        1.0,
+        gt=0,
+        le=5,
+        description=(
+            "Span of camera frames a line is fitted to for the capsule's position and speed, s, (0, 5]."
+        ),
+    )
+    observe_s: Number = Field(
+        1.0,
+        gt=0.3,
+        le=10,
+        description=(
+            "The EPM holds this long after a crawl before the capsule's rest is judged (on the "
+            "frames after the first 0.3 s), s, (0.3, 10]."
+        ),
+    )
 
 
 class MPCConfig(StrictModel):
@@ -158,61 +279,9 @@ class MPCConfig(StrictModel):
             "frame. Runs are scored against the path either way."
         ),
     )
-    friction_adaptation: Literal["off", "rls"] = Field(
-        "off",
-        description=(
-            "Online estimate of the friction the model gets wrong (capsule_mpc.mpc.adaptation). off: "
-            "the force-disturbance estimator's extra friction force (disturbance_gain) takes it. rls: "
-            "recursive least squares with exponential forgetting of a friction-coefficient offset "
-            "(the OCP's friction is (mu(v) + offset) F_N + f_s), from the force balance along the "
-            "motion on frames where the capsule slides; it replaces the extra friction force (the "
-            "constant force d_x, d_y stays). Off by default: lab plant, 10 seeds, tracking RMS "
-            "rectangle off 1.44 +- 0.64 mm, rls 2.16 +- 0.69; configs/friction_step.yaml off "
-            "2.13 +- 0.90, rls 2.42 +- 0.70; pipe at 0.02 m/s (5 seeds) off 1.21 +- 0.46, rls 2.13 "
-            "+- 0.69 (rls: smaller final error at rest, worst 1.08 mm against 1.29)."
-        ),
-    )
-    friction_adaptation_time_s: Number = Field(
-        0.3,
-        gt=0,
-        le=60,
-        description=(
-            "rls: forgetting time constant, s, (0, 60]: the forgetting factor per frame is "
-            "exp(-dt / this), so data older than about this weighs 1/e (at 0.02 m/s, 0.3 s is 6 mm of path). "
-            "Lab rectangle, seeds 0-3, tracking RMS: 0.1 s 2.35 mm, 0.3 s 2.26, 1 s 3.26."
-        ),
-    )
-    friction_offset_min: Number = Field(
-        -0.2,
-        ge=-1,
-        le=0,
-        description="rls: lower bound of the friction-coefficient offset, [-1, 0] (dimensionless).",
-    )
-    friction_offset_max: Number = Field(
-        0.5,
-        gt=0,
-        le=2,
-        description="rls: upper bound of the friction-coefficient offset, (0, 2] (dimensionless).",
-    )
-    friction_offset_prior_std: Number = Field(
-        0.1,
-        gt=0,
-        le=1,
-        description=(
-            "rls: prior standard deviation of the offset (its variance is the covariance's initial "
-            "value and its cap, so forgetting never blows it up), (0, 1]."
-        ),
-    )
-    friction_adaptation_min_speed_mps: Number = Field(
-        0.003,
-        gt=0,
-        le=0.05,
-        description=(
-            "rls: the estimate learns only from frames where the estimated capsule speed is at "
-            "least this on this frame and the previous one, m/s, (0, 0.05]; below it the capsule "
-            "is taken as stuck (static friction is not the sliding friction), and the estimate "
-            "and its covariance stay as they are."
-        ),
+    adaptation: AdaptationConfig = Field(
+        default_factory=AdaptationConfig,
+        description="Online friction adaptation (capsule_mpc.mpc.adaptation).",
     )
     estimator_accel_std_mps2: Number = Field(
         0.3, gt=0, description="Kalman filter process noise: capsule acceleration std, m/s^2."
@@ -229,7 +298,7 @@ class MPCConfig(StrictModel):
     final_approach: StrictBool = Field(
         True,
         description=(
-            "After the path's nominal end, when the capsule is slower than approach_speed_mps and "
+            "After the path's nominal end, when the capsule is slower than mpc.approach.speed_mps and "
             "farther than final_tolerance_m from the final waypoint, drag the EPM slowly toward it "
             "(a crawl below breakaway), let go on arrival and check (capsule_mpc.mpc.approach)."
         ),
@@ -240,74 +309,9 @@ class MPCConfig(StrictModel):
         le=0.005,
         description=(
             "Measured distance to the final waypoint within which the capsule counts as arrived, m, "
-            "(0, 0.005]; judged on the mean of the frames of an observation (approach_observe_s)."
+            "(0, 0.005]; judged on the mean of the frames of an observation (mpc.approach.observe_s)."
         ),
     )
-    approach_speed_mps: Number = Field(
-        1.5e-3,
-        gt=0,
-        le=0.01,
-        description=(
-            "Crawl speed of the final approach, m/s, (0, 0.01]: the desired capsule speed is the "
-            "remaining distance over 1 s, between a quarter of this and this; halved after an "
-            "overshoot. Also the speed below which the approach may start."
-        ),
-    )
-    approach_force_fraction: Number = Field(
-        0.6,
-        gt=0,
-        lt=1,
-        description=(
-            "Cap of the crawl's force: the model's lateral force along the approach (plus the "
-            "estimated disturbance) stays below this fraction of the model's breakaway (the "
-            "learned static friction after the capsule's rest, else mu0, times F_N, plus the tether "
-            "drag), (0, 1): a capsule that breaks away from "
-            "rest lurches millimetres, so the crawl never tries to break it loose."
-        ),
-    )
-    approach_max_attempts: Integer = Field(
-        3, ge=1, le=20, description="Crawls the final approach tries before it holds, [1, 20]."
-    )
-    approach_attempt_s: Number = Field(
-        4.0,
-        gt=0,
-        le=60,
-        description=(
-            "A crawl ends when the capsule has not come closer to the final waypoint by "
-            "final_tolerance_m for this long, s, (0, 60] (it is stuck below the force cap)."
-        ),
-    )
-    approach_max_s: Number = Field(
-        12.0,
-        gt=0,
-        le=300,
-        description=(
-            "Time the final approach may take from its first crawl, s, (0, 300]: then it releases, "
-            "observes and holds (with the default sim.tail_s of 15 s the run's timeout leaves room "
-            "for it after any path)."
-        ),
-    )
-    approach_backoff_m: Number = Field(
-        2e-3,
-        ge=0,
-        le=0.01,
-        description=(
-            "After a crawl the EPM backs off to the lead it had when the crawl began, minus this, "
-            "m, [0, 0.01] (takes the creep force away)."
-        ),
-    )
-    approach_window_s: Number = Field(
-        1.0,
-        gt=0,
-        le=5,
-        description="Camera frames a line is fitted to for the capsule's position and speed, s, (0, 5].",
-    )
-    approach_observe_s: Number = Field(
-        1.0,
-        gt=0.3,
-        le=10,
-        description=(
-            "The EPM holds this long after a crawl before the capsule's rest is judged (the mean of "
-            "the frames after the first 0.3 s), s, (0.3, 10]."
-        ),
+    approach: ApproachConfig = Field(
+        default_factory=ApproachConfig, description="The final approach (capsule_mpc.mpc.approach)."
     )

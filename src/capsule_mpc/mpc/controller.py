@@ -4,7 +4,7 @@ Every frame:
 
 1. fuse the camera frame in the Kalman filter, predict over the latency;
 2. update the force-disturbance estimate (offset-free MPC): the velocity the
-   last plan predicted for now vs the estimate; with ``mpc.friction_adaptation: rls`` the
+   last plan predicted for now vs the estimate; with ``mpc.adaptation.mode: rls`` the
    friction along the motion is the friction-coefficient offset of
    :mod:`capsule_mpc.mpc.adaptation` instead (the disturbance keeps the constant force);
 3. solve the NLP warm-started from the shifted previous solution (the first frame, or one
@@ -167,7 +167,9 @@ class MPCController(Controller):
         self.disturbance_n = np.zeros(N_DIST)
         self.friction_belief = FrictionBelief.from_scenario(scenario)
         self._drag_growth_n = 0.0
-        self.friction_rls = FrictionOffsetRLS(cfg, self.dt_s) if cfg.friction_adaptation == "rls" else None
+        self.friction_rls = (
+            FrictionOffsetRLS(cfg.adaptation, self.dt_s) if cfg.adaptation.mode == "rls" else None
+        )
         self.u_prev = np.zeros(3)
         self.slope_prev = np.zeros(3)  # the last command's change over its frame, m/s^2
         self.plan: _Plan | None = None
@@ -249,7 +251,7 @@ class MPCController(Controller):
         self.disturbance_n = np.clip(d, -cfg.disturbance_max_n, cfg.disturbance_max_n)
 
     def _update_friction(self, t_s: float, state: np.ndarray) -> None:
-        """``mpc.friction_adaptation: rls``: fuse this frame's velocity innovation along the motion
+        """``mpc.adaptation.mode: rls``: fuse this frame's velocity innovation along the motion
         if the capsule slides (see :mod:`capsule_mpc.mpc.adaptation`)."""
         rls = self.friction_rls
         if rls is None:
