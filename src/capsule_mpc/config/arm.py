@@ -34,10 +34,7 @@ class ArmConfig(StrictModel):
 
     robot: Literal["ur5"] = Field(
         "ur5",
-        description=(
-            "Arm model from example-robot-data (loaded offline). Only 'ur5' ('ur3' in that registry "
-            "returns the UR5 model)."
-        ),
+        description="Arm model from example-robot-data (loaded offline): 'ur5'.",
     )
     arm_rate_hz: Number = Field(
         500.0,
@@ -53,10 +50,8 @@ class ArmConfig(StrictModel):
         gt=0,
         le=1000,
         description=(
-            "Nominal bandwidth of the arm's joint servos, Hz, (0, 1000]; None: the joints reach "
-            "their setpoints at once. The MPC predicts the EPM a time constant 1 / (2 pi f) behind "
-            "the jerk-limited setpoints (about 21 ms at 7.5 Hz); the ideal plant has this lag, the "
-            "lab and hard plants draw their own. Measure it on the rig from the EPM's step response."
+            "Nominal bandwidth of the arm's joint servos, Hz, (0, 1000]; None: the joints reach their "
+            "setpoints at once. The MPC predicts the EPM 1 / (2 pi f) behind its setpoints."
         ),
     )
     plan_lookahead_s: Number = Field(
@@ -64,9 +59,8 @@ class ArmConfig(StrictModel):
         ge=0,
         le=2.0,
         description=(
-            "Plan smoothing: when the next waypoint cannot be reached on time, the Ruckig target "
-            "is the plan's state this far ahead, s, [0, 2] (0: always the next waypoint). 0.2 s "
-            "gave the smallest deviation from the rectangle and circle test plans."
+            "Plan smoothing: when the next waypoint cannot be reached on time, the Ruckig target is "
+            "the plan's state this far ahead, s, [0, 2]; 0: always the next waypoint."
         ),
     )
     plan_waypoint_rate_hz: Number | None = Field(
@@ -74,8 +68,8 @@ class ArmConfig(StrictModel):
         gt=0,
         le=1000,
         description=(
-            "Plans sampled faster than this are thinned to it before smoothing, Hz; None uses "
-            "camera.rate_hz (the rate of MPC/planner setpoints)."
+            "Plans sampled faster than this are thinned to it before smoothing, Hz, (0, 1000]; None: "
+            "camera.rate_hz (the rate of MPC and planner setpoints)."
         ),
     )
     max_velocity_mps: Vec3 | None = Field(
@@ -111,15 +105,14 @@ class ArmConfig(StrictModel):
         (math.pi, 0.0, 0.0),
         description=(
             "Orientation of the EPM frame in the tool0 frame (roll, pitch, yaw), rad. Default: the "
-            "flange axis (tool0 z) points along the EPM's -z, i.e. at its strong face."
+            "flange axis (tool0 z) points along the EPM's -z, at its strong face."
         ),
     )
     epm_rpy_rad: Vec3 = Field(
         (0.0, 0.0, 0.0),
         description=(
-            "World orientation of the EPM frame, held fixed along every trajectory (roll, pitch, "
-            "yaw), rad. Its z axis must point up (world +z), so the strong face (-z) faces the plate; "
-            "the magnetic models assume yaw 0 (array along world x)."
+            "World orientation of the EPM frame, held along every trajectory (roll, pitch, yaw), rad; "
+            "roll and pitch 0 (strong face -z toward the plate); the magnetic models assume yaw 0."
         ),
     )
     q_seed_rad: tuple[Number, Number, Number, Number, Number, Number] = Field(
@@ -142,13 +135,13 @@ class ArmConfig(StrictModel):
         description="Damped least squares: lambda in dq = J^T (J J^T + lambda I)^-1 e, [0, 1].",
     )
     ik_max_iterations: Integer = Field(
-        20, ge=1, le=1000, description="IK iterations per warm-started point along a trajectory."
+        20, ge=1, le=1000, description="IK iterations per warm-started point along a trajectory, [1, 1000]."
     )
     ik_max_iterations_cold: Integer = Field(
-        300, ge=1, le=10000, description="IK iterations of the first (cold-started) solve."
+        300, ge=1, le=10000, description="IK iterations of the first (cold-started) solve, [1, 10000]."
     )
     joint_position_margin_rad: Number = Field(
-        0.05, ge=0, le=0.5, description="Keep every joint this far inside its position limits, rad."
+        0.05, ge=0, le=0.5, description="Keep every joint this far inside its position limits, rad, [0, 0.5]."
     )
     joint_velocity_fraction: Number = Field(
         0.8, gt=0, le=1, description="Allowed fraction of each joint's rated velocity, (0, 1]."

@@ -37,8 +37,7 @@ class FaultsConfig(StrictModel):
         le=1,
         description=(
             "Probability per frame that the solve reports faults.solver_late_ms more than it took, "
-            "[0, 1]. The controller falls back to its shifted plan only with mpc.enforce_deadline; "
-            "in plant.compute_delay_mode 'solve_time' the command is applied that much later."
+            "[0, 1]; a late solve fails only with mpc.enforce_deadline."
         ),
     )
     solver_late_ms: Number = Field(

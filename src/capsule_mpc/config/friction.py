@@ -83,8 +83,8 @@ class LearnedFrictionModel(StrictModel):
         le=1,
         description=(
             "Growth of the tether drag with the tether paid out (the capsule's progress along the "
-            "path since the run's start), N/m, [0, 1]: the controller's drag is f_s + this x "
-            "progress. None: 0."
+            "path since the start), N/m, [0, 1]: the controller's drag is f_s + this x progress. "
+            "None: 0."
         ),
     )
     mass_kg: Number | None = Field(None, gt=0, description="Capsule mass used in the fit, kg.")
@@ -95,9 +95,8 @@ class LearnedFrictionModel(StrictModel):
     force_model: Literal["dipole", "lookup"] | None = Field(
         None,
         description=(
-            "Force model that gave F and F_N in the fit: 'dipole' or 'lookup'. A scenario using the "
-            "model must have the same force_model (refused on load otherwise; a model without one "
-            "loads with a warning)."
+            "Force model that gave F and F_N in the fit: 'dipole' or 'lookup'; a scenario using the "
+            "model must have the same force_model (a model without one loads with a warning)."
         ),
     )
     robust: StrictBool | None = Field(
@@ -112,9 +111,8 @@ class LearnedFrictionModel(StrictModel):
         ge=0,
         le=2,
         description=(
-            "Breakaway friction coefficient after 1 s at rest, dimensionless, [0, 2]: static_mu_1s in "
-            "mu_s(T) = static_mu_1s + static_healing ln(T / 1 s), fitted to breakaway experiments "
-            "((|F_xy| - f_s) / F_N when the capsule starts to slide after resting T)."
+            "Breakaway friction coefficient after 1 s at rest, dimensionless, [0, 2]: mu_s(T) = "
+            "static_mu_1s + static_healing ln(T / 1 s), fitted to breakaway experiments."
         ),
     )
     static_healing: Number | None = Field(
@@ -122,16 +120,15 @@ class LearnedFrictionModel(StrictModel):
         ge=-1,
         le=1,
         description=(
-            "Growth of the breakaway friction coefficient per e-fold of rest time (static_healing "
-            "in mu_s(T) above), dimensionless per e-fold, [-1, 1]; given together with static_mu_1s."
+            "Growth of the breakaway friction coefficient per e-fold of rest time (static_healing in "
+            "mu_s(T)), dimensionless, [-1, 1]; given together with static_mu_1s."
         ),
     )
     ci95: dict[str, tuple[Number, Number]] | None = Field(
         None,
         description=(
-            "95 % confidence intervals [low, high] of fitted parameters, by name: static_mu_1s, "
-            "static_healing (same units as the fields) and p1, p2, ... (the coefficients of c(v), "
-            "highest power first, units of c per (m/s)^power); low <= value <= high."
+            "95 % confidence intervals [low, high] of fitted parameters by name: static_mu_1s, "
+            "static_healing, p1, p2, ... (the coefficients of c(v)); low <= value <= high."
         ),
     )
     rig: LearnedRig | None = Field(

@@ -141,104 +141,92 @@ class MPCConfig(StrictModel):
         gt=0,
         le=0.5,
         description=(
-            "Step of the prediction's stages 2..N, s; None = one camera frame. The first stage is "
-            "always one frame (the command is sent for a frame); a longer step stretches the "
-            "horizon (frame + (N - 1) dt_s) at the same N, e.g. 20 ms stages in a 100 Hz loop."
+            "Step of the prediction's stages 2..N, s, (0, 0.5]; None: one camera frame. The first "
+            "stage is always one frame; a longer step stretches the horizon at the same N."
         ),
     )
     scheme: Literal["rti", "sqp", "ipopt"] = Field(
         "rti",
         description=(
-            "rti: one Gauss-Newton SQP step per frame (one CasADi function around the QP of "
-            "qp_solver), warm-started, first frame solved to convergence by IPOPT; sqp: the same "
-            "step iterated with a line search to convergence; ipopt: interior point every frame."
+            "rti: one warm-started Gauss-Newton SQP step per frame (IPOPT to convergence on the first "
+            "frame); sqp: SQP steps with a line search to convergence; ipopt: interior point every "
+            "frame."
         ),
     )
     qp_solver: Literal["hpipm", "piqp"] = Field(
         "hpipm",
         description=(
-            "QP solver inside the SQP schemes, on the same stage-wise problem: hpipm (Riccati-"
-            "structured interior point; fastest) or piqp (sparse interior point). CasADi's active-set "
-            "qrqp is not offered: it reports the jerk-limited problem's steps infeasible."
+            "QP solver of the SQP schemes: hpipm (Riccati-structured interior point, the fastest) or "
+            "piqp (sparse interior point)."
         ),
     )
-    max_sqp_iter: Integer = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme.")
+    max_sqp_iter: Integer = Field(30, ge=1, le=500, description="Iteration cap of the sqp scheme, [1, 500].")
     recovery_sqp_iter: Integer = Field(
         4,
         ge=0,
         le=50,
         description=(
-            "rti: SQP iterations with line search (fewer if converged) that recover a frame whose "
-            "step failed (a violation above the step limit), [0, 50]; if they fail too, or with 0, "
-            "the shifted previous plan is used (the recovery's last iterate is the next frame's "
-            "starting point). IPOPT runs only on the first frame (and after the "
-            "shifted plan ran out). Over the 30 runs that chose friction_smoothing_eps_mps, 3/4/5/6 "
-            "iterations left 12/1/0/0 frames to the shifted plan (3: tracking RMS +21 % at 0.045 m/s; "
-            "4-6 the same tracking); each costs one QP (0.5-1.2 ms at N = 20). With "
-            "mpc.enforce_deadline they stop in time for the frame's deadline."
+            "rti: SQP iterations with line search that recover a frame whose step failed, [0, 50]; if "
+            "they fail too, or with 0, the shifted previous plan is used."
         ),
     )
-    max_ipopt_iter: Integer = Field(200, ge=5, le=5000, description="Iteration cap of IPOPT solves.")
+    max_ipopt_iter: Integer = Field(
+        200, ge=5, le=5000, description="Iteration cap of IPOPT solves, [5, 5000]."
+    )
     friction_smoothing_eps_mps: Number | None = Field(
         0.005,
         gt=0,
         le=0.01,
         description=(
-            "Speed smoothing eps of the friction in the controller's model (|v| -> sqrt(v^2 + eps^2)), "
-            "m/s, (0, 0.01]; None: friction.smoothing_eps_mps. A larger eps makes the friction's sign "
-            "change at rest less abrupt, so one Gauss-Newton step predicts it (the plant is unchanged). "
-            "Measured over the rectangle at 0.01/0.02/0.04 m/s and the pipe at 0.005/0.02/0.045 m/s, "
-            "5 seeds each, lab plant, against the former solver at 1 mm/s: 5 mm/s gave "
-            "cross-track RMS -14 %, tracking RMS -4 % (geometric means), final error 0.47 mm (0.71 "
-            "before) and 12 fallback frames in the 30 runs; 3 mm/s -10 %, +2 %, 0.43 mm, 56; 7.5 "
-            "mm/s -16 %, -5 %, 0.66 mm, 0 (and the ideal plant's capsule never settled at the end)."
+            "Speed smoothing eps of the friction in the controller's model (|v| -> sqrt(v^2 + "
+            "eps^2)), m/s, (0, 0.01]; None: friction.smoothing_eps_mps. The plant is not affected."
         ),
     )
     position_tol_m: Number = Field(
         1e-3,
         gt=0,
         description=(
-            "Tracking weight as a tolerance, m: the error along the path (and the whole error "
-            "where the reference stands still) divided by this is one cost unit."
+            "Tracking tolerance along the path (and of the whole error where the reference stands "
+            "still), m, > 0: the error divided by this is one cost unit."
         ),
     )
     lateral_tol_m: Number = Field(
         2e-4,
         gt=0,
         description=(
-            "Tolerance of the error across the path (cross-track), m; smaller than position_tol_m "
-            "so the capsule rather lags than cuts a corner."
+            "Tracking tolerance across the path (cross-track), m, > 0; smaller than position_tol_m so "
+            "the capsule rather lags than cuts a corner."
         ),
     )
     velocity_tol_mps: Number = Field(
-        0.01, gt=0, description="Capsule velocity tracking tolerance, m/s (weight 1/tol^2)."
+        0.01, gt=0, description="Capsule velocity tracking tolerance, m/s, > 0 (weight 1/tol^2)."
     )
     input_tol_mps: Number = Field(
-        0.05, gt=0, description="EPM velocity deviation from the path feed-forward tolerance, m/s."
+        0.05, gt=0, description="Tolerance of the EPM velocity's deviation from the feed-forward, m/s, > 0."
     )
     input_rate_tol_mps: Number = Field(
         0.004,
         gt=0,
         description=(
-            "EPM velocity change per prediction step tolerance, m/s (smoothness); scale it with "
-            "sqrt(step) to keep its weight per unit time (a first stage shorter than mpc.dt_s is "
-            "weighted so)."
+            "Tolerance of the EPM velocity change per prediction step, m/s, > 0; scale it with "
+            "sqrt(step) to keep its weight per unit time."
         ),
     )
     input_jerk_tol_mps2: Number | None = Field(
         0.02,
         gt=0,
         description=(
-            "Tolerance of the change of the EPM acceleration from one step to the next, m/s^2 "
-            "(the jerk the arm makes, times a frame): a cost on it smooths the commands below the "
-            "hard jerk limit (limits.jerk_mps3); None: no such cost."
+            "Tolerance of the change of the EPM acceleration from one step to the next, m/s^2, > 0: a "
+            "cost smoothing commands below limits.jerk_mps3; None: no such cost."
         ),
     )
     terminal_factor: Number = Field(
         3.0, ge=1, le=100, description="Terminal tracking weight factor, [1, 100]."
     )
     slack_weight: Number = Field(
-        1e4, gt=0, description="Weight of constraint slacks (coupling, normal force), per unit slack."
+        1e4,
+        gt=0,
+        description="Weight of the constraint slacks (coupling, normal force), per unit slack, > 0.",
     )
     height_control: StrictBool = Field(
         False, description="Let the MPC move the EPM height (else the height command is 0)."
@@ -247,36 +235,36 @@ class MPCConfig(StrictModel):
         "path",
         description=(
             "EPM velocity the command effort is measured from: the path's velocity, or the offline "
-            "plan's EPM velocity (`capsule_mpc.planner`, solved once at reset and cached)."
+            "plan's EPM velocity (capsule_mpc.planner, solved once at reset and cached)."
         ),
     )
-    deadline_ms: Number | None = Field(None, gt=0, description="Solve deadline, ms; None = one frame period.")
+    deadline_ms: Number | None = Field(
+        None, gt=0, description="Solve deadline, ms, > 0; None: one frame period."
+    )
     enforce_deadline: StrictBool = Field(
         False,
         description=(
             "Treat a late solve as failed (use the shifted plan). On for wall-clock-paced runs "
-            "(`simulate --realtime`, a real rig); off in simulation so runs stay deterministic "
-            "(late solves are still counted)."
+            "(simulate --realtime, a real rig); off in simulation, which stays deterministic."
         ),
     )
     disturbance_gain: Number = Field(
         0.15,
         ge=0,
         le=1,
-        description=("Gain of the force-disturbance estimator (offset-free MPC), [0, 1]; 0 disables it."),
+        description="Gain of the force-disturbance estimator (offset-free MPC), [0, 1]; 0 disables it.",
     )
     disturbance_max_n: Number = Field(
-        0.15, ge=0, description="Bound on each estimated disturbance force component, N."
+        0.15, ge=0, description="Bound on each estimated disturbance force component, N, >= 0."
     )
     start_blend_s: Number = Field(
         2.0,
         ge=0,
         le=10,
         description=(
-            "The reference joins the path from where the capsule rests at the start over this "
-            "long, s, [0, 10] (a half-cosine fade of the offset): the capsule breaks loose along "
-            "the path and is steered onto it while sliding. 0: the path itself from the first "
-            "frame. Runs are scored against the path either way."
+            "Time over which the reference fades (half cosine) from where the capsule rests at the "
+            "start onto the path, s, [0, 10]; 0: the path from the first frame. Runs are scored "
+            "against the path."
         ),
     )
     adaptation: AdaptationConfig = Field(
@@ -284,23 +272,22 @@ class MPCConfig(StrictModel):
         description="Online friction adaptation (capsule_mpc.mpc.adaptation).",
     )
     estimator_accel_std_mps2: Number = Field(
-        0.3, gt=0, description="Kalman filter process noise: capsule acceleration std, m/s^2."
+        0.3,
+        gt=0,
+        description="Kalman filter process noise: capsule acceleration standard deviation, m/s^2, > 0.",
     )
     compile_c: StrictBool = Field(
         True,
         description=(
-            "Compile the NLP's derivative and value functions of the SQP schemes to C (gcc) once, "
-            "cached on disk by a hash of the problem. Falls back, with a warning, if gcc fails."
+            "Compile the SQP schemes' NLP functions to C (gcc) once, cached on disk by a hash of the "
+            "problem; without gcc, or if it fails, they run uncompiled (with a warning)."
         ),
     )
-    # Final approach (capsule_mpc.mpc.approach): after the path's end, crawl the capsule onto the
-    # final waypoint when the MPC left it short of (or past) it.
     final_approach: StrictBool = Field(
         True,
         description=(
-            "After the path's nominal end, when the capsule is slower than mpc.approach.speed_mps and "
-            "farther than final_tolerance_m from the final waypoint, drag the EPM slowly toward it "
-            "(a crawl below breakaway), let go on arrival and check (capsule_mpc.mpc.approach)."
+            "Run the final approach (mpc.approach) after the path's nominal end: a crawl below "
+            "breakaway that brings the capsule within mpc.final_tolerance_m of the final waypoint."
         ),
     )
     final_tolerance_m: Number = Field(
@@ -308,8 +295,8 @@ class MPCConfig(StrictModel):
         gt=0,
         le=0.005,
         description=(
-            "Measured distance to the final waypoint within which the capsule counts as arrived, m, "
-            "(0, 0.005]; judged on the mean of the frames of an observation (mpc.approach.observe_s)."
+            "Distance to the final waypoint within which the capsule counts as arrived, m, (0, "
+            "0.005]; judged on the mean of the frames of an observation (mpc.approach.observe_s)."
         ),
     )
     approach: ApproachConfig = Field(

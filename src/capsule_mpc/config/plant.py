@@ -14,7 +14,14 @@ __all__ = ["PLANT_FIXED", "PLANT_PRESET_RANGES", "FrictionPatchConfig", "PlantCo
 
 #: Uniform ranges (lo, hi) each plant preset draws its truth from, per ``PlantConfig`` field (fields
 #: absent from a preset take the value in :data:`PLANT_FIXED`). ``ideal`` draws nothing: the
-#: plant is the nominal rig. Sources are given in the field descriptions of :class:`PlantConfig`.
+#: plant is the nominal rig.
+#:
+#: Where the ``lab`` ranges come from: the magnets' remanence, the N35 grade's B_r of 1.17-1.22 T
+#: (MMPA 0100-00, supplier datasheets) against the nominal 1.26 T, plus the Halbach array's assembly
+#: losses (``hard``: a small IPM ground to shape loses more); the EPM height, the arm's calibration
+#: and the plate's flatness; the tilt, the machined adapter's and flange's tolerance; the mass, the
+#: tether weight carried and the scale's resolution. Friction and drag: docs/friction.md; the
+#: servo bandwidth: docs/arm.md.
 PLANT_PRESET_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "ideal": {},
     "lab": {
@@ -127,33 +134,31 @@ class PlantConfig(StrictModel):
     preset: Literal["ideal", "lab", "hard"] = Field(
         "lab",
         description=(
-            "ideal: the plant is the nominal rig, the EPM starts at the plant's true equilibrium over "
-            "the path start (the reference case; no lag, delay, bias or friction variation). lab: "
-            "each perturbation drawn from the tolerances of a lab rig. hard: wider tolerances."
+            "ideal: the plant is the nominal rig, starting at its true equilibrium (no lag, delay, "
+            "bias or friction variation); lab: deviations drawn from a lab rig's tolerances; hard: "
+            "wider ones."
         ),
     )
     epm_remanence_scale: Number | None = _drawn(
-        "True EPM remanence / nominal, (0, 2]. lab U(0.95, 1.01): N35 grade B_r 1.17-1.22 T "
-        "(MMPA 0100-00; supplier datasheets) against the nominal 1.26 T, plus Halbach assembly "
-        "losses; hard U(0.88, 1.0).",
+        "True EPM remanence / nominal, (0, 2]. lab U(0.95, 1.01); hard U(0.88, 1.0).",
         gt=0,
         le=2,
     )
     ipm_remanence_scale: Number | None = _drawn(
-        "True IPM remanence / nominal, (0, 2]. lab U(0.95, 1.01) (grade tolerance, as the EPM); "
-        "hard U(0.85, 1.0) (a small magnet ground to shape loses more).",
+        "True IPM remanence / nominal, (0, 2]. lab U(0.95, 1.01); hard U(0.85, 1.0).",
         gt=0,
         le=2,
     )
     epm_height_offset_m: Number | None = _drawn(
-        "True EPM height minus plate.epm_height_m, m, [-0.005, 0.005]. lab U(-1, 1) mm (arm "
-        "calibration and plate flatness); hard U(-3, 3) mm.",
+        "True EPM height minus plate.epm_height_m, m, [-0.005, 0.005]. lab U(-1, 1) mm; hard U(-3, 3) mm.",
         ge=-0.005,
         le=0.005,
     )
     epm_tilt_rad: Number | None = _drawn(
-        "Mounting tilt of the EPM (rotation about a horizontal axis), rad, [0, 0.1]. lab U(0, 1 deg) "
-        "(machined adapter and flange tolerance); hard U(0, 3 deg).",
+        (
+            "Mounting tilt of the EPM (rotation about a horizontal axis), rad, [0, 0.1]. lab U(0, 1 "
+            "deg); hard U(0, 3 deg)."
+        ),
         ge=0,
         le=0.1,
     )
@@ -169,21 +174,17 @@ class PlantConfig(StrictModel):
         le=0.1,
     )
     mass_scale: Number | None = _drawn(
-        "True capsule mass / capsule.mass_kg, [0.5, 2]. lab U(0.97, 1.03) (tether weight carried, "
-        "scale resolution); hard U(0.9, 1.1).",
+        "True capsule mass / capsule.mass_kg, [0.5, 2]. lab U(0.97, 1.03); hard U(0.9, 1.1).",
         ge=0.5,
         le=2,
     )
     mu0_scale: Number | None = _drawn(
-        "True mu0 / friction.mu0, [0.3, 3]. lab U(0.85, 1.15): the paper's pull test spans "
-        "0.042-0.048 N (+-7 %) on one sample, and sliding friction on tissue phantoms varies by "
-        "10-30 % between preparations; hard U(0.7, 1.3).",
+        "True mu0 / friction.mu0, [0.3, 3]. lab U(0.85, 1.15); hard U(0.7, 1.3).",
         ge=0.3,
         le=3,
     )
     a_scale: Number | None = _drawn(
-        "True rate-and-state a / friction.rate_state.a, [0.2, 5]. lab U(0.8, 1.2); hard U(0.6, 1.4) "
-        "(a and b are not measured on this rig; the paper only fits their difference).",
+        "True rate-and-state a / friction.rate_state.a, [0.2, 5]. lab U(0.8, 1.2); hard U(0.6, 1.4).",
         ge=0.2,
         le=5,
     )
@@ -193,8 +194,10 @@ class PlantConfig(StrictModel):
         le=5,
     )
     tether_drag_n: Number | None = _drawn(
-        "True tether drag at the start of the path, N, [0, 0.5]. lab U(0.02, 0.04) around the paper's "
-        "0.03 N; hard U(0.015, 0.06); ideal friction.tether_drag_n.",
+        (
+            "True tether drag at the start of the path, N, [0, 0.5]. lab U(0.02, 0.04); hard U(0.015, "
+            "0.06); ideal friction.tether_drag_n."
+        ),
         ge=0,
         le=0.5,
     )
@@ -220,26 +223,28 @@ class PlantConfig(StrictModel):
         default_factory=list, description="Patches whose friction is scaled, on top of the field."
     )
     servo_bandwidth_hz: Number | None = _drawn(
-        "Bandwidth of the arm's joint servos (first-order lag of the EPM behind its setpoints), Hz, "
-        "(0, 1000]. lab U(5, 10) Hz (Cartesian velocity control of a UR-class arm); hard U(2, 5) Hz; "
-        "ideal the nominal arm.servo_bandwidth_hz.",
+        (
+            "Bandwidth of the arm's joint servos (first-order lag of the EPM behind its setpoints), "
+            "Hz, (0, 1000]. lab U(5, 10); hard U(2, 5); ideal arm.servo_bandwidth_hz."
+        ),
         gt=0,
         le=1000,
     )
     compute_delay_s: Number | None = _drawn(
-        "Time from a camera frame to its command reaching the arm (image processing, solve, "
-        "transport), s, [0, one camera period). lab U(2, 8) ms; hard U(5, 20) ms; ideal 0. With "
-        "compute_delay_mode 'solve_time' it is the part of the delay outside the controller.",
+        (
+            "Time from a camera frame to its command reaching the arm, s, [0, one camera period). lab "
+            "U(2, 8) ms; hard U(5, 20) ms; ideal 0. In 'solve_time' mode: the delay outside the "
+            "controller."
+        ),
         ge=0,
         le=0.5,
     )
     compute_delay_mode: Literal["fixed", "solve_time"] = Field(
         "fixed",
         description=(
-            "How a frame's command is delayed: 'fixed' applies it compute_delay_s after the frame "
-            "(reproducible on any machine); 'solve_time' applies it when the controller's step ends "
-            "on this machine (its measured wall-clock time) plus compute_delay_s, as on a rig "
-            "whose loop waits for the solve. Commands are applied in frame order."
+            "'fixed': a frame's command is applied compute_delay_s after the frame (reproducible); "
+            "'solve_time': when the controller's step ends on this machine, plus compute_delay_s. In "
+            "frame order."
         ),
     )
     camera_bias_x_m: Number | None = _drawn(
@@ -250,8 +255,10 @@ class PlantConfig(StrictModel):
     )
     camera_bias_y_m: Number | None = _drawn("As camera_bias_x_m, in y.", ge=-0.005, le=0.005)
     camera_noise_std_m: Number | None = _drawn(
-        "True camera noise per axis, m, [0, 0.01] (the estimator keeps camera.noise_std_m). lab "
-        "U(0.3, 0.5) mm; hard U(0.4, 0.8) mm; ideal camera.noise_std_m.",
+        (
+            "True camera noise per axis, m, [0, 0.01]; the estimator keeps camera.noise_std_m. lab "
+            "U(0.3, 0.5) mm; hard U(0.4, 0.8) mm; ideal camera.noise_std_m."
+        ),
         ge=0,
         le=0.01,
     )
@@ -262,9 +269,11 @@ class PlantConfig(StrictModel):
         le=3600,
     )
     start_dead_zone_fraction: Number | None = _drawn(
-        "Where the capsule rests at the start: a lead drawn uniformly inside this fraction of the "
-        "static-friction dead zone around the true equilibrium, [0, 0.95] (0: at the equilibrium). "
-        "lab U(0, 0.8); hard U(0, 0.95); ideal 0.",
+        (
+            "Start: a lead drawn uniformly within this fraction of the static-friction dead zone "
+            "around the true equilibrium, [0, 0.95]; 0: at the equilibrium. lab U(0, 0.8); hard U(0, "
+            "0.95); ideal 0."
+        ),
         ge=0,
         le=0.95,
     )
@@ -273,9 +282,8 @@ class PlantConfig(StrictModel):
         gt=0,
         le=1,
         description=(
-            "Reload speed at which the plant's breakaway friction is evaluated: a capsule at rest "
-            "slips when the lateral force exceeds F_N mu(v_b, theta) + drag, with mu the "
-            "regularised rate-and-state law and theta its healed state, m/s, (0, 1]. 0.02 m/s (the "
-            "paper's operating speed) gives 0.26 after 1 s at rest with the paper's constants."
+            "Reload speed v_b of the plant's breakaway: a capsule at rest slips when the lateral "
+            "force exceeds F_N mu(v_b, theta) + drag, m/s, (0, 1]. Default: the paper's operating "
+            "speed."
         ),
     )

@@ -65,9 +65,8 @@ class EPMConfig(StrictModel):
         ...,
         min_length=1,
         description=(
-            "Unit magnetisation direction of each block in the EPM frame, from -x to +x; "
-            "one entry per block (>= 1). Paper: 4 blocks turning 90 deg block to block, "
-            "strong side facing the plate (-z)."
+            "Unit magnetisation direction of each block in the EPM frame, from -x to +x, one entry "
+            "per block (>= 1). Paper: 4 blocks turning 90 deg block to block, strong side down (-z)."
         ),
     )
     remanence_t: Number = positive("Remanence B_r, T, > 0. Paper: N35, 1.26 T.")
@@ -107,9 +106,9 @@ class PlateConfig(StrictModel):
     setup: Literal["below_plate", "on_plate"] = Field(
         "below_plate",
         description=(
-            "below_plate: the capsule hangs under the plate, held against it by the EPM above "
-            "(F_N = F_z - m g; F_N <= 0 means the capsule drops). on_plate: the capsule rests on "
-            "the plate and the EPM below pulls it against it (F_N = m g + |F_z|)."
+            "below_plate: the capsule hangs under the plate, held up by the EPM above (F_N = F_z - m "
+            "g); on_plate: it rests on the plate, pulled onto it by the EPM below (F_N = m g + "
+            "|F_z|)."
         ),
     )
     epm_height_m: Number = Field(
@@ -117,18 +116,9 @@ class PlateConfig(StrictModel):
         gt=0,
         le=0.5,
         description=(
-            "Vertical distance between the EPM centre and the IPM centre, m, in (0, 0.5], and what "
-            "the models can do: >= half the EPM height + plate.thickness_m + half the capsule "
-            "diameter (0.035 m for the paper rig; closer, EPM, plate and capsule would overlap); "
-            "within the EPM workspace heights limits.workspace_min_m[2]..workspace_max_m[2] (the EPM "
-            "starts at this height and is never commanded outside its workspace); and, checked by "
-            "a few finite-magnet evaluations before a force map is computed (info, simulate, compare, "
-            "plan), the capsule's rest lead here plus limits.max_lead_m must lie inside "
-            "force_map.lead_half_range_m (every lead the controller may command is tabulated; the "
-            "rest lead grows with the height, 17 mm at 95 mm for the paper's array) and, below_plate, "
-            "the EPM must hold the capsule up. Paper rig with the default limits and map: 0.035 to "
-            "0.116 m (0.129 m is where it stops holding the capsule). Not given in the paper; 0.095 "
-            "gives F_N = 2.44 m g at zero lead and 3.49 m g at the rest lead."
+            "Vertical distance between the EPM and IPM centres, m, (0, 0.5]: clear of the plate and "
+            "capsule, within the workspace heights, with the capsule's rest lead + limits.max_lead_m "
+            "inside the force map. Paper rig: 0.095."
         ),
     )
     size_m: tuple[Number, Number] = Field(
@@ -160,9 +150,9 @@ class ForceMapConfig(StrictModel):
         [-0.01, -0.005, 0.0, 0.005, 0.01],
         min_length=2,
         description=(
-            "Heights tabulated, as offsets from plate.epm_height_m, m (>= 2, increasing); they must "
-            "span 0 and the plant's true EPM height offsets (plant.epm_height_offset_m, or its "
-            "preset's range: lab +-1 mm, hard +-3 mm), where the plant looks its forces up."
+            "Heights tabulated, as offsets from plate.epm_height_m, m: >= 2 increasing values "
+            "spanning 0 and the plant's true height offsets (plant.epm_height_offset_m or its "
+            "preset's range)."
         ),
     )
     meshing: Integer = Field(
@@ -170,7 +160,7 @@ class ForceMapConfig(StrictModel):
     )
     cache_dir: Path | None = Field(
         None,
-        description=("Where force maps are cached; None uses $CAPSULE_MPC_CACHE or ~/.cache/capsule_mpc."),
+        description="Where force maps are cached; None uses $CAPSULE_MPC_CACHE or ~/.cache/capsule_mpc.",
     )
 
     @field_validator("height_offsets_m")
@@ -192,12 +182,9 @@ class PathConfig(StrictModel):
         gt=0,
         le=0.1,
         description=(
-            "Nominal speed v along the path, m/s, (0, 0.1], and at most what the EPM can follow on the "
-            "path with speed to spare (capsule_mpc.paths.max_path_speed: 0.072 m/s on an axis-aligned "
-            "path with the default limits). At least what keeps a run within an hour of simulated time "
-            "(sim.settle_s + 1.25 L / v + sim.tail_s <= 3600 s: 0.00011 m/s on the 0.32 m rectangle) and "
-            "its log, plan and arm setpoints within half the memory available (capsule_mpc.budget); "
-            "refused with the figures before any work otherwise. Paper: 0.02."
+            "Nominal speed along the path, m/s, (0, 0.1]: at most what the EPM can follow "
+            "(capsule_mpc.paths.max_path_speed), at least what keeps a run within an hour and its "
+            "memory budget. Paper: 0.02."
         ),
     )
     rectangle_size_m: tuple[Number, Number] = Field(
@@ -226,8 +213,10 @@ class LimitsConfig(StrictModel):
     """What the EPM may do: every command honours these."""
 
     speed_mps: Number = Field(0.08, gt=0, le=1.0, description="Max EPM speed per axis, m/s, (0, 1].")
-    accel_mps2: Number = Field(0.5, gt=0, le=10.0, description="Max EPM acceleration per axis, m/s^2.")
-    jerk_mps3: Number = Field(5.0, gt=0, le=1000.0, description="Max EPM jerk per axis, m/s^3.")
+    accel_mps2: Number = Field(
+        0.5, gt=0, le=10.0, description="Max EPM acceleration per axis, m/s^2, (0, 10]."
+    )
+    jerk_mps3: Number = Field(5.0, gt=0, le=1000.0, description="Max EPM jerk per axis, m/s^3, (0, 1000].")
     workspace_min_m: tuple[Number, Number, Number] = Field(
         (-0.18, -0.13, 0.085), description="EPM workspace lower corner (x, y, height), m."
     )
