@@ -13,7 +13,7 @@ robot``), once per friction model it is given:
     ``--speeds`` on straight paths along x and y, and the breakaway experiments), then
     ``capsule-mpc learn-friction`` on those logs (the config's force model);
 ``online``
-    ``learned`` plus the online update (``mpc.friction_adaptation: rls``) with the fast
+    ``learned`` plus the online update (``mpc.adaptation.mode: rls``) with the fast
     disturbance integrator as a residual on top (``--residual-gain``, ``--residual-cap``);
 ``oracle``
     the plant's own friction: its steady rate-and-state law as c(v) with its mu0, its tether drag
@@ -118,12 +118,8 @@ def variant_scenario(
         learned = learned_on_draw
     scenario = with_friction(base, learned)
     if variant == "online":
-        update = {
-            "friction_adaptation": "rls",
-            "friction_adaptation_time_s": time_s,
-            "disturbance_gain": gain,
-            "disturbance_max_n": cap,
-        }
+        adaptation = mpc.adaptation.model_copy(update={"mode": "rls", "time_s": time_s})
+        update = {"adaptation": adaptation, "disturbance_gain": gain, "disturbance_max_n": cap}
         scenario = scenario.model_copy(update={"mpc": mpc.model_copy(update=update)})
     return scenario
 
@@ -351,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
         "--residual-cap", type=float, default=0.1, help="online: mpc.disturbance_max_n, N (0.1)"
     )
     parser.add_argument(
-        "--online-time", type=float, default=0.3, help="online: mpc.friction_adaptation_time_s, s (0.3)"
+        "--online-time", type=float, default=0.3, help="online: mpc.adaptation.time_s, s (0.3)"
     )
     parser.add_argument(
         "--final-tol", type=float, default=0.5, help="final error counted as reached, mm (0.5)"

@@ -11,6 +11,7 @@ import functools
 import io
 import operator
 import os
+import re
 import types
 import typing
 from contextlib import redirect_stdout
@@ -43,7 +44,9 @@ def _type_name(annotation: Any) -> str:
     text = (
         str(annotation) if typing.get_origin(annotation) else getattr(annotation, "__name__", str(annotation))
     )
-    return text.replace("typing.", "").replace("pathlib.", "").replace("NoneType", "None")
+    text = text.replace("typing.", "").replace("pathlib.", "").replace("NoneType", "None")
+    # A section is named where it is imported from (capsule_mpc.config), not by its module.
+    return re.sub(r"capsule_mpc\.config\.\w+\.", "capsule_mpc.config.", text)
 
 
 def _submodel(annotation: Any) -> type[BaseModel] | None:

@@ -15,6 +15,7 @@ from ..budget import Workload, check_run, speed_source
 from ..config import Scenario, config_from_dict, load_config
 from ..magnetics import force_map
 from ..metrics import stack_predictions
+from ..mpc.grid import prediction_steps_s
 from ..path_reach import check_epm_height, check_epm_workspace
 from ..paths import ReferencePath, path_from_scenario
 from ..plots import plot_prediction
@@ -90,7 +91,7 @@ def write_prediction_figure(result: RunResult, out: str | Path) -> Path | None:
     stacked = stack_predictions(result.predictions)
     if stacked is None:
         return None
-    first_s, step_s = result.scenario.prediction_steps_s()[[0, -1]]
+    first_s, step_s = prediction_steps_s(result.scenario)[[0, -1]]
     return plot_prediction(
         result.log, stacked, result.path, Path(out), float(step_s), result.controller, float(first_s)
     )

@@ -4,7 +4,7 @@ Every frame:
 
 1. fuse the camera frame in the Kalman filter, predict over the latency;
 2. update the force-disturbance estimate (offset-free MPC): the velocity the
-   last plan predicted for now vs the estimate; with ``mpc.friction_adaptation: rls`` the
+   last plan predicted for now vs the estimate; with ``mpc.adaptation.mode: rls`` the
    friction along the motion is the friction-coefficient offset of
    :mod:`capsule_mpc.mpc.adaptation` instead (the disturbance keeps the constant force);
 3. solve the NLP warm-started from the shifted previous solution (the first frame, or one
@@ -45,6 +45,7 @@ from ..planner import cached_plan
 from ..safety import safe_command
 from .adaptation import FrictionOffsetRLS, friction_regression
 from .approach import FinalApproach
+from .grid import prediction_steps_s
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 
@@ -91,7 +92,7 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
         return _STACKS[key]
     t0 = time.perf_counter()
     cfg = scenario.mpc
-    steps = scenario.prediction_steps_s()  # one frame, then mpc.dt_s
+    steps = prediction_steps_s(scenario)  # one frame, then mpc.dt_s
     model = capsule_model(model_scenario(scenario))
     force = capsule_force_function(scenario)
     lead_eq = model_equilibrium_lead(scenario)
@@ -167,7 +168,9 @@ class MPCController(Controller):
         self.disturbance_n = np.zeros(N_DIST)
         self.friction_belief = FrictionBelief.from_scenario(scenario)
         self._drag_growth_n = 0.0
-        self.friction_rls = FrictionOffsetRLS(cfg, self.dt_s) if cfg.friction_adaptation == "rls" else None
+        self.friction_rls = (
+            FrictionOffsetRLS(cfg.adaptation, self.dt_s) if cfg.adaptation.mode == "rls" else None
+        )
         self.u_prev = np.zeros(3)
         self.slope_prev = np.zeros(3)  # the last command's change over its frame, m/s^2
         self.plan: _Plan | None = None
@@ -247,7 +250,7 @@ class MPCController(Controller):
         self.disturbance_n = np.clip(d, -cfg.disturbance_max_n, cfg.disturbance_max_n)
 
     def _update_friction(self, t_s: float, state: np.ndarray) -> None:
-        """``mpc.friction_adaptation: rls``: fuse this frame's velocity innovation along the motion
+        """``mpc.adaptation.mode: rls``: fuse this frame's velocity innovation along the motion
         if the capsule slides (see :mod:`capsule_mpc.mpc.adaptation`)."""
         rls = self.friction_rls
         if rls is None:

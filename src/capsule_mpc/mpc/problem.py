@@ -37,7 +37,7 @@ and its slope (3), the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a
 extra friction force (N) that opposes the capsule's motion -- the model's friction is the part
 of the mismatch that turns with the motion, so it must not be a fixed vector -- and last the
 friction-coefficient offset ``dmu`` of :mod:`capsule_mpc.mpc.adaptation` (the model's friction
-force becomes ``(mu(v) + dmu) F_N + f_s``; with ``mpc.friction_adaptation: off`` the parameter
+force becomes ``(mu(v) + dmu) F_N + f_s``; with ``mpc.adaptation.mode: off`` the parameter
 is unused).
 
 The objective is a sum of squares ``0.5 |R(w, p)|^2`` plus a linear slack penalty; stage k's
@@ -56,9 +56,10 @@ from typing import TypeVar
 import casadi as ca
 import numpy as np
 
-from ..config import Scenario, stage_end_times_s
+from ..config import Scenario
 from ..dynamics import FN_SCALE, S_SCALE, TANGENT_EPS_MPS, U_SCALE, X_SCALE, CapsuleModel, n_slacks
 from ..interfaces import servo_time_constant_s
+from .grid import stage_end_times_s
 
 __all__ = [
     "A_SCALE",
@@ -417,7 +418,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
         v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
         acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
         lead, _force, f_n, _mu = model.outputs(m1)
-        if cfg.friction_adaptation != "off":
+        if cfg.adaptation.mode != "off":
             # The offset dmu on mu: friction dmu F_N against the motion (F_N taken as 0 off the
             # plate, as in the model's own friction). Only built when used: without it the NLP is
             # operation for operation the one without adaptation (IPOPT's first solve rounds the
