@@ -62,7 +62,7 @@ def sweep(
     runs : int
         Number of runs, >= 1.
     controllers : sequence of str, optional
-        As for :func:`capsule_mpc.cli.compare.compare_controllers`.
+        As for :func:`capsule_mpc.experiments.compare.compare_controllers`.
     vary : sequence of VaryRange
         Plant fields drawn from these ranges instead of the preset's (:func:`parse_vary`).
     executor : {"process", "dask"}
