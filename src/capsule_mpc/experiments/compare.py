@@ -468,7 +468,7 @@ def compare_controllers(
                 if predicting is not None and stack_predictions(predicting.predictions) is not None:
                     prediction_figure = write_prediction_figure(predicting, out / PREDICTION_FIGURE)
     aggregated = aggregate_runs(per_seed)
-    if runs == 1:  # as before: the run's text entries (run_dir, failure, traceback) beside its metrics
+    if runs == 1:  # one run: its text entries (run_dir, failure, traceback) beside its metrics
         for name, entry in aggregated.items():
             single = per_seed[0]["controllers"][name]
             entry.update({key: value for key, value in single.items() if key not in entry})
