@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
 import statistics
 import sys
 from collections.abc import Callable, Sequence
@@ -259,7 +260,8 @@ def render_mpc_bench(data: dict[str, Any]) -> list[str]:
     lines = [
         f"Closed loop on {frames} (plant seed {s['seed']}), {repeats} run(s) per case; the run with the "
         "median controller step is shown, and the range of the runs' medians. Controller step = the "
-        "whole Python step (estimator, reference, solve, safety layer), wall clock, ms. Load average at "
+        "whole Python step (estimator, reference, solve, safety layer), wall clock, and the CPU time of "
+        "the process, which a loaded machine inflates less; ms. Load average at "
         f"the start {_load(data['machine'].get('load_average'))}, at the end "
         f"{_load(data['machine'].get('load_average_end'))}.",
         "",
@@ -268,12 +270,14 @@ def render_mpc_bench(data: dict[str, Any]) -> list[str]:
     for case in data["cases"]:
         loop = case["closed_loop"]
         step = loop["controller_step"]
+        cpu = loop["controller_step_cpu"]
         medians = [r["controller_step"]["median_ms"] for r in case.get("closed_loop_repeats", [])]
         build = case["build"]
         rows.append([
             case["variant"],
             str(case["horizon"]),
             f"{step['median_ms']:.2f} / {step['p99_ms']:.2f} / {step['max_ms']:.2f}",
+            f"{cpu['median_ms']:.2f} / {cpu['p99_ms']:.2f}",
             f"{min(medians):.2f}{DASH}{max(medians):.2f}" if medians else "n/a",
             f"{loop['solve']['median_ms']:.2f}",
             str(loop["frames"]),
@@ -287,6 +291,7 @@ def render_mpc_bench(data: dict[str, Any]) -> list[str]:
             "variant",
             "N",
             "step median / p99 / max (ms)",
+            "step CPU time median / p99 (ms)",
             "medians of the runs (ms)",
             "solve median (ms)",
             "frames",
@@ -637,23 +642,35 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
 )
 
 
-def _provenance(entry: dict[str, Any], data: dict[str, Any]) -> list[str]:
-    command = data.get("command") if isinstance(data.get("command"), str) else None
-    if entry.get("command") and command and " " in command and entry["command"] != command:
-        raise ValueError(f"{entry['file']}: sources.json and the file disagree on the command")
-    command = entry.get("command") or command
-    if not command:
-        raise ValueError(f"{entry['file']}: no command recorded")
-    lines = [
-        f"- command: `{command}`",
-        f"- date: {entry['date']}",
-        f"- machine: {entry['machine']}",
-    ]
+def _provenance(entry: dict[str, Any], data: dict[str, Any], data_dir: Path) -> list[str]:
+    """The command, date, machine and load of a section's data.
+
+    The command and date come from the ``manifest.json`` a ``capsule-mpc`` command left beside its
+    output when ``entry`` names one (``manifest``), else from the data file when it records its
+    command line, else from ``entry``; two sources that disagree are an error.
+    """
+    command = data.get("command") if isinstance(data.get("command"), str) and " " in data["command"] else None
+    date = entry.get("date")
+    if entry.get("manifest"):
+        manifest = json.loads((data_dir / entry["manifest"]).read_text(encoding="utf-8"))
+        if manifest.get("status") != "complete":
+            raise ValueError(f"{entry['manifest']}: the command did not complete ({manifest.get('status')})")
+        command = "capsule-mpc " + " ".join(shlex.quote(a) for a in manifest["argv"])
+        date = f"{manifest['started']} to {manifest['finished']}"
+    if entry.get("command"):
+        if command and entry["command"] != command:
+            raise ValueError(f"{entry['file']}: sources.json and the data disagree on the command")
+        command = entry["command"]
+    if not command or not date:
+        raise ValueError(f"{entry['file']}: no command or no date recorded")
+    lines = [f"- command: `{command}`", f"- date: {date}", f"- machine: {entry['machine']}"]
     if entry.get("load"):
         lines.append(f"- load average (1, 5, 15 min): {entry['load']}")
     if entry.get("note"):
         lines.append(f"- note: {entry['note']}")
-    lines.append(f"- data: [`docs/results/{entry['file']}`](results/{entry['file']})")
+    for label, key in (("data", "file"), ("manifest", "manifest")):
+        if entry.get(key):
+            lines.append(f"- {label}: [`docs/results/{entry[key]}`](results/{entry[key]})")
     return lines
 
 
@@ -681,7 +698,7 @@ def render(data_dir: Path) -> str:
     for key, title, renderer, what in present:
         entry = sources[key]
         data = json.loads((data_dir / entry["file"]).read_text(encoding="utf-8"))
-        out += ["", f"## {title}", "", what, "", *renderer(data), "", *_provenance(entry, data)]
+        out += ["", f"## {title}", "", what, "", *renderer(data), "", *_provenance(entry, data, data_dir)]
     return "\n".join(out) + "\n"
 
 
