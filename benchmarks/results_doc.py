@@ -130,9 +130,15 @@ def render_sweep(data: dict[str, Any]) -> list[str]:
             f"{sum(bool(m.get('arm_ok')) for m in per)}/{len(per)}",
         ])  # fmt: skip
     seeds = [r["seed"] for r in runs]
+    config = data.get("config")
+    config = Path(config).name if isinstance(config, str) else "?"
+    varied = "".join(
+        f"; plant.{f} drawn from U({lo:g}, {hi:g})" for f, (lo, hi) in data.get("vary", {}).items()
+    )
     head = [
-        f"{n} plant draws of `{data.get('plant_preset', '?')}` (seeds {_seeds(seeds)}), every controller "
-        "on each draw, scored on the draw's common window.",
+        f"{n} plant draws of `{data.get('plant_preset', '?')}` (seeds {_seeds(seeds)}){varied}; the path "
+        f"of `{config}`, {data['path_length_m'] * 1e3:.0f} mm at {data['speed_mps']:g} m/s. Every controller "
+        "runs on each draw, and the runs of a draw are scored on their common window.",
         "",
     ]
     return head + _table(
@@ -570,6 +576,19 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "to the path; final = distance to the last waypoint once at rest; stalled = came to rest "
         "farther than `sim.completion_tol_m` from the end; arm check = the joint commands of the run "
         "passed the checks of an arm export (`arm_ok`).",
+    ),
+    (
+        "controllers_pipe_0.02",
+        "Controllers on the pipe at 0.02 m/s (`lab` plant)",
+        render_sweep,
+        "The pipe-like centreline with three bends (`configs/pipe.yaml`), the UR5 in the loop; "
+        "metrics as above.",
+    ),
+    (
+        "controllers_pipe_0.045",
+        "Controllers on the pipe at 0.045 m/s (`lab` plant)",
+        render_sweep,
+        "The same pipe at 0.045 m/s, where the bends ask the most of the arm.",
     ),
     (
         "friction_ablation_lab",

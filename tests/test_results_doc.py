@@ -102,7 +102,13 @@ def test_sweep_row_from_synthetic_json(results_doc):
             for i, v in enumerate(values)
         ]
 
-    lines = results_doc.render_sweep({"plant_preset": "lab", "runs": runs([2.0, 4.0, 6.0, 8.0])})
+    summary = {
+        "plant_preset": "lab",
+        "path_length_m": 0.32,
+        "speed_mps": 0.02,
+        "runs": runs([2.0, 4.0, 6.0, 8.0]),
+    }
+    lines = results_doc.render_sweep(summary)
     row = next(line for line in lines if line.startswith("| `mpc`"))
     # 2, 4, 6, 8: mean 5, sd sqrt(20/3) = 2.58, worst 8; final 0.5, 1, 1.5, 2: one within 0.5 mm
     assert row.startswith(
