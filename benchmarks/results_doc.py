@@ -264,10 +264,11 @@ def render_mpc_bench(data: dict[str, Any]) -> list[str]:
     frames = "the whole path" if not s.get("frames") else f"the first {s['frames']} frames of motion"
     repeats = s.get("repeats", 1)
     lines = [
-        f"Closed loop on {frames} (plant seed {s['seed']}), {repeats} run(s) per case; the run with the "
-        "median controller step is shown, and the range of the runs' medians. Controller step = the "
-        "whole Python step (estimator, reference, solve, safety layer), wall clock, and the CPU time of "
-        "the process, which a loaded machine inflates less; ms. Load average at "
+        f"Closed loop on {frames} (plant seed {s['seed']}), {repeats} run{'s' if repeats != 1 else ''} "
+        "per case; the run with the median controller step is shown, and the range of the runs' "
+        "medians. Controller step = the whole Python step (estimator, reference, solve, safety "
+        "layer), wall clock, and the CPU time of the process, which a loaded machine inflates less; "
+        "ms. Load average at "
         f"the start {_load(data['machine'].get('load_average'))}, at the end "
         f"{_load(data['machine'].get('load_average_end'))}.",
         "",
@@ -578,11 +579,17 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "passed the checks of an arm export (`arm_ok`).",
     ),
     (
+        "controllers_pipe_0.005",
+        "Controllers on the pipe at 0.005 m/s (`lab` plant)",
+        render_sweep,
+        "The pipe-like centreline with three bends (`configs/pipe.yaml`), the UR5 in the loop, at the "
+        "slowest speed of the paper's range; metrics as above.",
+    ),
+    (
         "controllers_pipe_0.02",
         "Controllers on the pipe at 0.02 m/s (`lab` plant)",
         render_sweep,
-        "The pipe-like centreline with three bends (`configs/pipe.yaml`), the UR5 in the loop; "
-        "metrics as above.",
+        "The same pipe at the paper's operating speed.",
     ),
     (
         "controllers_pipe_0.045",
