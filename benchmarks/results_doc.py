@@ -624,7 +624,10 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "mpc_bench",
         "MPC step time",
         render_mpc_bench,
-        "Build and start-up times and the per-frame step of the MPC on the rectangle.",
+        "Build and start-up times and the per-frame step of the MPC on the rectangle. Step times "
+        "depend on the machine and on what else runs on it (the load average is given); on a shared "
+        "virtual machine they drift between runs of the same benchmark, so the spread of the repeats "
+        "is shown beside the median run.",
     ),
     (
         "sim_speed",
