@@ -35,8 +35,8 @@ from typing import Any
 import numpy as np
 
 from capsule_mpc.cli.arguments import int_at_least
-from capsule_mpc.cli.simulate import prepare_run
 from capsule_mpc.config import FaultsConfig, Scenario, packaged_config_path
+from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.metrics import tracking_errors
 from capsule_mpc.mpc import MPCController
 from capsule_mpc.outputs import output_file_problem, write_report_file

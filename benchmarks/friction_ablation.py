@@ -13,14 +13,14 @@ robot``), once per friction model it is given:
     ``--speeds`` on straight paths along x and y, and the breakaway experiments), then
     ``capsule-mpc learn-friction`` on those logs (the config's force model);
 ``online``
-    ``learned`` plus the online update (``mpc.friction_adaptation: rls``) with the fast
+    ``learned`` plus the online update (``mpc.adaptation.mode: rls``) with the fast
     disturbance integrator as a residual on top (``--residual-gain``, ``--residual-cap``);
 ``oracle``
     the plant's own friction: its steady rate-and-state law as c(v) with its mu0, its tether drag
     and drag growth, its breakaway after rest -- what no real rig gives a controller, the bound.
 
 The ``paper_0.8v`` heuristic runs on the same draw, and every run of a draw is scored on one
-window: t = 0 to the latest end among them (:func:`capsule_mpc.cli.compare.rescore_on_common_window`).
+window: t = 0 to the latest end among them (:func:`capsule_mpc.experiments.compare.rescore_on_common_window`).
 Prints, per variant, mean +- sd (worst) over the draws of the tracking RMS, cross-track RMS, the
 start window's tracking RMS (first 1.5 s), the final error, the runs ending within
 ``--final-tol``, stalls and solver failures, and the paired difference to ``paper``; the learned
@@ -48,8 +48,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from capsule_mpc.cli.compare import rescore_on_common_window
 from capsule_mpc.config import LearnedFrictionModel, Scenario, load_config
+from capsule_mpc.experiments.compare import rescore_on_common_window
 from capsule_mpc.friction import FrictionBelief
 from capsule_mpc.paths import path_from_scenario
 from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
@@ -118,12 +118,8 @@ def variant_scenario(
         learned = learned_on_draw
     scenario = with_friction(base, learned)
     if variant == "online":
-        update = {
-            "friction_adaptation": "rls",
-            "friction_adaptation_time_s": time_s,
-            "disturbance_gain": gain,
-            "disturbance_max_n": cap,
-        }
+        adaptation = mpc.adaptation.model_copy(update={"mode": "rls", "time_s": time_s})
+        update = {"adaptation": adaptation, "disturbance_gain": gain, "disturbance_max_n": cap}
         scenario = scenario.model_copy(update={"mpc": mpc.model_copy(update=update)})
     return scenario
 
@@ -351,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
         "--residual-cap", type=float, default=0.1, help="online: mpc.disturbance_max_n, N (0.1)"
     )
     parser.add_argument(
-        "--online-time", type=float, default=0.3, help="online: mpc.friction_adaptation_time_s, s (0.3)"
+        "--online-time", type=float, default=0.3, help="online: mpc.adaptation.time_s, s (0.3)"
     )
     parser.add_argument(
         "--final-tol", type=float, default=0.5, help="final error counted as reached, mm (0.5)"

@@ -6,8 +6,14 @@ demo with ``--demo``), and reduces each run to SHA-256 digests of what a run wri
 
 - ``log.csv`` without the wall-clock columns (``solve_ms``, ``controller_ms``), i.e. every state,
   measurement, command, force and solver status of every frame;
-- ``run.json`` without wall-clock fields (solve and step times, real-time factors);
-- the arm's ``joint_trajectory.csv`` when the run writes it.
+- ``run.json`` without wall-clock fields (solve and step times, deadline counts from solve
+  times, real-time factors), kept as values so a difference can be read;
+- the arm's ``joint_trajectory.csv`` when the run writes it;
+- the demo's learned friction model (with the run folder's path replaced).
+
+Every run is deterministic given its seed except where the wall clock enters the control: a
+controller that enforces its deadline acts on its measured solve time. The fault config does
+(``mpc.enforce_deadline: true``), so it runs here with the deadline off (a config on top of it).
 
     .venv/bin/python benchmarks/identity.py --out results/identity/after.json [--demo]
     .venv/bin/python benchmarks/identity.py --compare results/identity/before.json results/identity/after.json
@@ -41,12 +47,12 @@ CASES: tuple[tuple[str, str, str, int, str], ...] = (
     ("lookup_lab2_mpc", "configs/rectangle_lookup.yaml", "lab", 2, "mpc"),
     ("hard3_mpc", "configs/rectangle.yaml", "hard", 3, "mpc"),
     ("pipe_lab0_mpc", "configs/pipe.yaml", "lab", 0, "mpc"),
-    ("faults_lab0_mpc", "configs/faults.yaml", "lab", 0, "mpc"),
+    ("faults_lab0_mpc", "faults_no_deadline", "lab", 0, "mpc"),
 )
 #: Log columns that hold wall-clock measurements (they differ between any two runs).
 WALL_COLUMNS = frozenset({"solve_ms", "controller_ms"})
 #: Substrings of run.json keys that hold wall-clock measurements.
-WALL_KEYS = ("_ms", "wall", "realtime_factor", "elapsed")
+WALL_KEYS = ("_ms", "wall", "realtime_factor", "elapsed", "deadline")
 #: run.json keys holding file paths (compared by file name: the checkout's location differs).
 PATH_KEYS = frozenset({"config", "waypoints_file"})
 
@@ -79,26 +85,37 @@ def _strip_wall(obj: object) -> object:
     return obj
 
 
-def json_digest(path: Path) -> str:
-    """SHA-256 of a JSON file without its wall-clock fields (keys sorted)."""
-    data = _strip_wall(json.loads(path.read_text()))
-    return _digest(json.dumps(data, sort_keys=True).encode())
+def json_values(path: Path) -> object:
+    """A JSON file without its wall-clock fields."""
+    return _strip_wall(json.loads(path.read_text()))
 
 
 def run_digests(folder: Path) -> dict[str, str]:
     """The digests of one run folder."""
-    out = {}
-    for name, fn in (("log.csv", log_digest), ("run.json", json_digest)):
-        if (folder / name).exists():
-            out[name] = fn(folder / name)
+    out: dict[str, object] = {}
+    if (folder / "log.csv").exists():
+        out["log.csv"] = log_digest(folder / "log.csv")
+    if (folder / "run.json").exists():
+        out["run.json"] = json_values(folder / "run.json")
     joints = folder / "joint_trajectory.csv"
     if joints.exists():
         out["joint_trajectory.csv"] = _digest(joints.read_bytes())
     return out
 
 
+def _config(config: str, work: Path) -> str:
+    """The config file of a case: a file, or the fault config without its deadline."""
+    if config != "faults_no_deadline":
+        return config
+    path = work / "faults_no_deadline.yaml"
+    base = Path("configs/faults.yaml").resolve()
+    path.write_text(f"base: {base}\nmpc:\n  enforce_deadline: false\n")
+    return str(path)
+
+
 def run_case(case: tuple[str, str, str, int, str], work: Path) -> tuple[str, dict[str, object]]:
     name, config, plant, seed, controller = case
+    config = _config(config, work)
     out = work / name
     cmd = ["capsule-mpc", "simulate", "--config", config, "--plant", plant, "--seed", str(seed)]
     cmd += ["--controller", controller, "--out", str(out), "--no-progress"]
@@ -112,15 +129,28 @@ def run_demo(work: Path) -> dict[str, object]:
     out = work / "demo"
     cmd = ["capsule-mpc", "demo", "--out", str(out), "--no-progress", "--no-cache"]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    digests = {}
+    digests: dict[str, object] = {}
     for folder in sorted(p for p in out.rglob("log.csv")):
         rel = folder.parent.relative_to(out).as_posix()
         for key, value in run_digests(folder.parent).items():
             digests[f"{rel}/{key}"] = value
     learned = out / "learned_friction.yaml"
     if learned.exists():
-        digests["learned_friction.yaml"] = _digest(learned.read_bytes())
+        text = learned.read_text().replace(str(out), "<out>")
+        digests["learned_friction.yaml"] = _digest(text.encode())
     return {"exit": proc.returncode, "digests": digests}
+
+
+def _where(a: object, b: object, prefix: str = "") -> str:
+    """The first few paths at which two JSON values differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        parts = [
+            _where(a.get(k), b.get(k), f"{prefix}.{k}")
+            for k in sorted(set(a) | set(b))
+            if a.get(k) != b.get(k)
+        ]
+        return "".join(parts[:5])
+    return "" if a == b or not prefix else f"\n    {prefix}: {a!r} -> {b!r}"
 
 
 def compare(before: Path, after: Path) -> int:
@@ -138,7 +168,7 @@ def compare(before: Path, after: Path) -> int:
         da, db = a[name]["digests"], b[name]["digests"]
         for key in sorted(set(da) | set(db)):
             if da.get(key) != db.get(key):
-                print(f"{name}/{key}: differs")
+                print(f"{name}/{key}: differs{_where(da.get(key), db.get(key))}")
                 differ += 1
     print(f"{len(set(a) & set(b))} runs compared, {differ} differences")
     return 1 if differ else 0

@@ -1,6 +1,6 @@
 """MPC speed: build and start-up times, and per-frame times in closed loop, for N = 10, 20, 40, 60.
 
-The same code as ``capsule-mpc bench`` (:mod:`capsule_mpc.mpc.bench`): for each horizon and each
+The same code as ``capsule-mpc bench`` (:mod:`capsule_mpc.experiments.bench`): for each horizon and each
 scheme with each QP solver, the build time uncompiled, the first start compiled with an empty
 cache (gcc) and with a warm one (fresh processes), and the median / p95 / p99 / max of the
 controller step (Python included) and of the solve alone over a closed-loop run on

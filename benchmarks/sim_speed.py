@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from capsule_mpc.cli.arguments import int_at_least
-from capsule_mpc.cli.simulate import prepare_run
 from capsule_mpc.config import packaged_config_path
+from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.outputs import output_file_problem, write_report_file
 from capsule_mpc.sim import CapsulePlant, SimpleArm, simulate
 

@@ -14,14 +14,14 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from capsule_mpc.cli import main
-from capsule_mpc.config import LearnedFrictionModel, MPCConfig
+from capsule_mpc.config import AdaptationConfig, LearnedFrictionModel, MPCConfig
 from capsule_mpc.dynamics import capsule_model
 from capsule_mpc.magnetics import model_equilibrium_lead
 from capsule_mpc.mpc.adaptation import SPEED_WINDOW_S, FrictionOffsetRLS, friction_regression
 from capsule_mpc.mpc.problem import N_PATH, N_STATE, X_SCALE, build_ocp
 
 DT = 1.0 / 30
-RLS_CFG = MPCConfig(friction_adaptation="rls")
+RLS_CFG = AdaptationConfig(mode="rls")
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +92,7 @@ def test_the_estimate_does_not_move_while_the_capsule_is_stuck():
             rls.update(1.0, 0.7)
     assert rls.updates == 0
     assert rls.offset == 0.0
-    assert rls.variance == RLS_CFG.friction_offset_prior_std**2
+    assert rls.variance == RLS_CFG.offset_prior_std**2
 
 
 def test_the_gate_needs_a_moving_reference_and_a_full_window_of_motion():
@@ -118,12 +118,12 @@ def test_the_gate_needs_a_moving_reference_and_a_full_window_of_motion():
     st.floats(0.01, 60.0),
 )
 def test_the_estimate_stays_within_its_bounds(frames, time_constant_s):
-    cfg = RLS_CFG.model_copy(update={"friction_adaptation_time_s": time_constant_s})
+    cfg = RLS_CFG.model_copy(update={"time_s": time_constant_s})
     rls = FrictionOffsetRLS(cfg, DT)
-    prior = cfg.friction_offset_prior_std**2
+    prior = cfg.offset_prior_std**2
     for y_n, phi_n in frames:
         rls.update(y_n, phi_n)
-        assert cfg.friction_offset_min <= rls.offset <= cfg.friction_offset_max
+        assert cfg.offset_min <= rls.offset <= cfg.offset_max
         assert 0.0 < rls.variance <= prior
 
 
@@ -136,7 +136,7 @@ def test_rls_ignores_non_finite_or_non_positive_regressors():
 
 def test_the_ocp_parameter_changes_the_models_friction(scenario):
     """The implicit-Euler velocity rows of the OCP change by exactly dt * dmu * F_N * v_hat / m."""
-    scenario = scenario.model_copy(update={"mpc": RLS_CFG})
+    scenario = scenario.model_copy(update={"mpc": MPCConfig(adaptation=RLS_CFG)})
     model = capsule_model(scenario)
     ocp = build_ocp(model, DT, model_equilibrium_lead(scenario))
     g = ca.Function("g", [ocp.nlp["x"], ocp.nlp["p"]], [ocp.nlp["g"]])
@@ -168,7 +168,9 @@ def test_the_ocp_parameter_changes_the_models_friction(scenario):
 @pytest.mark.parametrize("mode", ["off", "rls"])
 def test_the_offset_parameter_is_used_only_with_adaptation(scenario, mode):
     """Off, the constraints do not depend on dmu (the NLP is the one without adaptation); rls, they do."""
-    sc = scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"friction_adaptation": mode})})
+    sc = scenario.model_copy(
+        update={"mpc": scenario.mpc.model_copy(update={"adaptation": AdaptationConfig(mode=mode)})}
+    )
     ocp = build_ocp(capsule_model(sc), DT, model_equilibrium_lead(sc))
     per_parameter = np.diff(ca.jacobian_sparsity(ocp.nlp["g"], ocp.nlp["p"]).colind())
     assert per_parameter[-2] > 0  # d_fric
@@ -178,26 +180,26 @@ def test_the_offset_parameter_is_used_only_with_adaptation(scenario, mode):
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [
-        ("friction_adaptation", "ekf", r"friction_adaptation"),
-        ("friction_adaptation_time_s", 0, r"friction_adaptation_time_s"),
-        ("friction_adaptation_time_s", 61, r"friction_adaptation_time_s"),
-        ("friction_offset_min", 0.1, r"friction_offset_min"),
-        ("friction_offset_max", 0, r"friction_offset_max"),
-        ("friction_offset_prior_std", 0, r"friction_offset_prior_std"),
-        ("friction_adaptation_min_speed_mps", 0.06, r"friction_adaptation_min_speed_mps"),
+        ("mode", "ekf", r"adaptation\.mode"),
+        ("time_s", 0, r"adaptation\.time_s"),
+        ("time_s", 61, r"adaptation\.time_s"),
+        ("offset_min", 0.1, r"adaptation\.offset_min"),
+        ("offset_max", 0, r"adaptation\.offset_max"),
+        ("offset_prior_std", 0, r"adaptation\.offset_prior_std"),
+        ("min_speed_mps", 0.06, r"adaptation\.min_speed_mps"),
     ],
 )
 def test_bad_adaptation_settings_are_refused_naming_the_field(field, value, message):
     with pytest.raises(ValidationError, match=message):
-        MPCConfig(**{field: value})
+        MPCConfig(adaptation={field: value})
 
 
 def test_cli_refuses_a_bad_forgetting_time_with_exit_2_and_no_output(tmp_path, capsys):
-    (tmp_path / "c.yaml").write_text("base: paper\nmpc:\n  friction_adaptation_time_s: -1\n")
+    (tmp_path / "c.yaml").write_text("base: paper\nmpc:\n  adaptation:\n    time_s: -1\n")
     out = tmp_path / "out"
     code = main(["compare", "--config", str(tmp_path / "c.yaml"), "--controllers", "mpc", "--no-progress",
                  "--out", str(out)])  # fmt: skip
     text = capsys.readouterr().err
     assert code == 2, text
-    assert re.search(r"mpc\.friction_adaptation_time_s: .*0", text), text
+    assert re.search(r"mpc\.adaptation\.time_s: .*0", text), text
     assert not out.exists() or not any(out.iterdir())

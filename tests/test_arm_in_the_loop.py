@@ -20,8 +20,8 @@ from capsule_mpc.arm import (
     check_run_trajectory,
     run_trajectory_since,
 )
-from capsule_mpc.cli.compare import rescore_on_common_window
 from capsule_mpc.config import config_from_dict
+from capsule_mpc.experiments.compare import rescore_on_common_window
 from capsule_mpc.mpc import build_mpc_stack
 from capsule_mpc.paths import rectangle
 from capsule_mpc.safety import safe_command
@@ -181,7 +181,7 @@ def test_the_safety_layer_bounds_the_change_of_the_commands_slope(scenario, u, u
 
 
 def test_without_a_slope_the_safety_layer_leaves_jerk_alone(scenario):
-    """The planner's replay and other callers without a previous slope keep the former limits."""
+    """The planner's replay and other callers without a previous slope get no jerk limit."""
     prev = np.array([0.0, 0.0, 0.0])
     cmd, _ = safe_command(np.array([0.02, 0.0, 0.0]), prev, np.array([0.0, 0.0, 0.095]), scenario, FRAME_S)
     assert cmd[0] == pytest.approx(scenario.limits.accel_mps2 * FRAME_S)  # a full acceleration step

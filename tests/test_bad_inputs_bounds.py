@@ -40,16 +40,16 @@ def _refuse(name: str):
 
 #: (module, attribute) of every entry point of work a refused command must not reach.
 WORK = [
-    ("capsule_mpc.cli.simulate", "force_map"),
+    ("capsule_mpc.experiments.runs", "force_map"),
     ("capsule_mpc.magnetics", "force_map"),
-    ("capsule_mpc.cli.info", "check_epm_height"),
+    ("capsule_mpc.experiments.runs", "check_epm_height"),
     ("capsule_mpc.sim", "simulate"),
     ("capsule_mpc.learning.demonstrations", "run_demonstrations"),
     ("capsule_mpc.cli.demonstrate", "run_demonstrations"),
     ("capsule_mpc.planner", "plan_path"),
     ("capsule_mpc.planner", "cached_plan"),
-    ("capsule_mpc.mpc.bench", "run_benchmark"),
-    ("capsule_mpc.cli.sweep", "sweep"),
+    ("capsule_mpc.experiments.bench", "run_benchmark"),
+    ("capsule_mpc.experiments.sweep.campaign", "sweep"),
     ("capsule_mpc.cli.arm", "export_arm_trajectory"),
     ("capsule_mpc.cli.docs", "write_reference_docs"),
 ]
@@ -61,9 +61,11 @@ PREIMPORT = [
     "capsule_mpc.sim.plant",
     "capsule_mpc.planner",
     "capsule_mpc.planner.replay",
-    "capsule_mpc.mpc.bench",
+    "capsule_mpc.experiments.bench",
     "capsule_mpc.learning.logs",
     "capsule_mpc.learning.demonstrations",
+    "capsule_mpc.experiments.runs",
+    "capsule_mpc.experiments.sweep.campaign",
     "capsule_mpc.cli.simulate",
     "capsule_mpc.cli.info",
     "capsule_mpc.cli.demonstrate",
@@ -401,10 +403,10 @@ def test_run_needs_counts_the_frames_of_a_run_to_its_cut_off(scenario):
     log (up to the frames of one plant step of rounding)."""
     import numpy as np
 
+    from capsule_mpc.budget import TIMEOUT_FACTOR
     from capsule_mpc.interfaces import Command, Controller, StepStats
     from capsule_mpc.paths import ReferencePath
     from capsule_mpc.sim import simulate
-    from capsule_mpc.sim.runner import TIMEOUT_FACTOR
 
     class Still(Controller):
         def reset(self, scenario, path, epm_position_m):

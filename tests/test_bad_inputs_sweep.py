@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from capsule_mpc.cli import main
-from capsule_mpc.cli.sweep.results import SPEC_FILE, sweep_spec
-from capsule_mpc.cli.sweep.vary import parse_vary
+from capsule_mpc.experiments.sweep.results import SPEC_FILE, sweep_spec
+from capsule_mpc.experiments.sweep.vary import parse_vary
 
 REPO = Path(__file__).resolve().parents[1]
 RECTANGLE = REPO / "configs" / "rectangle.yaml"
@@ -152,7 +152,7 @@ def test_workers_with_a_scheduler(base, tmp_path, capsys):
 
 
 def test_an_unreachable_scheduler(base, tmp_path, capsys, monkeypatch):
-    import capsule_mpc.cli.sweep.tasks as tasks
+    import capsule_mpc.experiments.sweep.tasks as tasks
 
     monkeypatch.setattr(tasks, "SCHEDULER_TIMEOUT_S", 1.0)
     out = tmp_path / "out"
@@ -172,7 +172,7 @@ def test_an_unknown_controller(base, tmp_path, capsys):
 
 def test_a_folder_holding_another_sweep_is_left_as_it_is(base, tmp_path, capsys):
     """A sweep with --runs 3 is in the folder; asked for --runs 2 (to resume it?): refused, untouched."""
-    from capsule_mpc.cli.simulate import prepare_run
+    from capsule_mpc.experiments.runs import prepare_run
 
     out = tmp_path / "out"
     (out / "runs").mkdir(parents=True)

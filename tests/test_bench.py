@@ -1,4 +1,4 @@
-"""The MPC benchmark (``capsule_mpc.mpc.bench``, ``capsule-mpc bench``): a quick run with a tiny horizon."""
+"""The MPC benchmark (``capsule_mpc.experiments.bench``, ``capsule-mpc bench``): a quick run, tiny horizon."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from capsule_mpc.cli import main
 from capsule_mpc.cli.bench import format_report
 from capsule_mpc.config import load_config, packaged_config_path
-from capsule_mpc.mpc.bench import TARGETS, bench_scenario, median_run, path_first_frames, variants
+from capsule_mpc.experiments.bench import TARGETS, bench_scenario, median_run, path_first_frames, variants
 from capsule_mpc.mpc.problem import N_INPUT, N_STATE
 from capsule_mpc.paths import path_from_scenario
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from capsule_mpc.cli import main
-from capsule_mpc.cli.compare import RUNS_FOLDER, aggregate_runs, compare_controllers, summary_table
 from capsule_mpc.config import load_config
+from capsule_mpc.experiments.compare import RUNS_FOLDER, aggregate_runs, compare_controllers, summary_table
 from capsule_mpc.metrics import run_metrics
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.planner import PlannerOptions
@@ -141,7 +141,7 @@ def test_several_seeds_are_scored_on_a_common_window(tmp_path, table, rectangle_
             raise RuntimeError("boom")
         return real(scenario, name, path, seed, **kw)
 
-    monkeypatch.setattr(sim, "simulate", flaky)
+    monkeypatch.setattr("capsule_mpc.experiments.compare.simulate", flaky)
     scenario = load_config(rectangle_config)
     out = tmp_path / "cmp"
     summary = compare_controllers(
@@ -276,7 +276,7 @@ _CASADI_DUMP = "\n".join([
     ],
 )
 def test_a_failure_is_one_bounded_line_with_its_cause_and_what_to_try(exc, cause):
-    from capsule_mpc.cli.compare import failure_line
+    from capsule_mpc.experiments.compare import failure_line
 
     line = failure_line("plan", exc)
     assert "\n" not in line and len(line) < 400

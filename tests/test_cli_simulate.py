@@ -49,7 +49,9 @@ def test_simulate_writes_a_complete_run(tmp_path, short_path, capsys, table):
 def test_compare_runs_every_controller_on_the_same_seed(
     tmp_path, short_path, quick_config, table, monkeypatch
 ):
-    monkeypatch.setattr("capsule_mpc.cli.compare.available_controllers", lambda: ["follow", "paper_0.8v"])
+    monkeypatch.setattr(
+        "capsule_mpc.experiments.compare.available_controllers", lambda: ["follow", "paper_0.8v"]
+    )
     out = tmp_path / "cmp"
     args = ["compare", "--config", str(quick_config), "--out", str(out), "--waypoints", str(short_path)]
     assert main([*args, "--no-progress"]) == 0
@@ -252,7 +254,7 @@ def test_simulate_reports_an_arm_that_cannot_follow(tmp_path, short_path, capsys
     def unreachable(scenario, t_s, epm, out_dir, **kw):
         raise UnreachableTargetError(t_s[3], epm[3], "joint 2 leaves its position limit")
 
-    monkeypatch.setattr("capsule_mpc.arm.export_arm_trajectory", unreachable)
+    monkeypatch.setattr("capsule_mpc.experiments.runs.export_arm_trajectory", unreachable)
     simple = tmp_path / "simple.yaml"
     simple.write_text("base: paper\nsim: {settle_s: 0.5, tail_s: 0.5, actuator: simple}\n")
     out = tmp_path / "arm"

@@ -12,8 +12,12 @@ import pytest
 import yaml
 
 from capsule_mpc import ConfigError, dump_config, load_config
-from capsule_mpc.cli.info import _mm, check_epm_height, scenario_figures
+from capsule_mpc.cli.info import scenario_figures
+from capsule_mpc.cli.reference import iter_config_fields
 from capsule_mpc.config import config_from_dict, packaged_config_path
+from capsule_mpc.config._loader import MOVED_KEYS
+from capsule_mpc.path_reach import check_epm_height
+from capsule_mpc.path_reach import format_mm as _mm
 
 PAPER = yaml.safe_load(packaged_config_path("paper").read_text())
 
@@ -94,6 +98,36 @@ def test_cross_field_rules(tmp_path):
     data["epm"]["magnetisation"][1] = [0.0, 0.0, 2.0]
     with pytest.raises(ConfigError, match=r"epm\.magnetisation: .*unit vector"):
         load_config(_write(tmp_path, data))
+
+
+@pytest.mark.parametrize(("old", "new"), list(MOVED_KEYS.items()))
+def test_a_moved_key_is_refused_naming_where_it_went(tmp_path, old, new):
+    section, key = old.split(".")
+    path = tmp_path / "c.yaml"
+    path.write_text(f"base: paper\n{section}:\n  {key}: 1\n")
+    with pytest.raises(
+        ConfigError, match=rf"^invalid config .*\n  {re.escape(old)}: moved to {re.escape(new)}$"
+    ):
+        load_config(path)
+    with pytest.raises(ConfigError, match=rf"{re.escape(old)}: moved to {re.escape(new)}"):
+        config_from_dict({**PAPER, section: {key: 1}})
+
+
+def test_every_moved_key_names_a_field():
+    fields = {row[0] for row in iter_config_fields()}
+    assert set(MOVED_KEYS.values()) <= fields
+    assert not set(MOVED_KEYS) & fields
+
+
+def test_the_nested_mpc_sections_load_and_round_trip(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("base: paper\nmpc:\n  approach:\n    speed_mps: 0.002\n  adaptation:\n    mode: rls\n")
+    s = load_config(path)
+    assert s.mpc.approach.speed_mps == 0.002 and s.mpc.adaptation.mode == "rls"
+    assert s.mpc.approach.max_attempts == 3 and s.mpc.adaptation.time_s == 0.3  # the others default
+    dumped = dump_config(s)
+    assert "approach_" not in dumped and "friction_adaptation" not in dumped
+    assert load_config(_write(tmp_path, yaml.safe_load(dumped))).model_dump() == s.model_dump()
 
 
 def test_base_inheritance_overrides_only_given_fields(tmp_path):

@@ -270,7 +270,7 @@ def test_a_stalled_arm_brakes_to_rest_and_then_follows_again(lab_scenario):
 
 @pytest.mark.parametrize("command", ["compare", "sweep"])
 def test_fault_counts_reach_the_summary_of_compare_and_sweep(tmp_path, command, monkeypatch):
-    import capsule_mpc.cli.sweep.campaign as campaign
+    import capsule_mpc.experiments.sweep.campaign as campaign
 
     # the sweep's 12 figures are not the subject (test_sweep.py checks them)
     monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed: [])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from collections import deque
 
 import numpy as np
@@ -18,9 +19,9 @@ from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
 from capsule_mpc.mpc.approach import FinalApproach
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.safety import safe_command
+from capsule_mpc.sim import simulate
 from capsule_mpc.sim.actuation import SimpleArm
 from capsule_mpc.sim.plant import CapsulePlant
-from capsule_mpc.sim.runner import simulate
 
 DT = 1.0 / 30.0
 #: A short straight path ending at the origin, approached along -y (as the rectangle's last side).
@@ -29,6 +30,10 @@ PATH = ReferencePath(np.array([[0.0, 0.01], [0.0, 0.0]]), False, 0.02)
 
 def with_mpc(scenario: Scenario, **fields: object) -> Scenario:
     return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=fields)})
+
+
+def with_approach(scenario: Scenario, **fields: object) -> Scenario:
+    return with_mpc(scenario, approach=scenario.mpc.approach.model_copy(update=fields))
 
 
 def make_approach(scenario: Scenario) -> FinalApproach:
@@ -154,21 +159,21 @@ def test_no_approach_within_tolerance(scenario):
 
 def test_gives_up_after_the_attempt_cap(scenario):
     """A capsule that lurches past the target on every crawl (to 0.9 of its error): the approach
-    halves its crawl speed after an overshoot and holds after mpc.approach_max_attempts crawls."""
-    scn = with_mpc(scenario, approach_max_attempts=2)
+    halves its crawl speed after an overshoot and holds after mpc.approach.max_attempts crawls."""
+    scn = with_approach(scenario, max_attempts=2)
     approach = make_approach(scn)
     capsule = FakeCapsule(np.array([0.0, 3e-3]), jump=0.9)
     out = drive(scn, approach, capsule, 25.0)
     assert approach.attempts == 2
     assert approach.phase == "gave_up" and "2 attempts" in approach.gave_up_reason
-    assert approach.speed_mps == pytest.approx(scn.mpc.approach_speed_mps / 2)  # halved once, after the first
+    assert approach.speed_mps == pytest.approx(scn.mpc.approach.speed_mps / 2)  # halved once, after the first
     assert np.all(out["cmd"][-5:] == 0)  # holding
 
 
 def test_gives_up_when_its_time_is_up(scenario):
-    """The same lurching capsule with attempts to spare: the approach stops at mpc.approach_max_s
+    """The same lurching capsule with attempts to spare: the approach stops at mpc.approach.max_s
     (releasing and observing the crawl under way) and holds."""
-    scn = with_mpc(scenario, approach_max_attempts=20, approach_max_s=6.0)
+    scn = with_approach(scenario, max_attempts=20, max_s=6.0)
     approach = make_approach(scn)
     out = drive(scn, approach, FakeCapsule(np.array([0.0, 3e-3]), jump=0.9), 25.0)
     assert approach.phase == "gave_up" and "out of time" in approach.gave_up_reason
@@ -178,9 +183,9 @@ def test_gives_up_when_its_time_is_up(scenario):
 
 def test_out_of_time_while_creeping_on_it_holds_the_lead(scenario):
     """A capsule creeping toward the target at 0.3 mm/s whatever the EPM does: when
-    mpc.approach_max_s is up the crawl is not released (a stopped capsule would have to break loose
+    mpc.approach.max_s is up the crawl is not released (a stopped capsule would have to break loose
     again) -- the approach gives up and the EPM holds."""
-    scn = with_mpc(scenario, approach_max_s=3.0)
+    scn = with_approach(scenario, max_s=3.0)
     approach = make_approach(scn)
     out = drive(scn, approach, FakeCapsule(np.array([0.0, 4e-3]), creep_mps=3e-4), 8.0)
     assert approach.attempts == 1 and approach.phase == "gave_up"
@@ -191,10 +196,10 @@ def test_out_of_time_while_creeping_on_it_holds_the_lead(scenario):
 
 def test_camera_lost_during_a_crawl_the_approach_still_ends(scenario):
     """Every frame dropped from 3 s after the path's end (during the crawl): the crawl holds its
-    lead, is released mpc.approach_attempt_s after its last progress and the approach gives up at
-    mpc.approach_max_s;
+    lead, is released mpc.approach.attempt_s after its last progress and the approach gives up at
+    mpc.approach.max_s;
     commands stay finite."""
-    scn = with_mpc(scenario, approach_max_s=8.0)
+    scn = with_approach(scenario, max_s=8.0)
     approach = make_approach(scn)
     out = drive(scn, approach, FakeCapsule(np.array([0.0, 3e-3])), 20.0, blind_from_s=3.0)
     assert approach.attempts == 1 and approach.phase == "gave_up" and approach.finished
@@ -279,20 +284,24 @@ def test_stuck_capsule_is_not_lurched(scenario):
     [
         ("final_tolerance_m", 0.0),
         ("final_tolerance_m", 0.01),
-        ("approach_speed_mps", 0.0),
-        ("approach_force_fraction", 1.0),
-        ("approach_max_attempts", 0),
-        ("approach_attempt_s", 0.0),
-        ("approach_max_s", 0.0),
-        ("approach_backoff_m", -1e-3),
-        ("approach_window_s", 0.0),
-        ("approach_observe_s", 0.2),
+        ("approach.speed_mps", 0.0),
+        ("approach.force_fraction", 1.0),
+        ("approach.max_attempts", 0),
+        ("approach.attempt_s", 0.0),
+        ("approach.max_s", 0.0),
+        ("approach.backoff_m", -1e-3),
+        ("approach.window_s", 0.0),
+        ("approach.observe_s", 0.2),
     ],
 )
 def test_approach_fields_are_validated(scenario, field, value):
     data = scenario.mpc.model_dump()
-    data[field] = value
-    with pytest.raises(ValidationError, match=field):
+    *sections, key = field.split(".")
+    node = data
+    for section in sections:
+        node = node[section]
+    node[key] = value
+    with pytest.raises(ValidationError, match=re.escape(field)):
         type(scenario.mpc).model_validate(data)
 
 

@@ -10,6 +10,7 @@ import pytest
 
 from capsule_mpc.config import load_config
 from capsule_mpc.mpc import MPCController, build_mpc_stack
+from capsule_mpc.mpc.grid import prediction_steps_s, prediction_times_s
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import simulate
 
@@ -43,8 +44,8 @@ def test_the_100hz_config_is_the_rectangle_at_100hz_with_a_0p4s_horizon():
     slow = load_config(REPO / "configs" / "rectangle.yaml")
     fast = load_config(REPO / "configs" / "rectangle_100hz.yaml")
     assert fast.camera.rate_hz == 100.0 and fast.camera.latency_frames == 1
-    assert fast.prediction_times_s()[-1] >= 0.4  # the horizon, s
-    assert fast.prediction_steps_s()[0] == pytest.approx(0.01)  # the first stage: one frame
+    assert prediction_times_s(fast)[-1] >= 0.4  # the horizon, s
+    assert prediction_steps_s(fast)[0] == pytest.approx(0.01)  # the first stage: one frame
     assert fast.model_dump(exclude={"name", "camera", "mpc"}) == slow.model_dump(
         exclude={"name", "camera", "mpc"}
     )
@@ -85,6 +86,6 @@ def test_the_deadline_is_one_frame_whatever_the_prediction_step():
         ctrl.reset(coarse, PATH, epm)
     assert ctrl.dt_s == pytest.approx(0.01) and ctrl.deadline_ms == pytest.approx(10.0)
     assert ctrl.stack.ocp.steps_s == pytest.approx([0.01] + [0.02] * 19)
-    assert coarse.prediction_times_s()[-1] == pytest.approx(0.39)
+    assert prediction_times_s(coarse)[-1] == pytest.approx(0.39)
     ctrl.reset(sc, PATH, epm)
     assert ctrl.deadline_ms == pytest.approx(10.0)

@@ -12,6 +12,7 @@ from capsule_mpc.dynamics import capsule_model, discrete_step
 from capsule_mpc.interfaces import Measurement
 from capsule_mpc.mpc import MPCController, build_mpc_stack
 from capsule_mpc.mpc.controller import model_scenario
+from capsule_mpc.mpc.grid import prediction_times_s
 from capsule_mpc.mpc.problem import INPUT_SCALE, N_INPUT, N_PATH, N_STATE
 from capsule_mpc.mpc.solver import nlp_functions
 from capsule_mpc.paths import ReferencePath
@@ -59,7 +60,7 @@ def test_the_grid_the_bounds_and_the_horizon(coarse):
     assert ocp.steps_s == pytest.approx([FRAME_S] + [STEP_S] * (N - 1))
     assert ocp.frame_s == FRAME_S and ocp.dt_s == STEP_S and not ocp.uniform
     assert ocp.node_times_s[-1] == pytest.approx(FRAME_S + (N - 1) * STEP_S)
-    assert coarse.prediction_times_s() == pytest.approx(ocp.node_times_s[1:])
+    assert prediction_times_s(coarse) == pytest.approx(ocp.node_times_s[1:])
     # The acceleration bound of each stage's command change is a h: the first stage's matches the
     # safety layer's per-frame limit.
     a = coarse.limits.accel_mps2

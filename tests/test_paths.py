@@ -267,3 +267,19 @@ def test_project_of_many_frames_onto_many_waypoints_stays_small():
         tracemalloc.stop()
     assert peak < 200e6, peak
     assert dist.max() < 6e-3  # the frames lie within a few sigma of the path
+
+
+@pytest.mark.parametrize("dt_s", [None, 1.0 / 30.0, 0.02, 0.05, 0.1])
+@pytest.mark.parametrize("horizon", [2, 10, 20, 37])
+def test_the_speed_check_plans_over_the_mpcs_own_horizon(dt_s, horizon):
+    """The path's speed check uses the end of the MPC's last stage, bit for bit as the MPC has it."""
+    from capsule_mpc.config import config_from_dict, load_config
+    from capsule_mpc.mpc.grid import prediction_times_s
+    from capsule_mpc.paths import _horizon_s
+
+    data = load_config().model_dump(mode="json", exclude_none=True)
+    data["mpc"]["horizon"] = horizon
+    if dt_s is not None:
+        data["mpc"]["dt_s"] = dt_s
+    scenario = config_from_dict(data)
+    assert _horizon_s(scenario) == float(prediction_times_s(scenario)[-1])

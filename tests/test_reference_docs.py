@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from capsule_mpc.cli import build_parser
-from capsule_mpc.reference_docs import iter_config_fields, write_reference_docs
+from capsule_mpc.cli.reference import iter_config_fields, write_reference_docs
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 

@@ -17,7 +17,7 @@ START = np.array([0.0, 0.0, 0.095])  # mid-workspace, m
 
 
 class OldSimpleArm:
-    """The simple arm's step as it was before the servo option (HEAD f48dc7e), the bit-for-bit reference."""
+    """The simple arm's step without a servo, written out independently: the bit-for-bit reference."""
 
     def __init__(self, scenario: Scenario, start: np.ndarray) -> None:
         lim = scenario.limits

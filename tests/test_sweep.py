@@ -21,12 +21,14 @@ import pytest
 
 import capsule_mpc
 from capsule_mpc.cli import main
-from capsule_mpc.cli.compare import RUNS_FOLDER, _json_value, aggregate_runs
-from capsule_mpc.cli.sweep import SPEC_FILE, WALL_CLOCK_KEYS, SeedTask, run_seed, sweep, worst_runs
-from capsule_mpc.cli.sweep import tasks as sweep_tasks
-from capsule_mpc.cli.sweep.results import spec_difference
-from capsule_mpc.cli.sweep.vary import draw_varied, parse_vary, with_plant_values
 from capsule_mpc.config import load_config
+from capsule_mpc.experiments.compare import RUNS_FOLDER, aggregate_runs
+from capsule_mpc.experiments.compare import json_value as _json_value
+from capsule_mpc.experiments.sweep import tasks as sweep_tasks
+from capsule_mpc.experiments.sweep.campaign import sweep
+from capsule_mpc.experiments.sweep.results import SPEC_FILE, spec_difference, worst_runs
+from capsule_mpc.experiments.sweep.tasks import WALL_CLOCK_KEYS, SeedTask, run_seed
+from capsule_mpc.experiments.sweep.vary import draw_varied, parse_vary, with_plant_values
 from capsule_mpc.outputs import read_manifest
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import draw_plant_truth
@@ -70,7 +72,7 @@ def _quick(scenario):
 def no_figures(monkeypatch):
     """Sweeps in this process write no figures (about 9 s of matplotlib a sweep; every figure of a
     sweep is checked by test_cli_sweep_writes_a_file_per_run_and_compares_schema)."""
-    import capsule_mpc.cli.sweep.campaign as campaign
+    import capsule_mpc.experiments.sweep.campaign as campaign
 
     monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed: [])
 
@@ -110,7 +112,7 @@ def test_controllers_get_the_nominal_scenario_only_the_plant_the_varied_value(
         seen.append((scenario, kw["plant"].truth))
         return real(scenario, name, path, seed, **kw)
 
-    monkeypatch.setattr(sim, "simulate", spy)
+    monkeypatch.setattr("capsule_mpc.experiments.compare.simulate", spy)
     task = SeedTask(quick, SHORT, LAB_SEED, ("follow",), (parse_vary(MU0),))
     entry = run_seed(task)
     (scenario, truth), varied = seen[0], entry["varied"]["mu0_scale"]
@@ -176,7 +178,7 @@ def test_same_seeds_same_results_on_one_worker_and_on_dask(cli_sweep, tmp_path, 
     _, out, _ = cli_sweep
     reference = _physical(json.loads((out / "summary.json").read_text())["runs"])
     spec = json.loads((out / SPEC_FILE).read_text())
-    from capsule_mpc.cli.simulate import prepare_run
+    from capsule_mpc.experiments.runs import prepare_run
 
     scenario, path, _ = prepare_run(QUICK, out.parent / "short.csv", None, None)
     common = {"controllers": CONTROLLERS, "vary": [parse_vary(MU0)], "progress": False}

@@ -32,7 +32,7 @@ def test_rectangle_targets_met_on_lab(rectangle_runs):
     """The targets on a `lab` draw: tracking and cross-track RMS <= 1/3 of paper_0.8v's,
     cross-track below both baselines, final error at rest <= 0.5 mm, on time, no failure.
 
-    Over 200 `lab` draws (README) the RMS targets hold on the means; the final error is <= 0.5 mm
+    Over 200 `lab` draws the RMS targets hold on the means; the final error is <= 0.5 mm
     in 148 of them (a capsule held by static friction 0.5-2.6 mm off is left there), so the last
     assertion holds on this draw, not on every one.
     """

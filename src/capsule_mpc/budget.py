@@ -54,6 +54,7 @@ from pathlib import Path
 from typing import Literal
 
 from .config import ConfigError, Scenario
+from .plan_options import PlannerOptions
 
 __all__ = [
     "BYTES_PER_FRAME",
@@ -250,8 +251,6 @@ def run_needs(scenario: Scenario, length_m: float, speed_mps: float, work: Workl
             ))  # fmt: skip
     steps, plan_s = 0, 0.0
     if plan is not None:
-        from .planner.problem import PlannerOptions  # the planner's CasADi only when a plan is costed
-
         options = PlannerOptions()
         if plan == "fixed":
             plan_s = duration + options.tail_s

@@ -20,22 +20,44 @@ from dataclasses import dataclass
 from typing import Literal
 
 import casadi as ca
+import numpy as np
 
 from .config import Scenario
 from .friction import FrictionBelief
 from .magnetics import capsule_force_function
 
 __all__ = [
+    "FN_SCALE",
     "N_INPUTS",
     "N_STATES",
+    "S_SCALE",
+    "TANGENT_EPS_MPS",
+    "U_SCALE",
+    "X_SCALE",
     "CapsuleModel",
     "capsule_model",
     "discrete_step",
+    "n_slacks",
     "normal_force_expr",
 ]
 
 N_STATES = 7
 N_INPUTS = 3
+
+# Scales shared by the optimal control problems built on this model (the MPC's and the planner's):
+# the NLPs work in mm, cm/s and unit-order slacks, so their QPs are well conditioned. Physical
+# value = scale * NLP value.
+#: Scales of the model's state (capsule position, velocity, EPM position) and input (EPM velocity).
+X_SCALE = np.array([1e-3, 1e-3, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
+U_SCALE = np.array([1e-2, 1e-2, 1e-2])
+#: Slacks per stage: coupling (lead), normal force (both bounds).
+n_slacks = 2
+#: Slack scales: coupling slack in units of max_lead^2 (dimensionless), normal-force slack in N.
+S_SCALE = np.array([1.0, 0.1])
+#: Normal-force constraint scale, N.
+FN_SCALE = 0.1
+#: Speed below which the reference counts as standing still, m/s (smooths the path frame).
+TANGENT_EPS_MPS = 1e-4
 
 #: Collocation degree of each named implicit scheme (Radau IIA; degree 1 is implicit Euler).
 _SCHEMES = {"implicit_euler": 1, "radau2": 2, "radau3": 3}

@@ -23,6 +23,7 @@ all of them in the data flow, so none imports another to share an interface.
 
 from __future__ import annotations
 
+import enum
 import importlib
 import math
 from abc import ABC, abstractmethod
@@ -44,6 +45,7 @@ __all__ = [
     "Controller",
     "Measurement",
     "Registry",
+    "StepOutcome",
     "StepStats",
     "actuators",
     "available_controllers",
@@ -88,15 +90,43 @@ class Measurement:
         return self.position_m is not None
 
 
+class StepOutcome(enum.Enum):
+    """What a controller's step did, for code to act on (:attr:`StepStats.status` says it in words)."""
+
+    #: A step with nothing to report (a controller that solves nothing).
+    OK = "ok"
+    #: The solver's solution gave the command.
+    SOLVED = "solved"
+    #: The solver's first step failed, a recovery solved, and its solution gave the command.
+    RECOVERED = "recovered"
+    #: Settle phase: a failed step kept only to warm-start the next (the command is zero anyway).
+    HELD = "held"
+    #: Solved after the frame's deadline: the previous plan's command was sent.
+    LATE = "late"
+    #: No usable solution: the controller's fallback command was sent.
+    FAILED = "failed"
+    #: No measurement has arrived yet: the command is zero.
+    NO_MEASUREMENT = "no_measurement"
+    #: The final approach's crawl gave the command (no solve).
+    APPROACH = "approach"
+    #: The controller returned no valid command; the loop sent a stop.
+    INVALID = "invalid"
+
+
 @dataclass
 class StepStats:
-    """What a controller reports about one step (solvers fill in the solve fields)."""
+    """What a controller reports about one step (solvers fill in the solve fields).
+
+    ``outcome`` is what happened, as a value to act on; ``status`` the same in words with the
+    solver's own detail (it goes into the run log's ``solver_status`` column).
+    """
 
     solve_ms: float = math.nan
     status: str = "ok"
     iterations: int = 0
     failed: bool = False
     extra: dict[str, float] = field(default_factory=dict)
+    outcome: StepOutcome = StepOutcome.OK
 
 
 @dataclass(frozen=True)

@@ -232,14 +232,12 @@ def _holds(folder: Path, path: Path) -> bool:
 
 def _misplaced(folder: Path, shown: str, inputs: Mapping[str, str | Path | None]) -> str | None:
     """Why ``folder`` (resolved) must not take a command's outputs, or None."""
-    import capsule_mpc
-
     cwd = Path.cwd().resolve()
     if folder == cwd:
         return f"--out: {shown} is the working directory; give the outputs a folder of their own"
     if folder in cwd.parents:
         return f"--out: {shown} holds the working directory ({cwd}); give the outputs a folder of their own"
-    package = Path(capsule_mpc.__file__).resolve().parent
+    package = Path(__file__).resolve().parent  # this package's own folder
     if _holds(package, folder):
         return f"--out: {shown} is in the capsule_mpc package ({package}); write the outputs elsewhere"
     for option, given in inputs.items():

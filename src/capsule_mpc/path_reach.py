@@ -32,12 +32,23 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError, Scenario
+from .dynamics import normal_force_expr
 from .friction import FrictionBelief, FrictionRangeWarning, NegativeFrictionWarning
-from .magnetics import capsule_force_function, model_equilibrium_lead
+from .magnetics import capsule_force_function, equilibrium_lead, finite_force, model_equilibrium_lead
 from .paths import ReferencePath
 from .steady import steady_lead
 
-__all__ = ["EPM_WORKSPACE_MARGIN_M", "EpmNeed", "check_epm_workspace", "epm_positions_needed"]
+__all__ = [
+    "EPM_WORKSPACE_MARGIN_M",
+    "EpmNeed",
+    "check_epm_height",
+    "check_epm_workspace",
+    "epm_positions_needed",
+    "format_mm",
+]
+
+#: Resolution of the highest allowed EPM height quoted when a height is refused, m.
+_HEIGHT_RESOLUTION_M = 5e-4
 
 #: Room (m) the EPM needs beyond the nominal model's steady positions, on every side of the
 #: workspace box. Measured with the ``lab`` plant, seeds 0 and 1: on the rectangle and
@@ -231,3 +242,65 @@ def check_epm_workspace(
         f"workspace {'xy'[axis]} {side} {bound:g} m (limits.{field}[{axis}]) less a "
         f"{margin_m * 1e3:g} mm margin: move the path {excess * 1e3:.1f} mm in from that edge{also}"
     )
+
+
+def format_mm(x_m: float) -> str:
+    """``x_m`` in mm to 0.1 mm with its sign; a root finder's -1e-12 prints +0.0, not -0.0."""
+    return f"{round(x_m * 1e3, 1) + 0.0:+.1f}"
+
+
+def _height_problem(scenario: Scenario, height_m: float) -> tuple[str | None, np.ndarray | None]:
+    """Why the code cannot model the rig at ``height_m`` (None if it can), and the rest lead there."""
+    try:
+        rest = equilibrium_lead(lambda lead: finite_force(scenario, lead, height_m)[0])
+    except RuntimeError:
+        return "the finite-magnet model has no rest lead (no point where the lateral force vanishes)", None
+    half_range = scenario.force_map.lead_half_range_m
+    max_lead = scenario.limits.max_lead_m
+    reach = float(np.max(np.abs(rest))) + max_lead
+    if reach > half_range:
+        return (
+            f"the capsule's rest lead there is ({format_mm(rest[0])}, {format_mm(rest[1])}) mm "
+            f"(finite-magnet model) and the controller may command leads up to limits.max_lead_m = "
+            f"{max_lead * 1e3:g} mm from it, {reach * 1e3:.1f} mm from the EPM axis, beyond the force "
+            f"map's |lead| <= force_map.lead_half_range_m = {half_range * 1e3:g} mm"
+        ), rest
+    attraction_n = float(finite_force(scenario, rest, height_m)[0, 2])
+    if float(normal_force_expr(scenario, attraction_n)) <= 0:
+        weight_n = scenario.capsule.mass_kg * scenario.plate.gravity_mps2
+        return (
+            f"the EPM does not hold the capsule against the plate (below_plate): at the rest lead the "
+            f"attraction is {attraction_n:.3f} N, not more than the capsule's weight {weight_n:.3f} N"
+        ), rest
+    return None, rest
+
+
+def check_epm_height(scenario: Scenario) -> np.ndarray:
+    """Check that the code can model the rig at ``plate.epm_height_m``; return the rest lead, m (2,).
+
+    The config checks the geometry and the workspace (:class:`~capsule_mpc.config.Scenario`); this
+    checks what needs the magnets' physics, by a few dozen direct finite-magnet evaluations
+    (magpylib, well under a second) before a force map is computed for it: the capsule's rest lead
+    (zero lateral force) plus ``limits.max_lead_m`` must lie inside the force map
+    (``force_map.lead_half_range_m``), so that every lead the controller may command is
+    tabulated; and with ``below_plate`` the EPM must hold the capsule up (F_N > 0 at the rest lead).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``plate.epm_height_m``, why, and the heights this rig allows (bisection to 0.5 mm).
+    """
+    h = scenario.plate.epm_height_m
+    problem, rest = _height_problem(scenario, h)
+    if problem is None and rest is not None:
+        return rest
+    lowest = scenario.epm.block_size_m[2] / 2 + scenario.plate.thickness_m + scenario.capsule.diameter_m / 2
+    if _height_problem(scenario, lowest)[0] is not None:
+        allowed = "no height works for this rig"
+    else:  # both limits grow worse with the height: bisect for the highest height that works
+        good, bad = lowest, h
+        while bad - good > _HEIGHT_RESOLUTION_M:
+            mid = (good + bad) / 2
+            good, bad = (mid, bad) if _height_problem(scenario, mid)[0] is None else (good, mid)
+        allowed = f"this rig allows heights in [{lowest:.4g}, {good:.4g}] m"
+    raise ConfigError(f"plate.epm_height_m: cannot be {h} m: {problem}; {allowed}")

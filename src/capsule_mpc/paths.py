@@ -214,7 +214,7 @@ class ReferencePath:
         A point's closest point on the path lies on a piece whose midpoint is within that half
         length of it, so within the distance to the nearest midpoint plus that half length."""
         if self._tree is None:
-            from scipy.spatial import cKDTree
+            from scipy.spatial import cKDTree  # lazy: SciPy's spatial module only for this query
 
             seg_len = np.diff(self._arc_m)
             pieces = np.maximum(1, np.ceil(seg_len / (self.length_m / len(seg_len)))).astype(int)
@@ -453,6 +453,17 @@ def _check_inside(scenario: Scenario, path: ReferencePath, what: str) -> None:
                 )
 
 
+def _horizon_s(scenario: Scenario) -> float:
+    """How far ahead the MPC plans, s: the end of its last stage (the last of
+    :func:`capsule_mpc.mpc.grid.prediction_times_s`, computed as there). The MPC imports this
+    module, so this module does not import the MPC's grid."""
+    frame = 1.0 / scenario.camera.rate_hz
+    n = scenario.mpc.horizon
+    if scenario.mpc.dt_s is None or float(scenario.mpc.dt_s) == frame:
+        return float(frame * n)
+    return float(frame + float(scenario.mpc.dt_s) * (n - 1))
+
+
 def max_path_speed(scenario: Scenario, path: ReferencePath) -> float:
     """The highest nominal speed along ``path`` the EPM can follow with speed to spare, m/s.
 
@@ -474,7 +485,7 @@ def max_path_speed(scenario: Scenario, path: ReferencePath) -> float:
     start-up lag can no longer be made up within the horizon.
     """
     vel, acc, _ = scenario.arm.cartesian_limits(scenario.limits)
-    horizon_s = float(scenario.prediction_times_s()[-1])
+    horizon_s = _horizon_s(scenario)
     seg = np.diff(path.vertices_m, axis=0)
     share = np.max(np.abs(seg) / np.hypot(seg[:, 0], seg[:, 1])[:, None], axis=0)  # max |d_k| per axis
     a_t = np.asarray(acc[:2]) * horizon_s

@@ -72,7 +72,7 @@ RunMetrics = Mapping[str, Any]
 
 
 def _pyplot() -> Any:
-    import matplotlib
+    import matplotlib  # lazy: Matplotlib only when a figure is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -365,6 +365,29 @@ def first_corner_arc_m(path: ReferencePath, window_m: float = PREDICTION_ZOOM_M)
     return float(np.sum(w * s_v[first : last + 1]) / np.sum(w)) if np.sum(w) > 0 else float(s_v[first])
 
 
+def _draw_predictions(plt: Any, fig: Any, ax: Any, pred: np.ndarray, t: np.ndarray, idx: np.ndarray) -> None:
+    """Draw up to :data:`_PREDICTIONS_DRAWN` of the predictions made at frames ``idx``, coloured by
+    their frame time on a colour bar beside ``ax``."""
+    if not idx.size:
+        return
+    chosen = idx[
+        np.unique(np.linspace(0, idx.size - 1, min(_PREDICTIONS_DRAWN, idx.size)).round().astype(int))
+    ]
+    cmap = plt.get_cmap(_PREDICTION_CMAP)
+    frame_time = plt.Normalize(float(t[chosen[0]]), float(t[chosen[-1]]))
+    for k, i in enumerate(chosen):
+        colour = cmap(frame_time(t[i]))
+        xy = pred[i] * 1e3
+        first = k == 0
+        ax.plot(xy[:, 0], xy[:, 1], "-", color=colour, lw=1,
+                label="predicted at a frame (colour bar: its time)" if first else None)  # fmt: skip
+        ax.plot(xy[0, 0], xy[0, 1], "o", color=colour, ms=3,
+                label="estimate one stage ahead (where a prediction starts)" if first else None)  # fmt: skip
+    # The bar hangs off the zoomed axes itself, so it stays beside it whatever its aspect does.
+    bar = fig.colorbar(plt.cm.ScalarMappable(frame_time, cmap), cax=ax.inset_axes((1.03, 0.0, 0.04, 1.0)))
+    bar.set_label("frame time of the prediction, s (path starts at 0)")
+
+
 def plot_prediction(
     log: Log,
     predictions: np.ndarray | Sequence[np.ndarray | None],
@@ -427,35 +450,7 @@ def plot_prediction(
     ax.plot(
         log["capsule_x_m"] * 1e3, log["capsule_y_m"] * 1e3, "b-", lw=2, alpha=0.6, label="capsule (actual)"
     )
-    idx = np.flatnonzero(near)
-    if idx.size:
-        chosen = idx[
-            np.unique(np.linspace(0, idx.size - 1, min(_PREDICTIONS_DRAWN, idx.size)).round().astype(int))
-        ]
-        cmap = plt.get_cmap(_PREDICTION_CMAP)
-        frame_time = plt.Normalize(float(t[chosen[0]]), float(t[chosen[-1]]))
-        for k, i in enumerate(chosen):
-            colour = cmap(frame_time(t[i]))
-            xy = pred[i] * 1e3
-            ax.plot(
-                xy[:, 0],
-                xy[:, 1],
-                "-",
-                color=colour,
-                lw=1,
-                label="predicted at a frame (colour bar: its time)" if k == 0 else None,
-            )
-            ax.plot(
-                xy[0, 0],
-                xy[0, 1],
-                "o",
-                color=colour,
-                ms=3,
-                label="estimate one stage ahead (where a prediction starts)" if k == 0 else None,
-            )
-        # The bar hangs off the zoomed axes itself, so it stays beside it whatever its aspect does.
-        bar = fig.colorbar(plt.cm.ScalarMappable(frame_time, cmap), cax=ax.inset_axes((1.03, 0.0, 0.04, 1.0)))
-        bar.set_label("frame time of the prediction, s (path starts at 0)")
+    _draw_predictions(plt, fig, ax, pred, t, np.flatnonzero(near))
     ax.plot(*(corner * 1e3), "k+", ms=12, mew=1.5, ls="none", label="corner")
     # Centre the view inside the turn, so both legs of the corner are in it.
     d_in = corner - path.point_at_arc(s_c - zoom)

@@ -34,6 +34,7 @@ to the lead error that limit bounds.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -335,6 +336,44 @@ def _between_rows(t_plan: np.ndarray, t: float) -> str:
     return f"between data rows {i} and {i + 1} (t_s = {t_plan[i - 1]:g} .. {t_plan[i]:g})"
 
 
+def _cartesian_checks(
+    cart: CartesianTrajectory, limits: CartesianLimits
+) -> list[tuple[np.ndarray, Callable[[int], str]]]:
+    """The setpoints' per-axis velocity, acceleration and jerk against the arm's Cartesian limits:
+    (rows over a limit, the message of a row)."""
+    t = cart.t_s
+    v_over = np.abs(cart.velocity_mps) > limits.velocity_mps * (1 + _LIMIT_ROUNDING)
+    a_over = np.abs(cart.acceleration_mps2) > limits.acceleration_mps2 * (1 + _LIMIT_ROUNDING)
+    # Jerk between consecutive setpoints (Ruckig keeps it within the limit on its uniform grid).
+    jerk = np.zeros_like(cart.acceleration_mps2)
+    if t.shape[0] > 1:
+        jerk[1:] = np.diff(cart.acceleration_mps2, axis=0) / np.diff(t)[:, None]
+    j_over = np.abs(jerk) > limits.jerk_mps3 * (1 + _JERK_ROUNDING)
+    return [
+        (
+            v_over.any(axis=1),
+            lambda k: (
+                f"setpoint velocity {cart.velocity_mps[k].round(5).tolist()} m/s beyond the per-axis "
+                f"limit {limits.velocity_mps.tolist()} m/s"
+            ),
+        ),
+        (
+            a_over.any(axis=1),
+            lambda k: (
+                f"setpoint acceleration {cart.acceleration_mps2[k].round(4).tolist()} m/s^2 beyond the "
+                f"per-axis limit {limits.acceleration_mps2.tolist()} m/s^2"
+            ),
+        ),
+        (
+            j_over.any(axis=1),
+            lambda k: (
+                f"setpoint jerk {jerk[k].round(3).tolist()} m/s^3 beyond the per-axis limit "
+                f"{limits.jerk_mps3.tolist()} m/s^3"
+            ),
+        ),
+    ]
+
+
 def verify_arm_trajectory(
     scenario: Scenario,
     kin: ArmKinematics,
@@ -384,14 +423,6 @@ def verify_arm_trajectory(
     margin = np.minimum(fk - lo, hi - fk).min(axis=1)
     plan_at_t = np.column_stack([np.interp(t, t_plan, p_plan[:, ax]) for ax in range(3)])
     deviation = np.linalg.norm(fk - plan_at_t, axis=1)
-    limits = CartesianLimits.from_scenario(scenario)
-    v_over = np.abs(cart.velocity_mps) > limits.velocity_mps * (1 + _LIMIT_ROUNDING)
-    a_over = np.abs(cart.acceleration_mps2) > limits.acceleration_mps2 * (1 + _LIMIT_ROUNDING)
-    # Jerk between consecutive setpoints (Ruckig keeps it within the limit on its uniform grid).
-    jerk = np.zeros_like(cart.acceleration_mps2)
-    if t.shape[0] > 1:
-        jerk[1:] = np.diff(cart.acceleration_mps2, axis=0) / np.diff(t)[:, None]
-    j_over = np.abs(jerk) > limits.jerk_mps3 * (1 + _JERK_ROUNDING)
     checks = (
         (
             fk_err > arm.ik_position_tolerance_m + _FK_ROUNDING,
@@ -415,27 +446,7 @@ def verify_arm_trajectory(
             np.any(np.abs(dq) > kin.velocity_limit_radps, axis=1),
             lambda k: str(kin.velocity_violation(dq[k])),
         ),
-        (
-            v_over.any(axis=1),
-            lambda k: (
-                f"setpoint velocity {cart.velocity_mps[k].round(5).tolist()} m/s beyond the per-axis "
-                f"limit {limits.velocity_mps.tolist()} m/s"
-            ),
-        ),
-        (
-            a_over.any(axis=1),
-            lambda k: (
-                f"setpoint acceleration {cart.acceleration_mps2[k].round(4).tolist()} m/s^2 beyond the "
-                f"per-axis limit {limits.acceleration_mps2.tolist()} m/s^2"
-            ),
-        ),
-        (
-            j_over.any(axis=1),
-            lambda k: (
-                f"setpoint jerk {jerk[k].round(3).tolist()} m/s^3 beyond the per-axis limit "
-                f"{limits.jerk_mps3.tolist()} m/s^3"
-            ),
-        ),
+        *_cartesian_checks(cart, CartesianLimits.from_scenario(scenario)),
         (
             margin < -ROUNDING_M,
             lambda k: (

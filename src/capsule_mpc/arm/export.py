@@ -253,7 +253,8 @@ def joint_figure(joints: JointTrajectory) -> Any:
     the y-range includes them; limits far beyond the data are named in red at the panel's top or
     bottom edge instead (drawing them would flatten the data to a line).
     """
-    # A Figure with its own Agg canvas: no pyplot, no global backend switch (safe in notebooks).
+    # A Figure with its own Agg canvas: no pyplot, no global backend switch (safe in notebooks);
+    # lazy: Matplotlib only when a figure is drawn.
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

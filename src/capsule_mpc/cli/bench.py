@@ -1,6 +1,6 @@
 """``capsule-mpc bench``: build, start-up and closed-loop times of the MPC (JSON, table, figure).
 
-The logic is :func:`capsule_mpc.mpc.bench.run_benchmark`; ``benchmarks/mpc_bench.py`` runs the
+The logic is :func:`capsule_mpc.experiments.bench.run_benchmark`; ``benchmarks/mpc_bench.py`` runs the
 same code. Every option is checked before any work: the numbers when parsed, ``--out`` (a
 ``.json`` file or a folder that can be written), then the config and what the closed-loop runs
 need (:func:`capsule_mpc.budget.check_run`). Exit status: 0 when the run finished (whether or
@@ -68,7 +68,7 @@ def bench_out(text: str) -> str:
 
 def add_bench_arguments(p: argparse.ArgumentParser) -> None:
     """The options ``capsule-mpc bench`` and ``benchmarks/mpc_bench.py`` share."""
-    from ..mpc.bench import DEFAULT_FRAMES, DEFAULT_HORIZONS, DEFAULT_QP_SOLVERS, DEFAULT_SCHEMES
+    from ..experiments.bench import DEFAULT_FRAMES, DEFAULT_HORIZONS, DEFAULT_QP_SOLVERS, DEFAULT_SCHEMES
     from ..mpc.solver import QP_SOLVERS
 
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged rectangle.yaml)")
@@ -137,7 +137,7 @@ def check_bench(config: str | Path | None, horizons: list[int], frames: int | No
     """
     from ..budget import Workload, check_run, speed_source
     from ..config import load_config, packaged_config_path
-    from ..mpc.bench import path_first_frames
+    from ..experiments.bench import path_first_frames
     from ..paths import path_from_scenario
     from .arguments import refuse_repeats
 
@@ -154,7 +154,7 @@ def check_bench(config: str | Path | None, horizons: list[int], frames: int | No
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark, print the tables and write the JSON report and its figure."""
-    from ..mpc.bench import run_benchmark
+    from ..experiments.bench import run_benchmark
 
     try:
         check_bench(args.config, args.horizons, args.frames or None)
@@ -195,7 +195,7 @@ def plot_report(report: dict[str, Any], out: str | Path) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.ticker import LogLocator, ScalarFormatter
 
-    from ..mpc.bench import TARGETS
+    from ..experiments.bench import TARGETS
 
     horizons = report["settings"]["horizons"]
     labels = report["settings"]["variants"]

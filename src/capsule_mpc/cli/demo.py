@@ -202,9 +202,9 @@ def check_demo(base: Scenario, speeds_mps: list[float], controllers: list[str]) 
     ConfigError
         Naming ``--speeds`` or ``path.speed_mps`` and the allowed range.
     """
+    from ..experiments.compare import run_figures
     from ..learning.demonstrations import DEMO_PATHS
     from ..paths import path_from_scenario
-    from .compare import run_figures
 
     limit = base.limits.speed_mps
     too_fast = [v for v in speeds_mps if v > limit]
@@ -245,10 +245,10 @@ def run(args: argparse.Namespace) -> int:
 
 def _demo(args: argparse.Namespace, config: str, out: Path, wall0: float) -> int:
     """The demo's four stages into the prepared folder ``out``; the exit status."""
+    from ..experiments.compare import compare_controllers, summary_table
     from ..learning import LearningDataError
     from ..magnetics import force_map
     from ..paths import path_from_scenario
-    from .compare import compare_controllers, summary_table
 
     base = rig_scenario(load_config(config), args.plant)
     seed = base.sim.seed if args.seed is None else args.seed

@@ -6,8 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..reference_docs import write_reference_docs
 from .arguments import out_folder
+from .reference import write_reference_docs
 
 __all__ = ["register"]
 

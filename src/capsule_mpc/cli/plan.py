@@ -93,9 +93,9 @@ def _print_plan(summary: dict[str, Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     """Plan, write the files, export the arm trajectory; see the module docstring for the status."""
     from ..budget import Workload
+    from ..experiments.runs import prepare_run
     from ..outputs import output_folder
     from .arguments import input_files
-    from .simulate import prepare_run
 
     work = Workload(plan=args.variant, arm=not args.no_arm, closed_loop=False)
     scenario, path, meta = prepare_run(args.config, args.waypoints, args.speed, work=work)

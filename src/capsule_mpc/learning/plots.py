@@ -31,7 +31,7 @@ def _subset(n: int, seed: int = 0) -> np.ndarray:
 def _axes(ax: Axes | None) -> tuple[Figure, Axes]:
     if ax is not None:
         return ax.figure, ax  # type: ignore[return-value]
-    import matplotlib
+    import matplotlib  # lazy: Matplotlib only when a figure is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -116,7 +116,7 @@ def save_figures(
     (:func:`~capsule_mpc.atomic.atomic_path`). With ``stack`` the renames wait until the caller
     closes it, so several outputs appear together or not at all; without, they happen here.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: Matplotlib only when a figure is drawn
 
     paths = figure_paths(out_dir, prefix)
     with ExitStack() as own:

@@ -26,6 +26,7 @@ from collections.abc import Iterable
 import magpylib as magpy
 import numpy as np
 from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from ..config import EPMConfig, IPMConfig, Scenario
 
@@ -124,8 +125,6 @@ def finite_force(
     out = np.empty((len(positions), 3))
     slices: Iterable[slice] = list(_chunks(len(positions), 256))
     if progress:
-        from tqdm import tqdm
-
         slices = tqdm(slices, desc="force map (magpylib getFT)", unit="chunk")
     for sl in slices:
         targets = [ipm_magnet(scenario.ipm, p, b) for p, b in zip(positions[sl], fields[sl])]

@@ -18,6 +18,7 @@ from scipy.optimize import root
 from ..config import Scenario
 from .dipole import dipole_field, dipole_force, magnet_moment
 from .finite import halbach_array
+from .force_map import force_map
 
 __all__ = [
     "ORIENTATION_EPS_T",
@@ -92,8 +93,6 @@ def capsule_force_function(scenario: Scenario, kind: str | None = None) -> ca.Fu
     if kind == "dipole":
         return dipole_capsule_force(scenario)
     if kind == "lookup":
-        from .force_map import force_map
-
         return force_map(scenario).casadi_function()
     raise ValueError(f"force_model: must be 'dipole' or 'lookup', got {kind!r}")
 

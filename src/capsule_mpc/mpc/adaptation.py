@@ -1,4 +1,4 @@
-"""Online estimate of the friction the controller's model gets wrong (``mpc.friction_adaptation``).
+"""Online estimate of the friction the controller's model gets wrong (``mpc.adaptation``).
 
 What is estimated: an offset ``dmu`` on the model's friction coefficient, so that the OCP's
 friction force is ``(mu(v) + dmu) F_N + f_s`` against the motion (:mod:`capsule_mpc.mpc.problem`,
@@ -35,20 +35,20 @@ seeds 0-9; tracking RMS mean +- sd, worst): plain rectangle off 1.44 +- 0.64 mm 
 2.16 +- 0.69 (3.19); configs/friction_step.yaml off 2.13 +- 0.90 (3.52), rls 2.42 +- 0.70
 (3.43); the final error at rest is smaller with rls (worst 1.01 / 1.08 mm against 1.29 / 1.28).
 rls tracks worse on the plain rectangle (the legacy estimate learns from every frame faster than
-2 mm/s, stuck ones included, which is also how it winds up), so ``mpc.friction_adaptation``
+2 mm/s, stuck ones included, which is also how it winds up), so ``mpc.adaptation.mode``
 stays ``off`` by default.
 
 No wind-up: a stuck capsule is held by static friction, which says nothing about the sliding
 friction, so a frame updates the estimate only if the capsule slides by every sign the
 controller has (:meth:`FrictionOffsetRLS.sliding`): the reference moves, the estimated speed is
-at least ``mpc.friction_adaptation_min_speed_mps`` on this frame and the one before, and so is
+at least ``mpc.adaptation.min_speed_mps`` on this frame and the one before, and so is
 the speed of a straight line fitted to the estimated positions of the last
 :data:`SPEED_WINDOW_S`. The Kalman filter's velocity alone is noise of a few mm/s on a capsule
 at rest: on the lab rectangle a speed gate alone let ~10 frames of the stuck start and of the
 stuck end update the estimate, which dragged it from 0.059 to 0.006 after the capsule stopped;
 a displacement over 0.25 s still let 6 stuck frames of the start through. On any other frame
 neither the estimate nor its covariance changes. The estimate is clipped to
-``[mpc.friction_offset_min, mpc.friction_offset_max]`` and the covariance is capped at the
+``[mpc.adaptation.offset_min, mpc.adaptation.offset_max]`` and the covariance is capped at the
 prior's, so forgetting without data cannot blow it up.
 """
 
@@ -59,7 +59,7 @@ from collections import deque
 
 import numpy as np
 
-from ..config import MPCConfig
+from ..config import AdaptationConfig
 from ..dynamics import CapsuleModel
 from ..estimation import fit_window
 
@@ -128,10 +128,10 @@ class FrictionOffsetRLS:
 
     Parameters
     ----------
-    cfg : MPCConfig
-        ``friction_adaptation_time_s`` (forgetting), ``friction_offset_min`` / ``_max`` (bounds),
-        ``friction_offset_prior_std`` (initial and largest standard deviation) and
-        ``friction_adaptation_min_speed_mps`` (the stuck gate).
+    cfg : AdaptationConfig
+        ``mpc.adaptation``: ``time_s`` (forgetting), ``offset_min`` / ``offset_max`` (bounds),
+        ``offset_prior_std`` (initial and largest standard deviation) and ``min_speed_mps`` (the
+        stuck gate).
     dt_s : float
         The controller's frame period, s (> 0).
     noise_std_n : float
@@ -147,15 +147,15 @@ class FrictionOffsetRLS:
         Frames that updated the estimate.
     """
 
-    def __init__(self, cfg: MPCConfig, dt_s: float, noise_std_n: float = FORCE_NOISE_STD_N) -> None:
+    def __init__(self, cfg: AdaptationConfig, dt_s: float, noise_std_n: float = FORCE_NOISE_STD_N) -> None:
         if not dt_s > 0:
             raise ValueError(f"dt_s: must be > 0, got {dt_s}")
         if not noise_std_n > 0:
             raise ValueError(f"noise_std_n: must be > 0, got {noise_std_n}")
-        self.forgetting = math.exp(-dt_s / cfg.friction_adaptation_time_s)
-        self.bounds = (float(cfg.friction_offset_min), float(cfg.friction_offset_max))
-        self.prior_variance = float(cfg.friction_offset_prior_std) ** 2
-        self.min_speed_mps = float(cfg.friction_adaptation_min_speed_mps)
+        self.forgetting = math.exp(-dt_s / cfg.time_s)
+        self.bounds = (float(cfg.offset_min), float(cfg.offset_max))
+        self.prior_variance = float(cfg.offset_prior_std) ** 2
+        self.min_speed_mps = float(cfg.min_speed_mps)
         self.noise_variance = float(noise_std_n) ** 2
         self.offset = 0.0
         self.variance = self.prior_variance

@@ -4,7 +4,7 @@ Every frame:
 
 1. fuse the camera frame in the Kalman filter, predict over the latency;
 2. update the force-disturbance estimate (offset-free MPC): the velocity the
-   last plan predicted for now vs the estimate; with ``mpc.friction_adaptation: rls`` the
+   last plan predicted for now vs the estimate; with ``mpc.adaptation.mode: rls`` the
    friction along the motion is the friction-coefficient offset of
    :mod:`capsule_mpc.mpc.adaptation` instead (the disturbance keeps the constant force);
 3. solve the NLP warm-started from the shifted previous solution (the first frame, or one
@@ -38,12 +38,14 @@ from ..config import Scenario
 from ..dynamics import CapsuleModel, capsule_model
 from ..estimation import CapsuleEstimator
 from ..friction import FrictionBelief
-from ..interfaces import Command, Controller, Measurement, StepStats, register_controller
+from ..interfaces import Command, Controller, Measurement, StepOutcome, StepStats, register_controller
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
+from ..planner import cached_plan
 from ..safety import safe_command
 from .adaptation import FrictionOffsetRLS, friction_regression
 from .approach import FinalApproach
+from .grid import prediction_steps_s
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 
@@ -90,7 +92,7 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
         return _STACKS[key]
     t0 = time.perf_counter()
     cfg = scenario.mpc
-    steps = scenario.prediction_steps_s()  # one frame, then mpc.dt_s
+    steps = prediction_steps_s(scenario)  # one frame, then mpc.dt_s
     model = capsule_model(model_scenario(scenario))
     force = capsule_force_function(scenario)
     lead_eq = model_equilibrium_lead(scenario)
@@ -166,14 +168,14 @@ class MPCController(Controller):
         self.disturbance_n = np.zeros(N_DIST)
         self.friction_belief = FrictionBelief.from_scenario(scenario)
         self._drag_growth_n = 0.0
-        self.friction_rls = FrictionOffsetRLS(cfg, self.dt_s) if cfg.friction_adaptation == "rls" else None
+        self.friction_rls = (
+            FrictionOffsetRLS(cfg.adaptation, self.dt_s) if cfg.adaptation.mode == "rls" else None
+        )
         self.u_prev = np.zeros(3)
         self.slope_prev = np.zeros(3)  # the last command's change over its frame, m/s^2
         self.plan: _Plan | None = None
         self._offline_plan = None
         if cfg.feedforward == "plan":
-            from ..planner import cached_plan  # lazy: the planner imports mpc.problem
-
             offline = cached_plan(scenario, path)
             if offline.success:
                 self._offline_plan = offline
@@ -248,7 +250,7 @@ class MPCController(Controller):
         self.disturbance_n = np.clip(d, -cfg.disturbance_max_n, cfg.disturbance_max_n)
 
     def _update_friction(self, t_s: float, state: np.ndarray) -> None:
-        """``mpc.friction_adaptation: rls``: fuse this frame's velocity innovation along the motion
+        """``mpc.adaptation.mode: rls``: fuse this frame's velocity innovation along the motion
         if the capsule slides (see :mod:`capsule_mpc.mpc.adaptation`)."""
         rls = self.friction_rls
         if rls is None:
@@ -304,8 +306,9 @@ class MPCController(Controller):
         held = np.tile(self.u_prev[:, None], (1, n))
         return ocp.pack_variables(np.tile(x0[:, None], (1, n)), held, np.zeros((2, n)), x0, self.u_prev)
 
-    def _solve(self, x0: np.ndarray, ref: np.ndarray, held: bool) -> SolveResult:
-        """This frame's solve; ``held``: the rig holds the EPM (settle phase)."""
+    def _solve(self, x0: np.ndarray, ref: np.ndarray, held: bool) -> tuple[SolveResult, StepOutcome]:
+        """This frame's solve and what it came to if it succeeds (solved, recovered, or held);
+        ``held``: the rig holds the EPM (settle phase)."""
         stack = self.stack
         assert stack is not None
         solver = self.solver
@@ -315,26 +318,26 @@ class MPCController(Controller):
         dist = self.disturbance_n + np.array([0.0, 0.0, self._drag_growth_n])
         p = stack.ocp.pack_parameters(x0, ref, self.u_prev, dist, offset, self.slope_prev)
         if self.plan is None:
-            return solver.solve_converged(p, self._initial_guess(x0))
+            return solver.solve_converged(p, self._initial_guess(x0)), StepOutcome.SOLVED
         guess = stack.ocp.shift(self.plan.w)
         res = solver.solve(p, guess, self.plan.lam_x, self.plan.lam_g)
         if res.success or solver.scheme == "ipopt":
-            return res
+            return res, StepOutcome.SOLVED
         if held and np.all(np.isfinite(res.w)):
             # The command is 0 whatever the plan says: the step only warm-starts the next frame,
             # and the next frames absorb its violation (typically the friction's sign change of a
             # capsule at rest).
-            return replace(res, success=True, status=f"held ({res.status})")
+            return replace(res, success=True, status=f"held ({res.status})"), StepOutcome.HELD
         cfg = self.scenario.mpc
         if cfg.recovery_sqp_iter == 0 or solver.scheme != "rti":
-            return res
+            return res, StepOutcome.SOLVED
         # The RTI step failed: a few SQP iterations with line search from the same guess (counted
         # in the time). Paced by the wall clock they stop in time for the frame's deadline.
         budget = self.deadline_ms - res.solve_ms - _REST_OF_STEP_MS if cfg.enforce_deadline else None
         rec = solver.sqp(p, guess, cfg.recovery_sqp_iter, budget)
         status = f"recovered ({res.status})" if rec.success else f"{res.status}; {rec.status}"
         return replace(rec, status=status, iterations=res.iterations + rec.iterations,
-                       solve_ms=res.solve_ms + rec.solve_ms)  # fmt: skip
+                       solve_ms=res.solve_ms + rec.solve_ms), StepOutcome.RECOVERED  # fmt: skip
 
     # ------------------------------------------------------------------ step
     def step(self, t_s: float, measurement: Measurement, epm_position_m: np.ndarray) -> Command:
@@ -344,7 +347,9 @@ class MPCController(Controller):
         if measurement.position_m is not None:
             accepted = self.estimator.update(measurement.capture_t_s, measurement.position_m)
         if not self.estimator.initialised:  # nothing seen yet: hold still
-            return self._emit(np.zeros(3), epm, StepStats(status="no_measurement"))
+            return self._emit(
+                np.zeros(3), epm, StepStats(status="no_measurement", outcome=StepOutcome.NO_MEASUREMENT)
+            )
         if not accepted:  # an outlier rejected by the filter's gate: the prediction stands in for it
             measurement = replace(measurement, position_m=None)
         pos, vel = self.estimator.estimate(t_s)
@@ -362,14 +367,14 @@ class MPCController(Controller):
         if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
             self._update_disturbance(vel)
             self._update_friction(t_s, x0)
-        res = self._solve(x0, self._reference(t_s), held=t_s < 0)
+        res, outcome = self._solve(x0, self._reference(t_s), held=t_s < 0)
         if res.success and not np.all(np.isfinite(res.w)):  # a solver that says so is not trusted
             res = replace(res, success=False, status=f"non-finite solution ({res.status})")
         late = res.solve_ms > self.deadline_ms and self.plan is not None
         self.deadline_misses += int(late)
         late = late and self.scenario.mpc.enforce_deadline
         stats = StepStats(
-            solve_ms=res.solve_ms, status=res.status, iterations=res.iterations,
+            solve_ms=res.solve_ms, status=res.status, iterations=res.iterations, outcome=outcome,
             extra={"disturbance_x_n": float(self.disturbance_n[0]),
                    "disturbance_y_n": float(self.disturbance_n[1]),
                    "disturbance_friction_n": float(self.disturbance_n[2])},
@@ -388,13 +393,13 @@ class MPCController(Controller):
             # Late: this frame's command comes from the previous plan (the new one arrived too
             # late to be sent), but the new solution is the better warm start for the next
             # frame -- dropping it makes the next step start cold and be late again.
-            stats.failed = True
+            stats.failed, stats.outcome = True, StepOutcome.LATE
             stats.status = "late: " + res.status
             self.fallback_steps += 1
             u = self._fallback_command()
             self.plan = new_plan
             return self._emit(u, epm, stats, hold=t_s < 0)
-        stats.failed = True
+        stats.failed, stats.outcome = True, StepOutcome.FAILED
         stats.status = "failed: " + res.status
         self.fallback_steps += 1
         u = self._fallback_command()
@@ -411,7 +416,10 @@ class MPCController(Controller):
         self.plan = None
         self.last_prediction = None
         attempts = float(self.approach.attempts)
-        stats = StepStats(status=f"approach: {self.approach.phase}", extra={"approach_attempts": attempts})
+        stats = StepStats(
+            status=f"approach: {self.approach.phase}", extra={"approach_attempts": attempts},
+            outcome=StepOutcome.APPROACH,
+        )  # fmt: skip
         return self._emit(u, epm, stats)
 
     @property

@@ -37,7 +37,7 @@ and its slope (3), the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a
 extra friction force (N) that opposes the capsule's motion -- the model's friction is the part
 of the mismatch that turns with the motion, so it must not be a fixed vector -- and last the
 friction-coefficient offset ``dmu`` of :mod:`capsule_mpc.mpc.adaptation` (the model's friction
-force becomes ``(mu(v) + dmu) F_N + f_s``; with ``mpc.friction_adaptation: off`` the parameter
+force becomes ``(mu(v) + dmu) F_N + f_s``; with ``mpc.adaptation.mode: off`` the parameter
 is unused).
 
 The objective is a sum of squares ``0.5 |R(w, p)|^2`` plus a linear slack penalty; stage k's
@@ -51,14 +51,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import casadi as ca
 import numpy as np
 
-from ..config import Scenario, stage_end_times_s
-from ..dynamics import CapsuleModel
+from ..config import Scenario
+from ..dynamics import FN_SCALE, S_SCALE, TANGENT_EPS_MPS, U_SCALE, X_SCALE, CapsuleModel, n_slacks
 from ..interfaces import servo_time_constant_s
+from .grid import stage_end_times_s
 
 __all__ = [
     "A_SCALE",
@@ -80,10 +81,6 @@ __all__ = [
     "n_slacks",
 ]
 
-#: Slacks per stage: coupling (lead), normal force (both bounds).
-n_slacks = 2
-#: Speed below which the reference counts as standing still, m/s (smooths the path frame).
-TANGENT_EPS_MPS = 1e-4
 #: Reference rows per stage: capsule position (2), capsule velocity (2), EPM velocity feed-forward (2).
 N_REF = 6
 #: Disturbance parameters: constant force (x, y) and extra friction magnitude, N.
@@ -100,17 +97,9 @@ N_INPUT = _NU_MODEL + 2 + n_slacks + 1
 N_PATH = 11
 #: Stage-state columns of the command's slope (the EPM acceleration of the step that ends there).
 _SLOPE = slice(_NX_MODEL + _NU_MODEL, N_STATE)
-#: Variable scales: the NLP works in mm, cm/s and unit-order slacks, so the QP sees a
-#: well-conditioned problem. Physical value = scale * NLP value.
-X_SCALE = np.array([1e-3, 1e-3, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3])
-U_SCALE = np.array([1e-2, 1e-2, 1e-2])
 #: Scale of the command's slope (EPM acceleration), m/s^2, and of the jerk rows, m/s^3.
 A_SCALE = np.array([0.1, 0.1, 0.1])
 J_SCALE = 1.0
-#: Slack scales: coupling slack in units of max_lead^2 (dimensionless), normal-force slack in N.
-S_SCALE = np.array([1.0, 0.1])
-#: Normal-force constraint scale, N.
-FN_SCALE = 0.1
 #: Scales of the stage state (model state, command) and input (dc, capsule velocity, slacks).
 STATE_SCALE = np.concatenate([X_SCALE, U_SCALE, A_SCALE])
 #: Scale of the jerk rows' slack (a slope change beyond the jerk limit), m/s^2.
@@ -376,6 +365,87 @@ def _next_state(xk: ca.MX, uk: ca.MX, dt_s: float, lag_s: float) -> ca.MX:
     )  # fmt: skip
 
 
+def _stage_residuals(
+    cfg: Any,
+    weight: float,
+    ref_k: Any,
+    m1: Any,
+    c1: Any,
+    dc: Any,
+    sk: Any,
+    sj: Any,
+    jerk: Any,
+    dt_over_h: float,
+) -> list[Any]:
+    """The least-squares residuals of one stage: tracking in the path frame, velocity, feed-forward,
+    EPM acceleration, slacks and (optionally) jerk. ``ref_k`` is the stage's reference column,
+    ``dt_over_h`` the grid step over this stage's step."""
+    err = m1[0:2] - ref_k[0:2]
+    # Path frame from the reference velocity: tangent t, normal n; where the reference
+    # stands still (t = 0) the last term weighs the whole error isotropically.
+    tan = ref_k[2:4] / ca.sqrt(ca.sumsqr(ref_k[2:4]) + TANGENT_EPS_MPS**2)
+    nrm = ca.vertcat(-tan[1], tan[0])
+    still = 1 - ca.sumsqr(tan)
+    residuals = [
+        weight * ca.dot(nrm, err) / cfg.lateral_tol_m,
+        weight * ca.dot(tan, err) / cfg.position_tol_m,
+        weight * still * err / cfg.position_tol_m,
+        (m1[2:4] - ref_k[2:4]) / cfg.velocity_tol_mps,
+        (c1[0:2] - ref_k[4:6]) / cfg.input_tol_mps,
+        # Per unit time: sum dc_k^2 / h_k approximates the integral of the squared EPM
+        # acceleration, so a shorter first stage weighs dc sqrt(dt / h).
+        (dc if dt_over_h == 1.0 else dc * np.sqrt(dt_over_h)) / cfg.input_rate_tol_mps,
+        np.sqrt(cfg.slack_weight) * sk / S_SCALE,
+        np.sqrt(cfg.slack_weight) * sj / JERK_SLACK_SCALE,
+    ]
+    if cfg.input_jerk_tol_mps2 is not None:
+        residuals.append(jerk * J_SCALE / cfg.input_jerk_tol_mps2)
+    return residuals
+
+
+def _variable_bounds(sc: Scenario, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the scaled variables: workspace, speed and acceleration of the state, the EPM's
+    velocity change per stage, non-negative slacks."""
+    cfg, lim, inf = sc.mpc, sc.limits, np.inf
+    speed = lim.speed_mps
+    c_lo = np.array([-speed, -speed, -speed if cfg.height_control else 0.0])
+    a_lo = -lim.accel_mps2 * np.array([1.0, 1.0, 1.0 if cfg.height_control else 0.0])
+    x_lo = np.concatenate([[-inf, -inf, -inf, -inf], lim.workspace_min_m, c_lo, a_lo]) / STATE_SCALE
+    x_hi = np.concatenate([[inf, inf, inf, inf], lim.workspace_max_m, -c_lo, -a_lo]) / STATE_SCALE
+
+    def input_bounds(h: float) -> tuple[np.ndarray, np.ndarray]:
+        da = np.full(_NU_MODEL, lim.accel_mps2 * h)
+        u_lo = np.concatenate([-da, [-inf, -inf], np.zeros(n_slacks + 1)]) / INPUT_SCALE
+        u_hi = np.concatenate([da, [inf, inf], np.full(n_slacks + 1, inf)]) / INPUT_SCALE
+        return u_lo, u_hi
+
+    bounds = [input_bounds(float(h)) for h in steps]
+    lbw = np.concatenate([*[np.concatenate([x_lo, lo]) for lo, _ in bounds], x_lo])
+    ubw = np.concatenate([*[np.concatenate([x_hi, hi]) for _, hi in bounds], x_hi])
+    return lbw, ubw
+
+
+def _constraint_bounds(sc: Scenario, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the stage rows: gaps and implicit velocity = 0, coupling <= 0, the normal force's
+    range, and the jerk rows.
+
+    The jerk rows bound the slope's change at a stage's start by the jerk limit over the time
+    between the two steps' midpoints: stage 0's over one frame (the command sent now follows the
+    one sent a frame ago, exactly what the safety layer allows), a later stage's over its own and
+    the previous stage's half steps (on a uniform grid also one frame).
+    """
+    lim, inf = sc.limits, np.inf
+    gaps = (np.concatenate([[steps[0]], steps[:-1]]) + steps) / 2
+    lbg, ubg = [], []
+    for k in range(len(steps)):
+        dj = np.full(_NU_MODEL, lim.jerk_mps3 * float(gaps[k]) / J_SCALE)
+        fixed, free = np.zeros(N_STATE + 2), np.full(_NU_MODEL, inf)
+        fn_lo, fn_hi = lim.normal_force_min_n / FN_SCALE, lim.normal_force_max_n / FN_SCALE
+        lbg.append(np.concatenate([fixed, [-inf, fn_lo, -inf], -dj, -free]))
+        ubg.append(np.concatenate([fixed, [0.0, inf, fn_hi], free, dj]))
+    return np.concatenate(lbg), np.concatenate(ubg)
+
+
 def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: float | None = None) -> OCP:
     """Build the MPC's NLP for ``model`` with step ``dt_s`` in the stage-wise layout.
 
@@ -429,7 +499,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
         v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
         acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
         lead, _force, f_n, _mu = model.outputs(m1)
-        if cfg.friction_adaptation != "off":
+        if cfg.adaptation.mode != "off":
             # The offset dmu on mu: friction dmu F_N against the motion (F_N taken as 0 off the
             # plate, as in the model's own friction). Only built when used: without it the NLP is
             # operation for operation the one without adaptation (IPOPT's first solve rounds the
@@ -448,27 +518,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
             jerk - sj / J_SCALE,  # <= J frame
         ]
         weight = cfg.terminal_factor if k == n - 1 else 1.0
-        err = m1[0:2] - ref[0:2, k]
-        # Path frame from the reference velocity: tangent t, normal n; where the reference
-        # stands still (t = 0) the last term weighs the whole error isotropically.
-        tan = ref[2:4, k] / ca.sqrt(ca.sumsqr(ref[2:4, k]) + TANGENT_EPS_MPS**2)
-        nrm = ca.vertcat(-tan[1], tan[0])
-        still = 1 - ca.sumsqr(tan)
-        residuals += [
-            weight * ca.dot(nrm, err) / cfg.lateral_tol_m,
-            weight * ca.dot(tan, err) / cfg.position_tol_m,
-            weight * still * err / cfg.position_tol_m,
-            (m1[2:4] - ref[2:4, k]) / cfg.velocity_tol_mps,
-            (c1[0:2] - ref[4:6, k]) / cfg.input_tol_mps,
-            # Per unit time: sum dc_k^2 / h_k approximates the integral of the squared EPM
-            # acceleration, so a shorter first stage weighs dc sqrt(dt / h) (measured: 100 Hz,
-            # N = 20, 20 ms stages, lab, 10 draws: cross-track RMS 0.55 mm; 0.73 with dt / h).
-            (dc if h == dt_s else dc * np.sqrt(dt_s / h)) / cfg.input_rate_tol_mps,
-            np.sqrt(cfg.slack_weight) * sk / S_SCALE,
-            np.sqrt(cfg.slack_weight) * sj / JERK_SLACK_SCALE,
-        ]
-        if cfg.input_jerk_tol_mps2 is not None:
-            residuals.append(jerk * J_SCALE / cfg.input_jerk_tol_mps2)
+        residuals += _stage_residuals(cfg, weight, ref[:, k], m1, c1, dc, sk, sj, jerk, dt_s / h)
 
     res = ca.vertcat(*residuals)
     # The linear slack penalty, slack_weight per unit slack (scaled slack = physical / S_SCALE).
@@ -480,36 +530,10 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     g = ca.vertcat(*rows)
     residual = ca.Function("mpc_residual", [w, p], [res], ["w", "p"], ["r"])
 
-    inf = np.inf
-    speed = lim.speed_mps
-    c_lo = np.array([-speed, -speed, -speed if cfg.height_control else 0.0])
-    a_lo = -lim.accel_mps2 * np.array([1.0, 1.0, 1.0 if cfg.height_control else 0.0])
-    x_lo = np.concatenate([[-inf, -inf, -inf, -inf], lim.workspace_min_m, c_lo, a_lo]) / STATE_SCALE
-    x_hi = np.concatenate([[inf, inf, inf, inf], lim.workspace_max_m, -c_lo, -a_lo]) / STATE_SCALE
-
-    def input_bounds(h: float) -> tuple[np.ndarray, np.ndarray]:
-        da = np.full(_NU_MODEL, lim.accel_mps2 * h)
-        u_lo = np.concatenate([-da, [-inf, -inf], np.zeros(n_slacks + 1)]) / INPUT_SCALE
-        u_hi = np.concatenate([da, [inf, inf], np.full(n_slacks + 1, inf)]) / INPUT_SCALE
-        return u_lo, u_hi
-
-    bounds = [input_bounds(float(h)) for h in steps]
-    lbw = np.concatenate([*[np.concatenate([x_lo, lo]) for lo, _ in bounds], x_lo])
-    ubw = np.concatenate([*[np.concatenate([x_hi, hi]) for _, hi in bounds], x_hi])
-    # The jerk rows bound the slope's change at a stage's start by the jerk limit over the time
-    # between the two steps' midpoints: stage 0's over one frame (the command sent now follows the
-    # one sent a frame ago, exactly what the safety layer allows), a later stage's over its own and
-    # the previous stage's half steps (on a uniform grid also one frame).
-    gaps = (np.concatenate([[steps[0]], steps[:-1]]) + steps) / 2
-    lbg, ubg = [], []
-    for k in range(n):
-        dj = np.full(_NU_MODEL, lim.jerk_mps3 * float(gaps[k]) / J_SCALE)
-        fixed, free = np.zeros(N_STATE + 2), np.full(_NU_MODEL, inf)
-        fn_lo, fn_hi = lim.normal_force_min_n / FN_SCALE, lim.normal_force_max_n / FN_SCALE
-        lbg.append(np.concatenate([fixed, [-inf, fn_lo, -inf], -dj, -free]))
-        ubg.append(np.concatenate([fixed, [0.0, inf, fn_hi], free, dj]))
+    lbw, ubw = _variable_bounds(sc, steps)
+    lbg, ubg = _constraint_bounds(sc, steps)
     return OCP(
         nlp={"x": w, "p": p, "f": f, "g": g}, residual=residual, slack_gradient=slack_gradient,
-        lbw=lbw, ubw=ubw, lbg=np.concatenate(lbg), ubg=np.concatenate(ubg), horizon=n, dt_s=dt_s,
+        lbw=lbw, ubw=ubw, lbg=lbg, ubg=ubg, horizon=n, dt_s=dt_s,
         lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p, steps_s=steps, lag_s=lag,
     )  # fmt: skip

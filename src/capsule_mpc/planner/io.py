@@ -152,6 +152,7 @@ def plot_plan(plan: Plan, path: ReferencePath, out: str | Path) -> Path:
 
     Drawn on its own Agg canvas (no pyplot, no global backend switch).
     """
+    # lazy: Matplotlib only when a figure is drawn
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -42,7 +42,7 @@ class SimpleArm(Actuator):
         ``limits.speed_mps``, ``limits.accel_mps2``, ``limits.workspace_min_m`` / ``workspace_max_m``.
     servo_bandwidth_hz : float, optional
         Servo bandwidth ``f``, Hz, > 0 and finite; None (the default) tracks the command with no
-        lag (only the acceleration limit), exactly as before this option existed.
+        lag (only the acceleration limit).
 
     Raises
     ------

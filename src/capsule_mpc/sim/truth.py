@@ -8,8 +8,8 @@ lag, computation delay and the camera's bias and noise. Nothing here is handed
 to a controller.
 
 The draw uses its own random stream (``numpy.random.default_rng([seed, 1])``),
-separate from the camera's (``default_rng(seed)``), so an ``ideal`` run draws
-the same camera noise as before this module existed.
+separate from the camera's (``default_rng(seed)``), so the camera noise of a seed does not depend
+on how many values the plant draws.
 
 How the truth enters the force model (:class:`capsule_mpc.sim.plant.TrueForces`): the plant's table
 is computed with magpylib for the EPM as it is mounted (tilted and yawed; a

@@ -10,7 +10,8 @@ from typing import Any
 
 from ...config import ConfigError, Scenario
 from ...paths import ReferencePath
-from ..compare import RUNS_FOLDER, SUMMARY_COLUMNS, _json_value, summary_table
+from ...plots import plot_metrics
+from ..compare import RUNS_FOLDER, SUMMARY_COLUMNS, json_value, summary_table
 from .vary import VaryRange
 
 __all__ = [
@@ -58,7 +59,7 @@ def sweep_spec(
         "controllers": list(controllers),
         "vary": {v.field: [v.lo, v.hi] for v in vary},
     }
-    return dict(json.loads(json.dumps(_json_value(spec))))
+    return dict(json.loads(json.dumps(json_value(spec))))
 
 
 #: The parts of :func:`sweep_spec` checked on resume, and the argument each comes from.
@@ -229,7 +230,6 @@ def summary_markdown(
 
 def write_figures(out: Path, per_seed: Sequence[Mapping[str, Any]]) -> list[str]:
     """metrics.png and one distribution_<metric>.png per metric of the table; the file names."""
-    from ...plots import plot_metrics
 
     done: dict[str, list[Mapping[str, Any]]] = {}
     for seed in per_seed:

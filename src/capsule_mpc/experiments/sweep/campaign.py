@@ -9,9 +9,12 @@ from contextlib import ExitStack, closing
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from tqdm import tqdm
+
+from ...atomic import write_text_atomic
 from ...config import Scenario
 from ...paths import ReferencePath
-from ..compare import RUNS_FOLDER, _controller_names, _json_value, aggregate_runs, summary_header
+from ..compare import RUNS_FOLDER, aggregate_runs, controller_names, json_value, summary_header
 from .results import (
     SPEC_FILE,
     check_resume,
@@ -59,7 +62,7 @@ def sweep(
     runs : int
         Number of runs, >= 1.
     controllers : sequence of str, optional
-        As for :func:`capsule_mpc.cli.compare.compare_controllers`.
+        As for :func:`capsule_mpc.experiments.compare.compare_controllers`.
     vary : sequence of VaryRange
         Plant fields drawn from these ranges instead of the preset's (:func:`parse_vary`).
     executor : {"process", "dask"}
@@ -88,9 +91,6 @@ def sweep(
     ConfigError
         ``out`` holds a sweep with other arguments.
     """
-    from tqdm import tqdm
-
-    from ...atomic import write_text_atomic
 
     if runs < 1:
         raise ValueError(f"runs: must be an integer >= 1, got {runs}")
@@ -98,7 +98,7 @@ def sweep(
         raise ValueError(f"executor: must be one of {EXECUTORS}, got {executor!r}")
     out = Path(out)
     meta = dict(meta or {})
-    names = _controller_names(controllers)
+    names = controller_names(controllers)
     seeds = [seed + k for k in range(runs)]
     spec = sweep_spec(scenario, path, seed, runs, names, vary)
     check_resume(out, spec)
@@ -132,6 +132,6 @@ def sweep(
         "worst": worst_runs(per_seed),
         "figures": write_figures(out, per_seed),
     }
-    write_text_atomic(out / "summary.json", json.dumps(_json_value(summary), indent=2) + "\n")
+    write_text_atomic(out / "summary.json", json.dumps(json_value(summary), indent=2) + "\n")
     write_text_atomic(out / "summary.md", summary_markdown(scenario, path, seeds, summary))
     return summary

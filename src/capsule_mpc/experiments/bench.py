@@ -47,11 +47,12 @@ import numpy as np
 import yaml
 
 from ..config import Scenario, config_from_dict, dump_config, load_config, packaged_config_path
-from ..interfaces import Command, Measurement
+from ..interfaces import Command, Measurement, StepOutcome
 from ..magnetics import cache_directory, force_map
+from ..mpc.controller import MPCController, build_mpc_stack
+from ..mpc.solver import QP_SOLVERS
 from ..paths import ReferencePath, path_from_scenario
-from .controller import MPCController, build_mpc_stack
-from .solver import QP_SOLVERS
+from ..sim import simulate
 
 __all__ = [
     "DEFAULT_FRAMES",
@@ -88,7 +89,7 @@ _BUILD_TIMEOUT_S = 1800.0
 #: The fresh process: imports timed from its first statement, then one build.
 _CHILD = (
     "import time; _t0 = time.perf_counter(); "
-    "from capsule_mpc.mpc.bench import _fresh_build_main; _fresh_build_main(_t0)"
+    "from capsule_mpc.experiments.bench import _fresh_build_main; _fresh_build_main(_t0)"
 )
 #: Run metrics copied into the report.
 _METRICS = (
@@ -304,7 +305,6 @@ def closed_loop_timing(scenario: Scenario, path: ReferencePath, seed: int) -> di
         ``slowest_frames``, ``frame_times`` (per-frame ``controller_ms`` and ``solve_ms``),
         ``build_in_process_s``, ``metrics`` (tracking) and ``wall_s``.
     """
-    from ..sim import simulate  # the simulator sits right of the controller in the data flow
 
     t0 = time.perf_counter()
     solver = build_mpc_stack(scenario).solver
@@ -329,6 +329,7 @@ def closed_loop_timing(scenario: Scenario, path: ReferencePath, seed: int) -> di
         raise RuntimeError("the MPC made no solve in the run (no measurement ever arrived?)")
     first, rest = int(solved[0]), solved[1:]
     statuses = [s.status for s in result.step_stats]
+    outcomes = [s.outcome for s in result.step_stats]
     ctrl_ms = np.asarray(result.log["controller_ms"][:n_ctrl], dtype=float)
     cpu_ms = np.asarray(ctrl.step_cpu_ms[:n_ctrl], dtype=float)
     t_frames = result.log["t_s"][:n_ctrl]
@@ -342,8 +343,8 @@ def closed_loop_timing(scenario: Scenario, path: ReferencePath, seed: int) -> di
         "controller_step_cpu": _stats_ms(cpu_ms[rest]),
         "solve": _stats_ms(solve_ms[rest]),
         "solve_steady": {"frames": int(steady.size), **_stats_ms(solve_ms[steady])},
-        "recoveries": int(sum(statuses[i].startswith("recovered") for i in rest)),
-        "held": int(sum(statuses[i].startswith("held") for i in rest)),
+        "recoveries": int(sum(outcomes[i] is StepOutcome.RECOVERED for i in rest)),
+        "held": int(sum(outcomes[i] is StepOutcome.HELD for i in rest)),
         "failures": int(sum(result.step_stats[i].failed for i in rest)),
         "ipopt_after_first": int(sum(i > first for i in ipopt_frames)),
         "deadline_misses": int(np.sum(ctrl_ms[rest] > 1e3 / scenario.camera.rate_hz)),

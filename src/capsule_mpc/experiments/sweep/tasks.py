@@ -9,8 +9,11 @@ a run whose worker dies is yielded as :func:`crashed_entry`, and the others go o
 
 from __future__ import annotations
 
+import logging
+import multiprocessing
 import os
 import signal
+import threading
 import traceback
 import uuid
 from collections import deque
@@ -21,9 +24,12 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from tqdm import tqdm
+
 from ...config import ConfigError, Scenario
 from ...paths import ReferencePath
-from ..compare import _json_value, run_seed_controllers
+from ...sim import draw_plant_truth
+from ..compare import json_value, run_seed_controllers
 from .vary import VaryRange, draw_varied, with_plant_values
 
 if TYPE_CHECKING:
@@ -74,8 +80,6 @@ def run_seed(task: SeedTask) -> dict[str, Any]:
         ``realtime_factor``, or {"error", "traceback"}}, "plant": the drawn truth
         (:meth:`~capsule_mpc.sim.PlantTruth.summary`), "varied": {field: value}}``.
     """
-    from ...sim import draw_plant_truth
-
     varied = draw_varied(task.vary, task.seed)
     plant_scenario = with_plant_values(task.scenario, varied) if varied else None
     results, entries, window_end = run_seed_controllers(
@@ -88,7 +92,7 @@ def run_seed(task: SeedTask) -> dict[str, Any]:
             "realtime_factor": result.realtime_factor,
         }
     truth = draw_plant_truth(plant_scenario or task.scenario, task.seed)
-    return _json_value(
+    return json_value(
         {
             "seed": task.seed,
             "window_end_s": window_end,
@@ -120,9 +124,6 @@ def _init_worker() -> None:
     to handle (it stops the workers; SIGTERM is how it does, so that one is left alone), and tqdm's
     lock is a thread lock (a worker shows no bars; tqdm's default cross-process lock is a named
     semaphore, reported as leaked when the worker is terminated)."""
-    import threading
-
-    from tqdm import tqdm
 
     for signum in (signal.SIGINT, getattr(signal, "SIGHUP", None)):
         if signum is not None:
@@ -131,7 +132,6 @@ def _init_worker() -> None:
 
 
 def _new_pool(workers: int) -> ProcessPoolExecutor:
-    import multiprocessing
 
     # spawn: a fresh interpreter per worker, whatever threads (tqdm, CasADi) the parent runs
     context = multiprocessing.get_context("spawn")
@@ -223,7 +223,7 @@ def run_on_dask(
     Dask runs a task whose worker died on another worker; one that kills its workers repeatedly
     (``distributed.scheduler.allowed-failures``) ends in ``KilledWorker`` and is recorded as crashed.
     """
-    from distributed import as_completed
+    from distributed import as_completed  # lazy: Dask only when it runs the sweep
 
     token = uuid.uuid4().hex[:8]
     futures = {
@@ -255,9 +255,8 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Client]:
     ConfigError
         The scheduler cannot be reached within :data:`SCHEDULER_TIMEOUT_S`.
     """
-    import logging
 
-    from distributed import Client, LocalCluster
+    from distributed import Client, LocalCluster  # lazy: Dask only when it runs the sweep
 
     if scheduler is not None:
         try:

@@ -4,7 +4,7 @@ Run ``k`` of ``--runs N`` uses the seed ``seed + k``. As in ``compare --runs``, 
 plant drawn around the nominal scenario (the ``plant`` section,
 :func:`capsule_mpc.sim.draw_plant_truth`), the start offset and the camera noise; every controller
 runs on that draw and the runs of one seed are scored on their common window
-(:func:`capsule_mpc.cli.compare.run_seed_controllers`). ``--vary plant.FIELD=LO:HI`` replaces
+(:func:`capsule_mpc.experiments.compare.run_seed_controllers`). ``--vary plant.FIELD=LO:HI`` replaces
 that field's draw by a uniform draw in [LO, HI] from the run's own stream
 (``default_rng([seed, VARY_STREAM, i])``, ``i`` the field's index in
 :data:`capsule_mpc.config.PLANT_FIXED`): the other fields draw as they would without it, and the
@@ -26,7 +26,7 @@ Writes, into ``--out``:
   ``error``), the plant's drawn values (``plant``) and the varied ones (``varied``);
 * ``summary.json``, in the schema of ``compare --runs`` (``controllers.NAME.METRIC`` means,
   ``controllers.NAME.spread.METRIC`` ``{sd, min, max, n}``, ``runs``: every seed's file;
-  :func:`capsule_mpc.cli.compare.aggregate_runs`), plus ``plant_preset``, ``vary`` and
+  :func:`capsule_mpc.experiments.compare.aggregate_runs`), plus ``plant_preset``, ``vary`` and
   ``worst`` (:func:`worst_runs`: per controller and metric the seeds of the worst runs, the
   seeds where a flag was raised, and those that failed);
 * ``summary.md`` (the table of ``compare --runs``, printed too, and the worst runs);
@@ -54,31 +54,16 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ...budget import Workload, check_processes
-from ...config import ConfigError
-from ...outputs import output_folder
-from ..arguments import input_files, int_at_least, run_count
-from ..compare import RUNS_FOLDER, check_controllers, run_figures, summary_table
-from ..simulate import add_run_arguments, prepare_run
-from .campaign import sweep
-from .results import SPEC_FILE, check_resume, finished_runs, sweep_spec, worst_runs, worst_table
-from .tasks import EXECUTORS, WALL_CLOCK_KEYS, SeedTask, dask_client, run_seed
-from .vary import VARY_STREAM, VaryRange, check_vary, parse_vary
+from ..budget import Workload, check_processes
+from ..errors import ConfigError
+from ..experiments.sweep.tasks import EXECUTORS
+from ..experiments.sweep.vary import parse_vary
+from ..outputs import output_folder
+from .arguments import input_files, int_at_least, run_count
+from .compare import check_controllers
+from .simulate import add_run_arguments
 
-__all__ = [
-    "EXECUTORS",
-    "SPEC_FILE",
-    "VARY_STREAM",
-    "WALL_CLOCK_KEYS",
-    "SeedTask",
-    "VaryRange",
-    "parse_vary",
-    "register",
-    "run",
-    "run_seed",
-    "sweep",
-    "worst_runs",
-]
+__all__ = ["register", "run"]
 
 
 def register(sub: Any) -> None:
@@ -145,6 +130,14 @@ def _check_executor_arguments(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sweep; exit status 1 if a controller failed or a run crashed, 2 on bad input."""
+    # lazy: the library (CasADi, Pinocchio, Dask) loads when the sweep starts, not for ``--help``
+    from ..experiments.compare import RUNS_FOLDER, run_figures, summary_table
+    from ..experiments.runs import prepare_run
+    from ..experiments.sweep.campaign import sweep
+    from ..experiments.sweep.results import check_resume, finished_runs, sweep_spec, worst_table
+    from ..experiments.sweep.tasks import dask_client
+    from ..experiments.sweep.vary import check_vary
+
     _check_executor_arguments(args)
     vary = list(args.vary or [])
     names = check_controllers(args.controllers)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...config import PLANT_FIXED, ConfigError, PlantConfig, Scenario, config_from_dict
+from ...sim import draw_plant_truth
 
 __all__ = ["VARY_STREAM", "VaryRange", "check_vary", "draw_varied", "parse_vary", "with_plant_values"]
 
@@ -117,8 +118,6 @@ def check_vary(scenario: Scenario, vary: Sequence[VaryRange]) -> None:
     ConfigError
         Naming the ``--vary`` argument and the rule its LO or HI breaks.
     """
-    from ...sim import draw_plant_truth
-
     fields = [v.field for v in vary]
     twice = sorted({f for f in fields if fields.count(f) > 1})
     if twice:

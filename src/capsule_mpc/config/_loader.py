@@ -1,0 +1,152 @@
+"""Reading and writing scenarios: validation of a whole scenario (refusing keys that moved), loading
+with ``base:`` merging, dumping, and the check of a learned model's force model."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ..errors import ConfigError
+from ._yaml import packaged_config_path, read_yaml, resolve_base, validate
+from .friction import LearnedFrictionModel, LearnedModelWarning
+from .scenario import Scenario
+
+__all__ = [
+    "MOVED_KEYS",
+    "check_learned_force_model",
+    "config_from_dict",
+    "dump_config",
+    "load_config",
+    "packaged_config_path",
+    "read_yaml",
+    "validate",
+]
+
+
+#: Keys that moved into a section, by their old path, with their new one: a file or mapping that
+#: still uses one is refused naming both.
+MOVED_KEYS: dict[str, str] = {
+    **{
+        f"mpc.approach_{name}": f"mpc.approach.{name}"
+        for name in (
+            "speed_mps",
+            "force_fraction",
+            "max_attempts",
+            "attempt_s",
+            "max_s",
+            "backoff_m",
+            "window_s",
+            "observe_s",
+        )
+    },
+    "mpc.friction_adaptation": "mpc.adaptation.mode",
+    "mpc.friction_adaptation_time_s": "mpc.adaptation.time_s",
+    "mpc.friction_offset_min": "mpc.adaptation.offset_min",
+    "mpc.friction_offset_max": "mpc.adaptation.offset_max",
+    "mpc.friction_offset_prior_std": "mpc.adaptation.offset_prior_std",
+    "mpc.friction_adaptation_min_speed_mps": "mpc.adaptation.min_speed_mps",
+}
+
+
+def _validate_scenario(data: dict[str, Any], where: str) -> Scenario:
+    """:func:`validate` a scenario mapping, first refusing every key of :data:`MOVED_KEYS` it uses."""
+    moved = []
+    for old, new in MOVED_KEYS.items():
+        *sections, key = old.split(".")
+        node: Any = data
+        for section in sections:
+            node = node.get(section) if isinstance(node, dict) else None
+        if isinstance(node, dict) and key in node:
+            moved.append(f"{old}: moved to {new}")
+    if moved:
+        raise ConfigError(f"invalid {where}:\n  " + "\n  ".join(moved))
+    scenario: Scenario = validate(Scenario, data, where)
+    return scenario
+
+
+def load_config(path: str | Path | None = None) -> Scenario:
+    """Load and validate a scenario.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        A scenario YAML file. None loads the packaged paper defaults.
+
+    Returns
+    -------
+    Scenario
+        The validated scenario.
+
+    Raises
+    ------
+    ConfigError
+        If the file cannot be read or any field is invalid; the message names
+        every offending field with its allowed range.
+    """
+    path = packaged_config_path("paper") if path is None else Path(path)
+    data = resolve_base(path, read_yaml(path))
+    scenario = _validate_scenario(data, f"config {path}")
+    scenario.source_path = path.resolve()
+    check_learned_force_model(scenario, f"config {path}")
+    return scenario
+
+
+def config_from_dict(data: dict[str, Any]) -> Scenario:
+    """Validate a scenario given as a mapping (same rules and errors as :func:`load_config`)."""
+    scenario = _validate_scenario(dict(data), "config")
+    learned = scenario.friction.learned
+    if isinstance(learned, LearnedFrictionModel) or (isinstance(learned, Path) and learned.is_absolute()):
+        check_learned_force_model(scenario, "config")
+    return scenario
+
+
+def check_learned_force_model(scenario: Scenario, where: str) -> None:
+    """Refuse a learned friction model fitted with another force model than the scenario's.
+
+    The learned c(v) (and breakaway coefficients) are ratios of forces computed with the model's
+    ``force_model``; used with another one they misstate the friction by the models' difference.
+    A model that records no force model is accepted with a :class:`LearnedModelWarning`.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``friction.learned.force_model`` and ``force_model`` with both values.
+    """
+    if scenario.friction.learned is None:
+        return
+    model = scenario.controller_friction()
+    if model.force_model is None:
+        warnings.warn(
+            f"{where}: friction.learned records no force_model; it is used with force_model "
+            f"{scenario.force_model!r}, which may not be the one it was fitted with (learn it again "
+            "with capsule-mpc learn-friction, which records it)",
+            LearnedModelWarning,
+            stacklevel=3,
+        )
+    elif model.force_model != scenario.force_model:
+        raise ConfigError(
+            f"invalid {where}:\n  friction.learned.force_model: {model.force_model!r} but force_model is "
+            f"{scenario.force_model!r}; learn the model again with force_model: {scenario.force_model}, "
+            f"or set force_model: {model.force_model}"
+        )
+
+
+def dump_config(scenario: Scenario, path: str | Path | None = None) -> str:
+    """Serialise a scenario to YAML (and write it to ``path`` if given).
+
+    The output re-loads to an identical scenario with :func:`load_config`.
+    """
+    data = scenario.model_dump(mode="json", exclude_none=True)
+    learned = scenario.friction.learned
+    if isinstance(learned, Path) and scenario.source_path is not None:
+        # Inline the learned model so the dump is self-contained beside results.
+        data["friction"]["learned"] = scenario.controller_friction().model_dump(
+            mode="json", exclude_none=True
+        )
+    text = yaml.safe_dump(data, sort_keys=False)
+    if path is not None:
+        Path(path).write_text(text, encoding="utf-8")
+    return text
