@@ -406,11 +406,12 @@ class VirtualClock:
 
 @pytest.fixture
 def virtual_clock(monkeypatch):
-    """A :class:`VirtualClock` that the simulator's real-time loop runs on."""
-    from capsule_mpc.sim import runner
+    """A :class:`VirtualClock` that the simulator's real-time loop runs on (the module that paces
+    the loop, capsule_mpc.sim.loop, reads its clock through its ``time``)."""
+    from capsule_mpc.sim import loop
 
     clock = VirtualClock()
-    monkeypatch.setattr(runner, "time", clock)
+    monkeypatch.setattr(loop, "time", clock)
     return clock
 
 
