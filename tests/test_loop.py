@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from capsule_mpc.interfaces import Command, Controller, StepStats
-from capsule_mpc.paths import ReferencePath, rectangle
+from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import ClosedLoop, Frame, Observer, simulate
 
 SHORT = ReferencePath(np.array([[0.0, 0.0], [0.02, 0.0]]), False, 0.02)
@@ -47,7 +47,11 @@ class Recorder(Observer):
 
 
 def test_stepping_by_hand_is_the_run_simulate_makes(scenario):
-    path = rectangle(speed_mps=0.04)
+    path = ReferencePath(np.array([[0.0, 0.0], [0.03, 0.0], [0.03, 0.02]]), False, 0.04)  # a corner
+    # a short settle and tail: the run ends 0.5 s after 1.25 x the path's time (not the whole rectangle)
+    scenario = scenario.model_copy(
+        update={"sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 0.5})}
+    )
     ref = simulate(scenario, "follow", path, seed=3)
     loop = ClosedLoop(scenario, "follow", path, seed=3)
     loop.reset()
