@@ -41,6 +41,9 @@ def _refuse(name: str):
 #: (module, attribute) of every entry point of work a refused command must not reach.
 WORK = [
     ("capsule_mpc.experiments.runs", "force_map"),
+    ("capsule_mpc.experiments.demo", "force_map"),
+    ("capsule_mpc.experiments.compare", "simulate"),
+    ("capsule_mpc.experiments.compare", "cached_plan"),
     ("capsule_mpc.magnetics", "force_map"),
     ("capsule_mpc.experiments.runs", "check_epm_height"),
     ("capsule_mpc.sim", "simulate"),
@@ -65,6 +68,8 @@ PREIMPORT = [
     "capsule_mpc.learning.logs",
     "capsule_mpc.learning.demonstrations",
     "capsule_mpc.experiments.runs",
+    "capsule_mpc.experiments.demo",
+    "capsule_mpc.experiments.compare",
     "capsule_mpc.experiments.sweep.campaign",
     "capsule_mpc.cli.simulate",
     "capsule_mpc.cli.info",

@@ -421,7 +421,7 @@ def test_hostile_yaml_is_refused_in_a_short_message_within_seconds(
 
 
 def test_the_demo_reads_its_learned_model_with_the_same_loader(tmp_path):
-    from capsule_mpc.cli.demo import model_is_current
+    from capsule_mpc.experiments.demo import model_is_current
 
     log = tmp_path / "log.csv"
     log.write_text("t_s\n")

@@ -137,7 +137,7 @@ def test_demo_demonstrates_learns_and_compares_with_a_cache(tmp_path, capsys, ta
 
 
 def test_model_is_current_needs_the_same_logs(tmp_path):
-    from capsule_mpc.cli.demo import model_is_current
+    from capsule_mpc.experiments.demo import model_is_current
 
     log_a, log_b, model = tmp_path / "a.csv", tmp_path / "b.csv", tmp_path / "m.yaml"
     for f in (log_a, log_b):

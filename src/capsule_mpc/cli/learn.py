@@ -27,11 +27,11 @@ from ..learning import (
     learn_from_samples_csv,
     write_samples_csv,
 )
-from ..learning.core import model_yaml
+from ..learning.core import interval_text, model_yaml, static_text
 from ..learning.fit import MAX_DEGREE
 from ..outputs import shown_path
 
-__all__ = ["interval_text", "output_problem", "register", "run", "static_text", "summary"]
+__all__ = ["output_problem", "register", "run", "summary"]
 
 #: Notes printed in the text summary (all of them are in the --json output).
 _MAX_NOTES = 4
@@ -155,32 +155,6 @@ def _static_summary(result: LearningResult) -> dict[str, Any] | None:
         ],
         "notes": static.notes,
     }
-
-
-def interval_text(value: float, ci: tuple[float, float] | list[float] | None, digits: int = 4) -> str:
-    """``value`` with its 95 % interval, e.g. ``0.2 [0.19, 0.21]`` (the value alone without one)."""
-    if ci is None:
-        return f"{value:.{digits}g}"
-    return f"{value:.{digits}g} [{ci[0]:.{digits}g}, {ci[1]:.{digits}g}]"
-
-
-def static_text(result: LearningResult) -> list[str]:
-    """Lines on the static friction learned from breakaway logs (empty without them)."""
-    static = result.static
-    if static is None:
-        return []
-    fit = static.fit
-    rests = ", ".join(f"{t:.3g}" for t in sorted(e.rest_s for e in static.events))
-    lines = [
-        f"static friction from {fit.n} breakaway(s) (rest times {rests} s; force model "
-        f"{static.force_model}): mu_s(T) = static_mu_1s + static_healing ln(T / 1 s), "
-        "95 % intervals in brackets",
-        f"  static_mu_1s = {interval_text(fit.static_mu_1s, fit.ci95['static_mu_1s'])}, "
-        f"static_healing = {interval_text(fit.static_healing, fit.ci95['static_healing'])} per e-fold; "
-        f"RMS residual {fit.rmse:.3g}",
-    ]
-    lines += [f"  note: {note}" for note in static.notes]
-    return lines
 
 
 def _nearest_existing(path: Path) -> Path:

@@ -36,10 +36,12 @@ from .quality import FitQuality, assess_fit, coefficient_ci95, no_friction_probl
 
 __all__ = [
     "LearningResult",
+    "interval_text",
     "learn_friction",
     "learn_from_logs",
     "learn_from_samples_csv",
     "model_yaml",
+    "static_text",
     "write_model",
 ]
 
@@ -327,3 +329,29 @@ def write_model(model: LearnedFrictionModel, path: str | Path, warnings: Sequenc
         The file written.
     """
     return write_text_atomic(path, model_yaml(model, warnings))
+
+
+def interval_text(value: float, ci: tuple[float, float] | list[float] | None, digits: int = 4) -> str:
+    """``value`` with its 95 % interval, e.g. ``0.2 [0.19, 0.21]`` (the value alone without one)."""
+    if ci is None:
+        return f"{value:.{digits}g}"
+    return f"{value:.{digits}g} [{ci[0]:.{digits}g}, {ci[1]:.{digits}g}]"
+
+
+def static_text(result: LearningResult) -> list[str]:
+    """Lines on the static friction learned from breakaway logs (empty without them)."""
+    static = result.static
+    if static is None:
+        return []
+    fit = static.fit
+    rests = ", ".join(f"{t:.3g}" for t in sorted(e.rest_s for e in static.events))
+    lines = [
+        f"static friction from {fit.n} breakaway(s) (rest times {rests} s; force model "
+        f"{static.force_model}): mu_s(T) = static_mu_1s + static_healing ln(T / 1 s), "
+        "95 % intervals in brackets",
+        f"  static_mu_1s = {interval_text(fit.static_mu_1s, fit.ci95['static_mu_1s'])}, "
+        f"static_healing = {interval_text(fit.static_healing, fit.ci95['static_healing'])} per e-fold; "
+        f"RMS residual {fit.rmse:.3g}",
+    ]
+    lines += [f"  note: {note}" for note in static.notes]
+    return lines
