@@ -221,7 +221,6 @@ class Registry(Generic[T]):
         self.field = field
         self.providers = providers
         self._factories: dict[str, Callable[..., T]] = {}
-        self._loaded = False
 
     def register(self, name: str) -> Callable[[Callable[..., T]], Callable[..., T]]:
         """Class/factory decorator that makes a part available by ``name``."""

@@ -401,9 +401,8 @@ class ClosedLoop:
         if plant_seed is not None and plant_seed < 0:
             raise ValueError(f"plant_seed: must be >= 0, got {plant_seed}")
         self.controller = make_controller(controller) if isinstance(controller, str) else controller
-        self.name: str = self.controller.name or type(self.controller).__name__
-        if isinstance(controller, str):
-            self.name = controller
+        own_name = self.controller.name or type(self.controller).__name__
+        self.name: str = controller if isinstance(controller, str) else own_name
         self.scenario = realtime_scenario(scenario) if realtime else scenario
         self.path, self.seed, self.meta = path, seed, dict(meta or {})
         self.rig_seed = seed if plant_seed is None else int(plant_seed)
@@ -415,7 +414,9 @@ class ClosedLoop:
         self.first_frame = math.ceil(-sim.settle_s * rate - 1e-9)
         self.t_cut_s = TIMEOUT_FACTOR * path.duration_s + sim.tail_s
         self.last_frame = math.floor(self.t_cut_s * rate + 1e-9)
-        self.pacer = Pacer(self.frame_s) if realtime else None
+        self.realtime = realtime
+        self.solve_time_delay = self.scenario.plant.compute_delay_mode == "solve_time"
+        self.pacer: Pacer | None = None
         self.done = True
 
     def reset(self) -> None:
@@ -442,11 +443,8 @@ class ClosedLoop:
             injector.wrap_solver if injector is not None and injector.solver_faults else None
         )
         self.controller.reset(scenario, path, epm0.copy())
-        self._builtin: list[Observer] = [] if injector is None else [FaultInjection(injector)]
-        if self.pacer is not None:
-            self.pacer = Pacer(self.frame_s)
-            self._builtin.append(self.pacer)
         self.injector = injector
+        self.pacer = Pacer(self.frame_s) if self.realtime else None
         self.pending: deque[tuple[int, np.ndarray]] = deque()
         self.last_ready = -(2**62)
         self.tracker = PathProgress(path)
@@ -460,7 +458,8 @@ class ClosedLoop:
         self.predictions: list[np.ndarray | None] = []
         self.next_frame = self.first_frame
         self.k = self.k_first = round(self.first_frame * self.ratio)
-        self.observers: list[Observer] = list(self._builtin)
+        builtin = [FaultInjection(injector)] if injector is not None else []
+        self.observers: list[Observer] = [*builtin, *([self.pacer] if self.pacer else [])]
         self.done = False
         self.wall0 = time.perf_counter()
 
@@ -499,8 +498,7 @@ class ClosedLoop:
         the controller's ``step_s`` in ``solve_time`` mode, plus ``extra_s`` (a latency spike), and
         never before the previous frame's command (a rig's loop handles one frame at a time)."""
         self.cmd_applied = vel if t >= 0 else np.zeros(3)
-        solve_time_delay = self.scenario.plant.compute_delay_mode == "solve_time"
-        delay_s = self.truth.compute_delay_s + (step_s if solve_time_delay else 0.0) + extra_s
+        delay_s = self.truth.compute_delay_s + (step_s if self.solve_time_delay else 0.0) + extra_s
         ready = max(k + round(delay_s / self.dt), self.last_ready)
         self.last_ready = ready
         if ready <= k and not self.pending:
