@@ -27,8 +27,15 @@ AMPLITUDES_M = {0: (0.004, 0.006, 0.008, 0.010, 0.015, 0.020), 1: (0.010, 0.015,
 SETTLE_S = 1.5
 
 
-def slide(plant: CapsulePlant, arm: SimpleArm, axis: int, amplitude_m: float, speed_mps: float,
-          rest_s: float, height_m: float) -> float | None:  # fmt: skip
+def slide(
+    plant: CapsulePlant,
+    arm: SimpleArm,
+    axis: int,
+    amplitude_m: float,
+    speed_mps: float,
+    rest_s: float,
+    height_m: float,
+) -> float | None:
     """The capsule's displacement (m) along ``axis`` after an out-and-back pulse; None if it decoupled."""
     start = np.zeros(2)
     plant.reset(start, theta_s=plant.law.d_c_m / plant.law.v_star_mps + rest_s)

@@ -48,8 +48,14 @@ CASES = (
     ("rectangle_100hz", None, 40),
 )
 #: The reference solve: HPIPM converged tightly.
-REFERENCE = {"mode": "balance", "res_g_max": 1e-10, "res_b_max": 1e-10, "res_d_max": 1e-10,
-             "res_m_max": 1e-10, "iter_max": 60}  # fmt: skip
+REFERENCE = {
+    "mode": "balance",
+    "res_g_max": 1e-10,
+    "res_b_max": 1e-10,
+    "res_d_max": 1e-10,
+    "res_m_max": 1e-10,
+    "iter_max": 60,
+}
 
 
 def case_scenario(name: str, speed_mps: float | None, horizon: int) -> Scenario:
@@ -103,8 +109,12 @@ def solve_all(ocp: OCP, frames: list[tuple[np.ndarray, np.ndarray]], options: di
         # The first EPM command: the command of stage 1's state, cm/s in the scaled NLP -> mm/s.
         dw = np.asarray(sol["x"]).ravel()
         first.append(10.0 * (w_lin + dw)[N_STATE + ocp.n_u + 7 : N_STATE + ocp.n_u + 10])
-    return {"iterations": np.array(iters), "status": np.array(status), "first_mmps": np.array(first),
-            "qp_ms": np.array(ms)}  # fmt: skip
+    return {
+        "iterations": np.array(iters),
+        "status": np.array(status),
+        "first_mmps": np.array(first),
+        "qp_ms": np.array(ms),
+    }
 
 
 def run(mu0s: list[float], seed: int) -> dict[str, Any]:
@@ -120,23 +130,36 @@ def run(mu0s: list[float], seed: int) -> dict[str, Any]:
         for mu0 in mu0s:
             res = solve_all(ocp, frames, {**HPIPM_OPTIONS, "mu0": mu0})
             err = np.max(np.abs(res["first_mmps"] - reference["first_mmps"]), axis=1)
-            rows.append({
-                "mu0": mu0,
-                "iterations_mean": float(np.mean(res["iterations"])),
-                "iterations_p99": float(np.percentile(res["iterations"], 99)),
-                "not_solved": int(np.count_nonzero(res["status"] != 0)),
-                "first_command_error_max_mmps": float(np.max(err)),
-                "first_command_error_p99_mmps": float(np.percentile(err, 99)),
-                "qp_ms_median": float(np.median(res["qp_ms"])),
-            })  # fmt: skip
+            rows.append(
+                {
+                    "mu0": mu0,
+                    "iterations_mean": float(np.mean(res["iterations"])),
+                    "iterations_p99": float(np.percentile(res["iterations"], 99)),
+                    "not_solved": int(np.count_nonzero(res["status"] != 0)),
+                    "first_command_error_max_mmps": float(np.max(err)),
+                    "first_command_error_p99_mmps": float(np.percentile(err, 99)),
+                    "qp_ms_median": float(np.median(res["qp_ms"])),
+                }
+            )
             row = rows[-1]
-            print(f"{label:28s} mu0 {mu0:5.3g}: iterations {row['iterations_mean']:.2f} (p99 "
-                  f"{row['iterations_p99']:.0f}), not solved {row['not_solved']:4d} / {len(frames)}, "
-                  f"first command vs reference max {row['first_command_error_max_mmps']:.1e} "
-                  f"p99 {row['first_command_error_p99_mmps']:.1e} mm/s, "
-                  f"QP {row['qp_ms_median']:.2f} ms", flush=True)  # fmt: skip
-        cases.append({"case": label, "config": name, "speed_mps": speed, "horizon": horizon,
-                      "frames": len(frames), "results": rows})  # fmt: skip
+            print(
+                f"{label:28s} mu0 {mu0:5.3g}: iterations {row['iterations_mean']:.2f} (p99 "
+                f"{row['iterations_p99']:.0f}), not solved {row['not_solved']:4d} / {len(frames)}, "
+                f"first command vs reference max {row['first_command_error_max_mmps']:.1e} "
+                f"p99 {row['first_command_error_p99_mmps']:.1e} mm/s, "
+                f"QP {row['qp_ms_median']:.2f} ms",
+                flush=True,
+            )
+        cases.append(
+            {
+                "case": label,
+                "config": name,
+                "speed_mps": speed,
+                "horizon": horizon,
+                "frames": len(frames),
+                "results": rows,
+            }
+        )
     return {
         "benchmark": "hpipm_mu0",
         "seed": seed,
@@ -160,8 +183,13 @@ def run(mu0s: list[float], seed: int) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and write the report; exit status 2 (nothing run) for a bad argument."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--mu0", type=float, nargs="+", default=[2.0, 3.0, 5.0, 10.0],
-                        help="barrier parameters to compare (> 0; 10: the 'speed' mode's)")  # fmt: skip
+    parser.add_argument(
+        "--mu0",
+        type=float,
+        nargs="+",
+        default=[2.0, 3.0, 5.0, 10.0],
+        help="barrier parameters to compare (> 0; 10: the 'speed' mode's)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the recorded runs")
     parser.add_argument("--out", default="results/benchmarks/hpipm_mu0.json", help="JSON report file")
     args = parser.parse_args(argv)
@@ -176,8 +204,10 @@ def main(argv: list[str] | None = None) -> int:
     report = run(args.mu0, args.seed)
     for mu0, total in report["totals"].items():
         worst = total["first_command_error_max_mmps"]
-        print(f"mu0 {float(mu0):5.3g}: {total['not_solved']} of {total['frames']} QPs not solved, first "
-              f"command at most {worst:.2g} mm/s from the reference")  # fmt: skip
+        print(
+            f"mu0 {float(mu0):5.3g}: {total['not_solved']} of {total['frames']} QPs not solved, first "
+            f"command at most {worst:.2g} mm/s from the reference"
+        )
     return write_report_file(out, json.dumps(report, indent=2) + "\n", "hpipm_mu0")
 
 

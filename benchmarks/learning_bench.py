@@ -239,9 +239,10 @@ def main() -> None:
         print(f"   {label:22.22s}" + "".join(f"{vals[f'{v:g}']:9.4f}" for v in SPEEDS))
     for name, f in e2e["fits"].items():
         print(
-            f"   learned {name:14s}" + "".join(f"{f['c_at'][f'{v:g}']:9.4f}" for v in SPEEDS)
+            f"   learned {name:14s}"
+            + "".join(f"{f['c_at'][f'{v:g}']:9.4f}" for v in SPEEDS)
             + f"  {f['n_samples']:7d}  {f['rmse']:.4f}  {f['time_from_logs_s']:6.2f} s"
-        )  # fmt: skip
+        )
 
     report["held_out"] = ho = bench_held_out(scenario, runs)
     print(f"4. held-out steady lead: fit on {TRAIN} m/s, predict at {HELD_OUT} m/s (|error|, mm)")

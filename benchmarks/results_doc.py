@@ -117,18 +117,20 @@ def render_sweep(data: dict[str, Any]) -> list[str]:
             return [m.get(key) for m in per]
 
         finals = _finite(values("final_error_mm"))
-        rows.append([
-            f"`{name}`",
-            _cell(values("tracking_rms_mm")),
-            _cell(values("cross_track_rms_mm")),
-            _cell(values("final_error_mm")),
-            f"{sum(f <= FINAL_TOL_MM for f in finals)}/{len(per)}",
-            f"{sum(bool(m.get('stalled')) for m in per)}/{len(per)}",
-            f"{sum(bool(m.get('decoupled')) for m in per)} / {sum(bool(m.get('dropped')) for m in per)}",
-            _cell(values("epm_jerk_rms_mps3")),
-            _cell(values("paper_std_mm")),
-            f"{sum(bool(m.get('arm_ok')) for m in per)}/{len(per)}",
-        ])  # fmt: skip
+        rows.append(
+            [
+                f"`{name}`",
+                _cell(values("tracking_rms_mm")),
+                _cell(values("cross_track_rms_mm")),
+                _cell(values("final_error_mm")),
+                f"{sum(f <= FINAL_TOL_MM for f in finals)}/{len(per)}",
+                f"{sum(bool(m.get('stalled')) for m in per)}/{len(per)}",
+                f"{sum(bool(m.get('decoupled')) for m in per)} / {sum(bool(m.get('dropped')) for m in per)}",
+                _cell(values("epm_jerk_rms_mps3")),
+                _cell(values("paper_std_mm")),
+                f"{sum(bool(m.get('arm_ok')) for m in per)}/{len(per)}",
+            ]
+        )
     seeds = [r["seed"] for r in runs]
     config = data.get("config")
     config = Path(config).name if isinstance(config, str) else "?"
@@ -280,19 +282,21 @@ def render_mpc_bench(data: dict[str, Any]) -> list[str]:
         cpu = loop["controller_step_cpu"]
         medians = [r["controller_step"]["median_ms"] for r in case.get("closed_loop_repeats", [])]
         build = case["build"]
-        rows.append([
-            case["variant"],
-            str(case["horizon"]),
-            f"{step['median_ms']:.2f} / {step['p99_ms']:.2f} / {step['max_ms']:.2f}",
-            f"{cpu['median_ms']:.2f} / {cpu['p99_ms']:.2f}",
-            f"{min(medians):.2f}{DASH}{max(medians):.2f}" if medians else "n/a",
-            f"{loop['solve']['median_ms']:.2f}",
-            str(loop["frames"]),
-            f"{loop['recoveries']} / {loop['failures']} / {loop['ipopt_after_first']}",
-            str(loop["deadline_misses"]),
-            _num(build.get("compiled_cold", {}).get("build_s"), 1),
-            _num(build.get("compiled_warm", {}).get("build_s"), 2),
-        ])  # fmt: skip
+        rows.append(
+            [
+                case["variant"],
+                str(case["horizon"]),
+                f"{step['median_ms']:.2f} / {step['p99_ms']:.2f} / {step['max_ms']:.2f}",
+                f"{cpu['median_ms']:.2f} / {cpu['p99_ms']:.2f}",
+                f"{min(medians):.2f}{DASH}{max(medians):.2f}" if medians else "n/a",
+                f"{loop['solve']['median_ms']:.2f}",
+                str(loop["frames"]),
+                f"{loop['recoveries']} / {loop['failures']} / {loop['ipopt_after_first']}",
+                str(loop["deadline_misses"]),
+                _num(build.get("compiled_cold", {}).get("build_s"), 1),
+                _num(build.get("compiled_warm", {}).get("build_s"), 2),
+            ]
+        )
     return lines + _table(
         [
             "variant",
@@ -336,17 +340,19 @@ def render_planner(data: dict[str, Any]) -> list[str]:
     rows = []
     for c in data["cases"]:
         con = c["constraints"]
-        rows.append([
-            f"`{c['config']}`",
-            c["variant"],
-            c["status"],
-            str(c["iterations"]),
-            f"{c['build_s']:.1f}",
-            f"{c['solve_s']:.1f}",
-            f"{c['duration_s']:.2f} ({c['duration_over_nominal']:.2f}{TIMES})",
-            f"{con['cross_track_max_m'] * 1e3:.2f}",
-            f"{c['residual']['scaled']:.1e}",
-        ])  # fmt: skip
+        rows.append(
+            [
+                f"`{c['config']}`",
+                c["variant"],
+                c["status"],
+                str(c["iterations"]),
+                f"{c['build_s']:.1f}",
+                f"{c['solve_s']:.1f}",
+                f"{c['duration_s']:.2f} ({c['duration_over_nominal']:.2f}{TIMES})",
+                f"{con['cross_track_max_m'] * 1e3:.2f}",
+                f"{c['residual']['scaled']:.1e}",
+            ]
+        )
     return _table(
         [
             "config",
@@ -368,17 +374,19 @@ def render_arm(data: dict[str, Any]) -> list[str]:
     rows = []
     for case in ("plan", "online"):
         r = data[case]
-        rows.append([
-            case,
-            str(r["n_setpoints"]),
-            f"{r['wall_s_median']:.2f} ({r['wall_s_best']:.2f})",
-            f"{r['us_per_setpoint']:.0f}",
-            f"{r['max_ik_position_error_m']:.1e}",
-            f"{r['jerk_over_limit']:.3f}",
-            f"{r['velocity_over_limit']:.3f}",
-            f"{r['acceleration_over_limit']:.3f}",
-            f"{r['newton_steps_per_point']:.2f}",
-        ])  # fmt: skip
+        rows.append(
+            [
+                case,
+                str(r["n_setpoints"]),
+                f"{r['wall_s_median']:.2f} ({r['wall_s_best']:.2f})",
+                f"{r['us_per_setpoint']:.0f}",
+                f"{r['max_ik_position_error_m']:.1e}",
+                f"{r['jerk_over_limit']:.3f}",
+                f"{r['velocity_over_limit']:.3f}",
+                f"{r['acceleration_over_limit']:.3f}",
+                f"{r['newton_steps_per_point']:.2f}",
+            ]
+        )
     online = data["online"]
     return [
         *_table(
@@ -445,12 +453,14 @@ def render_learning(data: dict[str, Any]) -> list[str]:
         rows = [[f"plant (a {MINUS} b form)", *(f"{e2e['plant_c_at'][v]:.4f}" for v in speeds), "n/a", "n/a"]]
         rows.append(["paper's polynomial", *(f"{e2e['paper_c_at'][v]:.4f}" for v in speeds), "n/a", "n/a"])
         for name, f in e2e["fits"].items():
-            rows.append([
-                f"learned: {name.replace('_', ' ')}",
-                *(f"{f['c_at'][v]:.4f}" for v in speeds),
-                str(f["n_samples"]),
-                f"{f['rmse']:.4f}",
-            ])  # fmt: skip
+            rows.append(
+                [
+                    f"learned: {name.replace('_', ' ')}",
+                    *(f"{f['c_at'][v]:.4f}" for v in speeds),
+                    str(f["n_samples"]),
+                    f"{f['rmse']:.4f}",
+                ]
+            )
         lines += [
             "",
             f"End to end: {e2e['n_runs']} `follow` demonstrations ({e2e['n_frames']} frames), c(v) learned "
@@ -529,6 +539,11 @@ def _distribution(d: dict[str, Any]) -> str:
     return ", ".join(f"{label} {value:.2f} s" for label, value in present) + f" over {d.get('n', '?')} faults"
 
 
+def _span(values: list[float], spec: str) -> str:
+    """The range of ``values`` (least, a dash, greatest), each formatted with ``spec``."""
+    return f"{min(values):{spec}}{DASH}{max(values):{spec}}"
+
+
 def render_hpipm(data: dict[str, Any]) -> list[str]:
     """HPIPM's initial barrier parameter (``benchmarks/hpipm_mu0.py``)."""
     cases = data["cases"]
@@ -538,13 +553,15 @@ def render_hpipm(data: dict[str, Any]) -> list[str]:
     for i, mu0 in enumerate(mu0s):
         res = [c["results"][i] for c in cases]
         total = data["totals"][str(mu0)] if str(mu0) in data["totals"] else None
-        rows.append([
-            f"{mu0:g}" + (" (default)" if mu0 == data["hpipm_options"].get("mu0") else ""),
-            f"{min(r['iterations_mean'] for r in res):.1f}{DASH}{max(r['iterations_mean'] for r in res):.1f}",
-            f"{sum(r['not_solved'] for r in res)} of {frames}",
-            f"{max(r['first_command_error_max_mmps'] for r in res):.2g}",
-            f"{min(r['qp_ms_median'] for r in res):.2f}{DASH}{max(r['qp_ms_median'] for r in res):.2f}",
-        ])  # fmt: skip
+        rows.append(
+            [
+                f"{mu0:g}" + (" (default)" if mu0 == data["hpipm_options"].get("mu0") else ""),
+                _span([r["iterations_mean"] for r in res], ".1f"),
+                f"{sum(r['not_solved'] for r in res)} of {frames}",
+                f"{max(r['first_command_error_max_mmps'] for r in res):.2g}",
+                _span([r["qp_ms_median"] for r in res], ".2f"),
+            ]
+        )
         if total is not None and total["not_solved"] != sum(r["not_solved"] for r in res):
             raise ValueError(f"hpipm_mu0: totals of mu0 {mu0} disagree with its cases")
     return [

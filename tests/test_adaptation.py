@@ -197,8 +197,18 @@ def test_bad_adaptation_settings_are_refused_naming_the_field(field, value, mess
 def test_cli_refuses_a_bad_forgetting_time_with_exit_2_and_no_output(tmp_path, capsys):
     (tmp_path / "c.yaml").write_text("base: paper\nmpc:\n  adaptation:\n    time_s: -1\n")
     out = tmp_path / "out"
-    code = main(["compare", "--config", str(tmp_path / "c.yaml"), "--controllers", "mpc", "--no-progress",
-                 "--out", str(out)])  # fmt: skip
+    code = main(
+        [
+            "compare",
+            "--config",
+            str(tmp_path / "c.yaml"),
+            "--controllers",
+            "mpc",
+            "--no-progress",
+            "--out",
+            str(out),
+        ]
+    )
     text = capsys.readouterr().err
     assert code == 2, text
     assert re.search(r"mpc\.adaptation\.time_s: .*0", text), text

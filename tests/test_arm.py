@@ -275,9 +275,13 @@ def test_model_places_the_base_and_the_epm_mount(scenario, kin):
     arm = scenario.arm
     q = np.asarray(arm.q_seed_rad)
     assert kin.joint_names == (
-        "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
-        "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
-    )  # fmt: skip
+        "shoulder_pan_joint",
+        "shoulder_lift_joint",
+        "elbow_joint",
+        "wrist_1_joint",
+        "wrist_2_joint",
+        "wrist_3_joint",
+    )
     np.testing.assert_allclose(kin.joint_origins(q)[0, :2], arm.base_xyz_m[:2], atol=1e-12)
     pin.forwardKinematics(kin.model, kin.data, q)
     pin.updateFramePlacements(kin.model, kin.data)

@@ -403,9 +403,13 @@ def test_hostile_yaml_is_refused_in_a_short_message_within_seconds(
     cpu0 = _cpu_s()
     if child:  # a regression would hang and eat memory: capped in its own process
         done = subprocess.run(
-            [sys.executable, "-c", MAIN, *argv], capture_output=True, text=True, timeout=CHILD_TIMEOUT_S,
-            preexec_fn=_limit_memory, env={**os.environ, "COLUMNS": "100"},
-        )  # fmt: skip
+            [sys.executable, "-c", MAIN, *argv],
+            capture_output=True,
+            text=True,
+            timeout=CHILD_TIMEOUT_S,
+            preexec_fn=_limit_memory,
+            env={**os.environ, "COLUMNS": "100"},
+        )
         code, text = done.returncode, done.stderr + done.stdout
     else:
         code, text = _exit_code_and_message(argv, capsys)

@@ -46,8 +46,14 @@ def test_on_plate_normal_force_adds_weight(scenario):
 def _reference(model, t_grid):
     x = ca.MX.sym("x", 7)
     u = ca.MX.sym("u", 3)
-    integ = ca.integrator("ref", "cvodes", {"x": x, "p": u, "ode": model.ode(x, u)}, 0.0,
-                          t_grid, {"abstol": 1e-12, "reltol": 1e-10})  # fmt: skip
+    integ = ca.integrator(
+        "ref",
+        "cvodes",
+        {"x": x, "p": u, "ode": model.ode(x, u)},
+        0.0,
+        t_grid,
+        {"abstol": 1e-12, "reltol": 1e-10},
+    )
     return np.asarray(integ(x0=X0, p=U)["xf"]).T
 
 

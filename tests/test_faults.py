@@ -283,8 +283,20 @@ def test_fault_counts_reach_the_summary_of_compare_and_sweep(tmp_path, command, 
     wp.write_text("x_m,y_m\n0.0,0.0\n0.02,0.0\n")
     out = tmp_path / "out"
     extra = ["--no-progress"] if command == "compare" else ["--workers", "1"]
-    argv = [command, "--config", str(config), "--waypoints", str(wp), "--controllers", "follow",
-            "--runs", "2", "--out", str(out), *extra]  # fmt: skip
+    argv = [
+        command,
+        "--config",
+        str(config),
+        "--waypoints",
+        str(wp),
+        "--controllers",
+        "follow",
+        "--runs",
+        "2",
+        "--out",
+        str(out),
+        *extra,
+    ]
     assert main(argv) == 0
     summary = json.loads((out / "summary.json").read_text())
     follow = summary["controllers"]["follow"]

@@ -79,8 +79,15 @@ def test_theta_relaxes_to_steady_state(rs):
     # Integrate eq. 6 with SciPy and compare with the closed form eq. 7.
     from scipy.integrate import solve_ivp
 
-    sol = solve_ivp(lambda _t, th: rs.theta_rate(v, th), (0, t[-1]), [theta0], t_eval=t,
-                    method="LSODA", rtol=1e-10, atol=1e-14)  # fmt: skip
+    sol = solve_ivp(
+        lambda _t, th: rs.theta_rate(v, th),
+        (0, t[-1]),
+        [theta0],
+        t_eval=t,
+        method="LSODA",
+        rtol=1e-10,
+        atol=1e-14,
+    )
     closed = rs.theta_constant_speed(t, v, theta0)
     assert np.allclose(sol.y[0], closed, rtol=1e-5, atol=1e-9)
     assert closed[-1] == pytest.approx(rs.theta_steady(v), rel=1e-9)

@@ -65,9 +65,8 @@ def test_newtons_third_law(m1, m2, r):
 def test_force_is_gradient_of_energy_and_torque_is_cross(m1, m2, r):
     h = 1e-6
     grad = np.array(
-        [(m2 @ dipole_field(m1, r + h * e) - m2 @ dipole_field(m1, r - h * e)) / (2 * h)
-         for e in np.eye(3)]
-    )  # fmt: skip
+        [(m2 @ dipole_field(m1, r + h * e) - m2 @ dipole_field(m1, r - h * e)) / (2 * h) for e in np.eye(3)]
+    )
     f = dipole_force(m1, m2, r)
     assert np.allclose(f, grad, rtol=1e-5, atol=1e-7 * (1 + np.abs(f).max()))
     assert np.allclose(dipole_torque(m1, m2, r), np.cross(m2, dipole_field(m1, r)))

@@ -294,9 +294,11 @@ def test_joining_the_path_from_the_rest_position_tracks_better_on_the_lab_rig(la
     path = ReferencePath(np.array([[-0.05, -0.03], [0.0, -0.03]]), closed=False, speed_mps=0.02)
     rms = {}
     for blend in (0.0, 2.0):
-        sc = lab_scenario.model_copy(update={
-            "mpc": lab_scenario.mpc.model_copy(update={"compile_c": False, "start_blend_s": blend}),
-            "sim": lab_scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
-        })  # fmt: skip
+        sc = lab_scenario.model_copy(
+            update={
+                "mpc": lab_scenario.mpc.model_copy(update={"compile_c": False, "start_blend_s": blend}),
+                "sim": lab_scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
+            }
+        )
         rms[blend] = simulate(sc, MPCController(), path, seed=seed).metrics["tracking_rms_mm"]
     assert rms[2.0] < rms[0.0], (seed, rms)

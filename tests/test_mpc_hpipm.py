@@ -345,8 +345,9 @@ def test_a_failed_step_is_held_in_settle_and_recovered_after(fast, monkeypatch):
 
     def failing_rti(p, w0):
         res = rti(solver, p, w0)
-        return SolveResult(False, "infeasible step (injected)", 1, res.solve_ms, "rti", res.w,
-                           res.lam_x, res.lam_g, 99.0)  # fmt: skip
+        return SolveResult(
+            False, "infeasible step (injected)", 1, res.solve_ms, "rti", res.w, res.lam_x, res.lam_g, 99.0
+        )
 
     def counted_sqp(p, w0, max_iter=None, budget_ms=None):
         sqp_calls.append(max_iter)

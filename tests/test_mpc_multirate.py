@@ -144,8 +144,9 @@ def test_shift_advances_the_plan_one_frame_and_keeps_its_gaps_closed(coarse_ocp,
     w_c = ocp.pack_variables(xs_c, us_c, np.zeros((2, N)), np.concatenate([x0[:2], vel, x0[4:]]), cmd)
     xs_s, us_s, _ = ocp.unpack(ocp.shift(w_c))
     later = FRAME_S + ocp.node_times_s[1:]
-    expected = np.vstack([x0[0:2, None] + vel[:, None] * later, np.tile(vel[:, None], N),
-                          x0[4:7, None] + cmd[:, None] * later])  # fmt: skip
+    expected = np.vstack(
+        [x0[0:2, None] + vel[:, None] * later, np.tile(vel[:, None], N), x0[4:7, None] + cmd[:, None] * later]
+    )
     assert xs_s == pytest.approx(expected, abs=1e-12)
     assert us_s == pytest.approx(np.tile(cmd[:, None], N), abs=1e-12)
 
@@ -171,8 +172,13 @@ def test_the_fallback_sends_the_plans_command_for_the_time_that_passed(coarse, f
         sent.append(cmd.epm_velocity_mps)
         epm = epm + FRAME_S * cmd.epm_velocity_mps
     # Frames 1..4 after the solve end at 20, 30, 40, 50 ms; the stage ends are at 10, 30, 50 ms.
-    expected = np.array([
-        (planned[:, 0] + planned[:, 1]) / 2, planned[:, 1], (planned[:, 1] + planned[:, 2]) / 2, planned[:, 2]
-    ])  # fmt: skip
+    expected = np.array(
+        [
+            (planned[:, 0] + planned[:, 1]) / 2,
+            planned[:, 1],
+            (planned[:, 1] + planned[:, 2]) / 2,
+            planned[:, 2],
+        ]
+    )
     assert np.abs(np.diff(planned[:, 1:3], axis=1)).max() > 1e-6  # the stages' commands differ
     assert np.array(sent) == pytest.approx(expected, abs=1e-12)

@@ -19,8 +19,11 @@ INSIDE = st.tuples(st.floats(-0.18, 0.18), st.floats(-0.13, 0.13), st.floats(0.0
 
 
 @settings(max_examples=300, deadline=None)
-@given(u=st.lists(ANY, min_size=3, max_size=3), u_prev=st.lists(ANY, min_size=3, max_size=3),
-       pos=st.lists(ANY, min_size=3, max_size=3))  # fmt: skip
+@given(
+    u=st.lists(ANY, min_size=3, max_size=3),
+    u_prev=st.lists(ANY, min_size=3, max_size=3),
+    pos=st.lists(ANY, min_size=3, max_size=3),
+)
 def test_the_command_is_finite_and_within_the_speed_limit_whatever_comes_in(scenario, u, u_prev, pos):
     out, _ = safe_command(np.array(u), np.array(u_prev), np.array(pos), scenario, DT)
     assert out.shape == (3,)
@@ -30,8 +33,11 @@ def test_the_command_is_finite_and_within_the_speed_limit_whatever_comes_in(scen
 
 
 @settings(max_examples=300, deadline=None)
-@given(u=st.lists(ANY, min_size=3, max_size=3), pos=INSIDE,
-       prev=st.lists(st.floats(-1, 1), min_size=3, max_size=3))  # fmt: skip
+@given(
+    u=st.lists(ANY, min_size=3, max_size=3),
+    pos=INSIDE,
+    prev=st.lists(st.floats(-1, 1), min_size=3, max_size=3),
+)
 def test_from_inside_the_braking_envelope_no_jump_and_the_workspace_is_kept(scenario, u, pos, prev):
     lim = scenario.limits
     pos_a = np.array(pos)

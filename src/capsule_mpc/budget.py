@@ -246,9 +246,9 @@ def run_needs(scenario: Scenario, length_m: float, speed_mps: float, work: Workl
         parts.append((name, float(frames) * per_frame * processes))
         if scenario.sim.actuator == "robot":  # the arm records every tick of a run for its export
             ticks = _count(run_s * scenario.arm.arm_rate_hz) + 1
-            parts.append((
-                f"{ticks:.3g} arm ticks per run", float(ticks) * BYTES_PER_SETPOINT * runs * processes
-            ))  # fmt: skip
+            parts.append(
+                (f"{ticks:.3g} arm ticks per run", float(ticks) * BYTES_PER_SETPOINT * runs * processes)
+            )
     steps, plan_s = 0, 0.0
     if plan is not None:
         options = PlannerOptions()
@@ -266,9 +266,16 @@ def run_needs(scenario: Scenario, length_m: float, speed_mps: float, work: Workl
     if processes > 1:
         parts.append((f"{processes} worker processes", float(processes) * BYTES_PER_PROCESS))
     return Needs(
-        length_m, speed_mps, duration, max(run_s, plan_s), frames if closed_loop else 0,
-        _count(run_s * sim.plant_rate_hz) if closed_loop else 0, steps, setpoints, tuple(parts),
-    )  # fmt: skip
+        length_m,
+        speed_mps,
+        duration,
+        max(run_s, plan_s),
+        frames if closed_loop else 0,
+        _count(run_s * sim.plant_rate_hz) if closed_loop else 0,
+        steps,
+        setpoints,
+        tuple(parts),
+    )
 
 
 def _g(x: float) -> str:

@@ -72,19 +72,37 @@ LOCK_NAME = ".capsule-mpc.lock"
 #: depth: such a file that no manifest lists makes a folder refused (module docstring).
 OUTPUT_NAMES = (
     # simulate, and every run of compare
-    "log.csv", "config.yaml", "run.json", "predictions.npz",
-    "trajectories.png", "errors.png", "mpc_prediction.png",
+    "log.csv",
+    "config.yaml",
+    "run.json",
+    "predictions.npz",
+    "trajectories.png",
+    "errors.png",
+    "mpc_prediction.png",
     # the arm export of arm-export, plan and simulate
-    "epm_trajectory.csv", "joint_trajectory.csv", "joint_trajectory.yaml", "joint_trajectory.png",
+    "epm_trajectory.csv",
+    "joint_trajectory.csv",
+    "joint_trajectory.yaml",
+    "joint_trajectory.png",
     "arm_summary.json",
     # plan
-    "epm_plan.csv", "plan.json", "plan.png",
+    "epm_plan.csv",
+    "plan.json",
+    "plan.png",
     # compare and sweep
-    "summary.json", "summary.md", "metrics.png", "distribution_*.png", "sweep.json", "seed_*.json",
+    "summary.json",
+    "summary.md",
+    "metrics.png",
+    "distribution_*.png",
+    "sweep.json",
+    "seed_*.json",
     # demonstrate and demo
-    "demonstrations.json", "demonstration.json", "learned_friction.yaml", "scenario.yaml",
+    "demonstrations.json",
+    "demonstration.json",
+    "learned_friction.yaml",
+    "scenario.yaml",
     "friction_*.png",
-)  # fmt: skip
+)
 #: How deep below the folder :data:`OUTPUT_NAMES` are looked for (compare --runs writes
 #: ``runs/seed_<S>/<controller>/log.csv``).
 _OUTPUT_DEPTH = 3

@@ -379,10 +379,22 @@ def _draw_predictions(plt: Any, fig: Any, ax: Any, pred: np.ndarray, t: np.ndarr
         colour = cmap(frame_time(t[i]))
         xy = pred[i] * 1e3
         first = k == 0
-        ax.plot(xy[:, 0], xy[:, 1], "-", color=colour, lw=1,
-                label="predicted at a frame (colour bar: its time)" if first else None)  # fmt: skip
-        ax.plot(xy[0, 0], xy[0, 1], "o", color=colour, ms=3,
-                label="estimate one stage ahead (where a prediction starts)" if first else None)  # fmt: skip
+        ax.plot(
+            xy[:, 0],
+            xy[:, 1],
+            "-",
+            color=colour,
+            lw=1,
+            label="predicted at a frame (colour bar: its time)" if first else None,
+        )
+        ax.plot(
+            xy[0, 0],
+            xy[0, 1],
+            "o",
+            color=colour,
+            ms=3,
+            label="estimate one stage ahead (where a prediction starts)" if first else None,
+        )
     # The bar hangs off the zoomed axes itself, so it stays beside it whatever its aspect does.
     bar = fig.colorbar(plt.cm.ScalarMappable(frame_time, cmap), cax=ax.inset_axes((1.03, 0.0, 0.04, 1.0)))
     bar.set_label("frame time of the prediction, s (path starts at 0)")

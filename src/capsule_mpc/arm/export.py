@@ -460,13 +460,19 @@ def run_trajectory_since(
     """The arm ticks of a run from ``t0_s`` on (the settle phase before t = 0 holds the EPM)."""
     keep = np.asarray(cart.t_s) >= t0_s - 1e-9
     cart_part = replace(
-        cart, t_s=cart.t_s[keep], position_m=cart.position_m[keep], velocity_mps=cart.velocity_mps[keep],
+        cart,
+        t_s=cart.t_s[keep],
+        position_m=cart.position_m[keep],
+        velocity_mps=cart.velocity_mps[keep],
         acceleration_mps2=cart.acceleration_mps2[keep],
-    )  # fmt: skip
+    )
     joints_part = replace(
-        joints, t_s=joints.t_s[keep], q_rad=joints.q_rad[keep], dq_radps=joints.dq_radps[keep],
+        joints,
+        t_s=joints.t_s[keep],
+        q_rad=joints.q_rad[keep],
+        dq_radps=joints.dq_radps[keep],
         epm_position_m=joints.epm_position_m[keep],
-    )  # fmt: skip
+    )
     return cart_part, joints_part
 
 

@@ -606,17 +606,25 @@ def smooth_waypoints(
     # waypoint itself: snapping those nanometres onto the 2 ms grid breaks the jerk limit.
     final = (list(state[0]), [0.0] * 3, [0.0] * 3)
     sampler.append(sampler.next_time(), *final)
+    return _trajectory(sampler, t, p, calls, max(tau - float(t[-1]), 0.0), clipped, wall0)
+
+
+def _trajectory(
+    sampler: _Sampler, t: np.ndarray, p: np.ndarray, calls: int, end_lag_s: float, clipped: int, wall0: float
+) -> CartesianTrajectory:
+    """The sampled setpoints as a :class:`CartesianTrajectory`, with their deviation from the plan
+    (``t``, ``p``: the waypoints) and the smoothing's statistics."""
     out_t = np.array(sampler.t)
     out_p = np.array(sampler.p, dtype=float).reshape(-1, 3)
     plan_p = np.column_stack([np.interp(out_t, t, p[:, ax]) for ax in range(3)])
     dev = np.linalg.norm(out_p - plan_p, axis=1)
     stats = SmoothingStats(
-        n_waypoints=n,
+        n_waypoints=int(t.shape[0]),
         n_setpoints=int(out_t.shape[0]),
         ruckig_calls=calls,
         max_deviation_m=float(dev.max()),
         rms_deviation_m=float(np.sqrt(np.mean(dev**2))),
-        end_lag_s=max(tau - float(t[-1]), 0.0),
+        end_lag_s=end_lag_s,
         clipped_targets=clipped,
         wall_s=time.perf_counter() - wall0,
     )

@@ -55,14 +55,26 @@ def plot_c_fit(result: LearningResult, ax: Axes | None = None, paper: bool = Tru
     fig, ax = _axes(ax)
     cs, fit = result.c_samples, result.fit
     idx = _subset(len(cs.c))
-    ax.scatter(cs.speed_mps[idx] * 1e3, cs.c[idx], s=2, alpha=0.3, color="tab:blue", rasterized=True,
-               label=f"samples (n = {len(cs.c)})")  # fmt: skip
+    ax.scatter(
+        cs.speed_mps[idx] * 1e3,
+        cs.c[idx],
+        s=2,
+        alpha=0.3,
+        color="tab:blue",
+        rasterized=True,
+        label=f"samples (n = {len(cs.c)})",
+    )
     lo, hi = fit.validity_mps
     ax.axvspan(lo * 1e3, hi * 1e3, color="tab:green", alpha=0.08, label="validity range")
     v = np.linspace(lo, hi, 300)
     r2 = "n/a" if fit.r2 is None else f"{fit.r2:.3f}"
-    ax.plot(v * 1e3, fit(v), color="tab:red", lw=2,
-            label=f"fit, degree {fit.degree}{' (Huber)' if fit.robust else ''}, R$^2$ = {r2}")  # fmt: skip
+    ax.plot(
+        v * 1e3,
+        fit(v),
+        color="tab:red",
+        lw=2,
+        label=f"fit, degree {fit.degree}{' (Huber)' if fit.robust else ''}, R$^2$ = {r2}",
+    )
     lo_c, hi_c = np.percentile(cs.c, [0.5, 99.5]) if len(cs.c) else (0.0, 1.0)
     lo_c, hi_c = min(lo_c, float(fit(v).min())), max(hi_c, float(fit(v).max()))
     if paper:

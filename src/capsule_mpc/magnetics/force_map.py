@@ -159,18 +159,25 @@ class ForceMap:
         """Write the table atomically to ``path`` (.npz)."""
         with atomic_path(path) as tmp:
             np.savez_compressed(
-                tmp, lead_x_m=self.lead_x_m, lead_y_m=self.lead_y_m, height_m=self.height_m,
-                force_n=self.force_n, key=np.array(self.key),
-            )  # fmt: skip
+                tmp,
+                lead_x_m=self.lead_x_m,
+                lead_y_m=self.lead_y_m,
+                height_m=self.height_m,
+                force_n=self.force_n,
+                key=np.array(self.key),
+            )
 
     @classmethod
     def load(cls, path: Path) -> ForceMap:
         """Read a table written by :meth:`save` (ValueError if its forces are not finite)."""
         with np.load(path) as data:
             return cls(
-                lead_x_m=data["lead_x_m"], lead_y_m=data["lead_y_m"], height_m=data["height_m"],
-                force_n=data["force_n"], key=str(data["key"]),
-            )  # fmt: skip
+                lead_x_m=data["lead_x_m"],
+                lead_y_m=data["lead_y_m"],
+                height_m=data["height_m"],
+                force_n=data["force_n"],
+                key=str(data["key"]),
+            )
 
 
 def force_map(

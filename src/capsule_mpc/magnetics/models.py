@@ -82,9 +82,12 @@ def dipole_capsule_force(scenario: Scenario) -> ca.Function:
     m_ipm = m_abs * horizontal / ca.sqrt(ca.sumsqr(horizontal) + ORIENTATION_EPS_T**2)
     force = dipole_force(m_epm, m_ipm, r)
     return ca.Function(
-        "force_dipole", [lead, height], [ca.vertcat(force[0], force[1], force[2])],
-        ["lead", "height"], ["F"],
-    )  # fmt: skip
+        "force_dipole",
+        [lead, height],
+        [ca.vertcat(force[0], force[1], force[2])],
+        ["lead", "height"],
+        ["F"],
+    )
 
 
 def capsule_force_function(scenario: Scenario, kind: str | None = None) -> ca.Function:

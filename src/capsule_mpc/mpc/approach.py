@@ -286,8 +286,9 @@ class FinalApproach:
             return self._release(t_s, epm)
         if fit is None:  # no frames (drops): hold the lead
             return 0.0
-        wanted = float(np.clip(remaining / CRAWL_TIME_CONSTANT_S, _MIN_SPEED_FRACTION * self.speed_mps,
-                               self.speed_mps))  # fmt: skip
+        wanted = float(
+            np.clip(remaining / CRAWL_TIME_CONSTANT_S, _MIN_SPEED_FRACTION * self.speed_mps, self.speed_mps)
+        )
         along = wanted + (wanted - speed)
         limit = _EPM_SPEED_FACTOR * self.speed_mps
         along = float(np.clip(along, -limit, limit))

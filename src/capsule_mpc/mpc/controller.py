@@ -336,8 +336,12 @@ class MPCController(Controller):
         budget = self.deadline_ms - res.solve_ms - _REST_OF_STEP_MS if cfg.enforce_deadline else None
         rec = solver.sqp(p, guess, cfg.recovery_sqp_iter, budget)
         status = f"recovered ({res.status})" if rec.success else f"{res.status}; {rec.status}"
-        return replace(rec, status=status, iterations=res.iterations + rec.iterations,
-                       solve_ms=res.solve_ms + rec.solve_ms), StepOutcome.RECOVERED  # fmt: skip
+        return replace(
+            rec,
+            status=status,
+            iterations=res.iterations + rec.iterations,
+            solve_ms=res.solve_ms + rec.solve_ms,
+        ), StepOutcome.RECOVERED
 
     # ------------------------------------------------------------------ step
     def step(self, t_s: float, measurement: Measurement, epm_position_m: np.ndarray) -> Command:
@@ -374,11 +378,16 @@ class MPCController(Controller):
         self.deadline_misses += int(late)
         late = late and self.scenario.mpc.enforce_deadline
         stats = StepStats(
-            solve_ms=res.solve_ms, status=res.status, iterations=res.iterations, outcome=outcome,
-            extra={"disturbance_x_n": float(self.disturbance_n[0]),
-                   "disturbance_y_n": float(self.disturbance_n[1]),
-                   "disturbance_friction_n": float(self.disturbance_n[2])},
-        )  # fmt: skip
+            solve_ms=res.solve_ms,
+            status=res.status,
+            iterations=res.iterations,
+            outcome=outcome,
+            extra={
+                "disturbance_x_n": float(self.disturbance_n[0]),
+                "disturbance_y_n": float(self.disturbance_n[1]),
+                "disturbance_friction_n": float(self.disturbance_n[2]),
+            },
+        )
         if self.friction_rls is not None:
             stats.extra.update(self.friction_rls.as_stats())
         if not accepted:
@@ -417,9 +426,10 @@ class MPCController(Controller):
         self.last_prediction = None
         attempts = float(self.approach.attempts)
         stats = StepStats(
-            status=f"approach: {self.approach.phase}", extra={"approach_attempts": attempts},
+            status=f"approach: {self.approach.phase}",
+            extra={"approach_attempts": attempts},
             outcome=StepOutcome.APPROACH,
-        )  # fmt: skip
+        )
         return self._emit(u, epm, stats)
 
     @property

@@ -242,9 +242,15 @@ class OCP:
         command being applied (3, m/s^2: its change from the one before, per frame; default 0)."""
         slope = np.zeros(_NU_MODEL) if slope_prev is None else np.ravel(slope_prev)
         return np.concatenate(
-            [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), slope, np.ravel(disturbance_n),
-             [float(friction_offset)]]
-        )  # fmt: skip
+            [
+                np.ravel(x0),
+                np.ravel(ref, order="F"),
+                np.ravel(u_prev),
+                slope,
+                np.ravel(disturbance_n),
+                [float(friction_offset)],
+            ]
+        )
 
     def pack_variables(
         self,
@@ -312,11 +318,13 @@ class OCP:
         phys[1:, _EPM] = phys[0, _EPM] + np.cumsum(moves, axis=1).T
         moved = phys / STATE_SCALE
         stage = np.minimum(np.searchsorted(old_t, new_t[:-1], side="right") - 1, self.horizon - 1)
-        new_inputs = np.hstack([
-            np.diff(moved[:, _CMD], axis=0),  # dc (the command's scale)
-            moved[1:, 2:4],  # capsule velocity at the next stage (the state's scale)
-            inputs[stage, _NU_MODEL + 2 :],  # slacks: the old stage the new one starts in
-        ])  # fmt: skip
+        new_inputs = np.hstack(
+            [
+                np.diff(moved[:, _CMD], axis=0),  # dc (the command's scale)
+                moved[1:, 2:4],  # capsule velocity at the next stage (the state's scale)
+                inputs[stage, _NU_MODEL + 2 :],  # slacks: the old stage the new one starts in
+            ]
+        )
         return self._join(moved, new_inputs)
 
     def variable_bounds(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -361,8 +369,13 @@ def _next_state(xk: ca.MX, uk: ca.MX, dt_s: float, lag_s: float) -> ca.MX:
     v_next = uk[3:5]
     move = arm_displacement(cmd, dc, xk[_SLOPE], dt_s, lag_s)
     return ca.vertcat(
-        pos + dt_s * v_next, v_next, epm + move[0:2], height + move[2], cmd_next, dc / dt_s,
-    )  # fmt: skip
+        pos + dt_s * v_next,
+        v_next,
+        epm + move[0:2],
+        height + move[2],
+        cmd_next,
+        dc / dt_s,
+    )
 
 
 def _stage_residuals(

@@ -156,8 +156,13 @@ def nlp_functions(ocp: OCP, expand: bool = True) -> tuple[ca.Function, ca.Functi
     jac = ca.jacobian(r, w)
     g = ocp.nlp["g"]
     grad = ca.mtimes(jac.T, r) + ca.DM(ocp.slack_gradient)
-    qp_data = ca.Function("mpc_qp_data", [w, p], [ca.mtimes(jac.T, jac), grad, g, ca.jacobian(g, w)],
-                          ["w", "p"], ["H", "grad", "g", "Jg"])  # fmt: skip
+    qp_data = ca.Function(
+        "mpc_qp_data",
+        [w, p],
+        [ca.mtimes(jac.T, jac), grad, g, ca.jacobian(g, w)],
+        ["w", "p"],
+        ["H", "grad", "g", "Jg"],
+    )
     merit = ca.Function("mpc_merit", [w, p], [ocp.nlp["f"], g], ["w", "p"], ["f", "g"])
     if expand:
         return qp_data.expand(), merit.expand()
@@ -181,8 +186,15 @@ def _qp_arguments(ocp: OCP, qp_data: ca.Function, w: ca.MX, p: ca.MX) -> tuple[c
     args)``, ``args`` as ``conic`` takes them (``h, g, a, lba, uba, lbx, ubx``)."""
     w_lin, lbw, ubw = _linearisation_point(ocp, w, p)
     hess, grad, g, jac_g = qp_data(w_lin, p)
-    args = {"h": hess, "g": grad, "a": jac_g, "lba": ca.DM(ocp.lbg) - g, "uba": ca.DM(ocp.ubg) - g,
-            "lbx": lbw - w_lin, "ubx": ubw - w_lin}  # fmt: skip
+    args = {
+        "h": hess,
+        "g": grad,
+        "a": jac_g,
+        "lba": ca.DM(ocp.lbg) - g,
+        "uba": ca.DM(ocp.ubg) - g,
+        "lbx": lbw - w_lin,
+        "ubx": ubw - w_lin,
+    }
     return w_lin, grad, g, args
 
 
@@ -287,8 +299,9 @@ def _ipopt_options(ocp: OCP, max_iter: int, expand: bool, warm: bool) -> dict:
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ocp.nlp["g"].shape[0])
     jac = ca.jacobian(ocp.residual(w, p), w)
     hess = lam_f * ca.triu(ca.mtimes(jac.T, jac))
-    hess_lag = ca.Function("nlp_hess_l", [w, p, lam_f, lam_g], [hess], ["x", "p", "lam_f", "lam_g"],
-                           ["triu_hess_gamma_x_x"])  # fmt: skip
+    hess_lag = ca.Function(
+        "nlp_hess_l", [w, p, lam_f, lam_g], [hess], ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"]
+    )
     ipopt = {"print_level": 0, "sb": "yes", "max_iter": max_iter, "tol": 1e-6, "acceptable_tol": 1e-4}
     if warm:
         ipopt |= {
@@ -345,10 +358,16 @@ def _gcc(source: str, out: Path) -> None:
     command = ["gcc", *_CFLAGS, source, "-o", out.name]
     env = {**os.environ, "TMPDIR": str(out.parent)}
     with subprocess.Popen(
-        command, cwd=out.parent, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        encoding="utf-8", errors="replace",
+        command,
+        cwd=out.parent,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        encoding="utf-8",
+        errors="replace",
         start_new_session=True,
-    ) as gcc:  # fmt: skip
+    ) as gcc:
         try:
             _, err = gcc.communicate()
         except BaseException:

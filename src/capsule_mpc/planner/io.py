@@ -116,35 +116,47 @@ def plan_summary(
     res = plan.residual
     report = constraint_report(scenario, plan, path)
     lim = scenario.limits
-    return _finite_or_none({
-        **dict(meta or {}),
-        "variant": plan.variant,
-        "success": plan.success,
-        "status": plan.status,
-        "iterations": plan.iterations,
-        "build_s": plan.build_s,
-        "solve_s": plan.solve_s,
-        "n_steps": plan.n_steps,
-        "dt_s": plan.dt_s,
-        "duration_s": plan.duration_s,
-        "nominal_duration_s": plan.nominal_duration_s,
-        "duration_over_nominal": plan.duration_s / plan.nominal_duration_s,
-        "arrival_s": report["arrival_s"],
-        "force_model": plan.force_model,
-        "friction": "learned" if scenario.friction.learned is not None else "paper",
-        "lead_eq_m": plan.lead_eq_m.tolist(),
-        "residual": None if res is None else {
-            "position_m": res.position_m, "velocity_mps": res.velocity_mps, "epm_m": res.epm_m,
-            "scaled": res.scaled, "reseeded_steps": res.reseeded_steps, "unsolved_steps": res.unsolved_steps,
-        },
-        "constraints": report,
-        "limits": {
-            "speed_mps": lim.speed_mps, "accel_mps2": lim.accel_mps2, "max_lead_m": lim.max_lead_m,
-            "normal_force_min_n": lim.normal_force_min_n, "normal_force_max_n": lim.normal_force_max_n,
-            "workspace_min_m": list(lim.workspace_min_m), "workspace_max_m": list(lim.workspace_max_m),
-        },
-        "path": {"speed_mps": path.speed_mps, "length_m": path.length_m, "closed": path.closed},
-    })  # fmt: skip
+    return _finite_or_none(
+        {
+            **dict(meta or {}),
+            "variant": plan.variant,
+            "success": plan.success,
+            "status": plan.status,
+            "iterations": plan.iterations,
+            "build_s": plan.build_s,
+            "solve_s": plan.solve_s,
+            "n_steps": plan.n_steps,
+            "dt_s": plan.dt_s,
+            "duration_s": plan.duration_s,
+            "nominal_duration_s": plan.nominal_duration_s,
+            "duration_over_nominal": plan.duration_s / plan.nominal_duration_s,
+            "arrival_s": report["arrival_s"],
+            "force_model": plan.force_model,
+            "friction": "learned" if scenario.friction.learned is not None else "paper",
+            "lead_eq_m": plan.lead_eq_m.tolist(),
+            "residual": None
+            if res is None
+            else {
+                "position_m": res.position_m,
+                "velocity_mps": res.velocity_mps,
+                "epm_m": res.epm_m,
+                "scaled": res.scaled,
+                "reseeded_steps": res.reseeded_steps,
+                "unsolved_steps": res.unsolved_steps,
+            },
+            "constraints": report,
+            "limits": {
+                "speed_mps": lim.speed_mps,
+                "accel_mps2": lim.accel_mps2,
+                "max_lead_m": lim.max_lead_m,
+                "normal_force_min_n": lim.normal_force_min_n,
+                "normal_force_max_n": lim.normal_force_max_n,
+                "workspace_min_m": list(lim.workspace_min_m),
+                "workspace_max_m": list(lim.workspace_max_m),
+            },
+            "path": {"speed_mps": path.speed_mps, "length_m": path.length_m, "closed": path.closed},
+        }
+    )
 
 
 def plot_plan(plan: Plan, path: ReferencePath, out: str | Path) -> Path:
@@ -175,10 +187,21 @@ def plot_plan(plan: Plan, path: ReferencePath, out: str | Path) -> Path:
         fontsize=9,
     )
     t_mid = plan.t_s[:-1]
-    ax_v.step(t_mid, np.linalg.norm(plan.epm_velocity_mps[:, :2], axis=1) * 1e3, where="post",
-              color="C1", lw=1.0, label="EPM speed |v_xy|")  # fmt: skip
-    ax_v.plot(plan.t_s, np.linalg.norm(plan.capsule_velocity_mps, axis=1) * 1e3, color="C0", lw=1.0,
-              label="capsule speed")  # fmt: skip
+    ax_v.step(
+        t_mid,
+        np.linalg.norm(plan.epm_velocity_mps[:, :2], axis=1) * 1e3,
+        where="post",
+        color="C1",
+        lw=1.0,
+        label="EPM speed |v_xy|",
+    )
+    ax_v.plot(
+        plan.t_s,
+        np.linalg.norm(plan.capsule_velocity_mps, axis=1) * 1e3,
+        color="C0",
+        lw=1.0,
+        label="capsule speed",
+    )
     if plan.variant == "fixed":
         ref_speed = np.linalg.norm(path.velocity(plan.t_s), axis=1) * 1e3
         ax_v.plot(plan.t_s, ref_speed, "k--", lw=0.8, label="reference speed")

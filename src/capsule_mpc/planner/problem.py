@@ -158,9 +158,12 @@ def _stage_function(model: CapsuleModel, lead_eq_m: np.ndarray) -> tuple[ca.Func
     coupling = ca.sumsqr(lead - ca.DM(lead_eq_m)) / sc.limits.max_lead_m**2 - 1 - s[0]
     fn = ca.vertcat(f_n + s[1], f_n - s[1]) / FN_SCALE
     fn_ = ca.Function(
-        "plan_stage", [x_prev, x, u, u_prev, s, dt], [g_dyn, coupling, fn, u - u_prev],
-        ["x_prev", "x", "u", "u_prev", "s", "dt"], ["g_dyn", "coupling", "fn", "du"],
-    )  # fmt: skip
+        "plan_stage",
+        [x_prev, x, u, u_prev, s, dt],
+        [g_dyn, coupling, fn, u - u_prev],
+        ["x_prev", "x", "u", "u_prev", "s", "dt"],
+        ["g_dyn", "coupling", "fn", "du"],
+    )
     try:
         return fn_.expand(), True
     except RuntimeError:  # a B-spline lookup cannot be expanded to SX
@@ -216,10 +219,12 @@ def _bounds(
     u_hi = -u_lo
     u_lo[:, -1] = u_hi[:, -1] = 0.0  # the EPM stands still at the end
     s_lo, s_hi = np.zeros(n_slacks * n), np.full(n_slacks * n, inf)
-    lbw = np.concatenate([np.ravel(x_lo / X_SCALE[:, None], order="F"),
-                          np.ravel(u_lo / U_SCALE[:, None], order="F"), s_lo])  # fmt: skip
-    ubw = np.concatenate([np.ravel(x_hi / X_SCALE[:, None], order="F"),
-                          np.ravel(u_hi / U_SCALE[:, None], order="F"), s_hi])  # fmt: skip
+    lbw = np.concatenate(
+        [np.ravel(x_lo / X_SCALE[:, None], order="F"), np.ravel(u_lo / U_SCALE[:, None], order="F"), s_lo]
+    )
+    ubw = np.concatenate(
+        [np.ravel(x_hi / X_SCALE[:, None], order="F"), np.ravel(u_hi / U_SCALE[:, None], order="F"), s_hi]
+    )
     return lbw, ubw
 
 
@@ -237,11 +242,13 @@ def _reference_guess(
 
 
 def _pack(xs: np.ndarray, us: np.ndarray, ss: np.ndarray) -> np.ndarray:
-    return np.concatenate([
-        np.ravel(xs / X_SCALE[:, None], order="F"),
-        np.ravel(us / U_SCALE[:, None], order="F"),
-        np.ravel(ss / S_SCALE[:, None], order="F"),
-    ])  # fmt: skip
+    return np.concatenate(
+        [
+            np.ravel(xs / X_SCALE[:, None], order="F"),
+            np.ravel(us / U_SCALE[:, None], order="F"),
+            np.ravel(ss / S_SCALE[:, None], order="F"),
+        ]
+    )
 
 
 def _symbols(n: int, nx: int, nu: int, extra: int) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX, ca.MX]:
@@ -305,17 +312,39 @@ def build_fixed_nlp(
     f = 0.5 * ca.sumsqr(res) + _slack_penalty(sc, ss, n)
     g = ca.vertcat(ca.vec(g_dyn), ca.vec(coupling), ca.vec(fn), ca.vec(du) / U_SCALE[0])
     da = lim.accel_mps2 * dt_s / U_SCALE[0]
-    lbg = np.concatenate([np.zeros(nx * n), np.full(n, -np.inf), np.tile([lim.normal_force_min_n / FN_SCALE,
-                          -np.inf], n), np.full(nu * n, -da)])  # fmt: skip
-    ubg = np.concatenate([np.zeros(nx * n), np.zeros(n), np.tile([np.inf, lim.normal_force_max_n / FN_SCALE],
-                          n), np.full(nu * n, da)])  # fmt: skip
+    lbg = np.concatenate(
+        [
+            np.zeros(nx * n),
+            np.full(n, -np.inf),
+            np.tile([lim.normal_force_min_n / FN_SCALE, -np.inf], n),
+            np.full(nu * n, -da),
+        ]
+    )
+    ubg = np.concatenate(
+        [
+            np.zeros(nx * n),
+            np.zeros(n),
+            np.tile([np.inf, lim.normal_force_max_n / FN_SCALE], n),
+            np.full(nu * n, da),
+        ]
+    )
     lbw, ubw = _bounds(sc, path, lead_eq_m, n, options.end_tol_m)
     x_guess, u_guess = _reference_guess(sc, path, lead_eq_m, t)
     w0 = np.clip(_pack(x_guess, u_guess, np.zeros((n_slacks, n))), lbw, ubw)
     return PlanNLP(
-        "fixed", {"x": w, "f": f, "g": g}, lbw, ubw, lbg, ubg, w0, n, dt_s, path.duration_s,
-        np.asarray(lead_eq_m, dtype=float), expanded,
-    )  # fmt: skip
+        "fixed",
+        {"x": w, "f": f, "g": g},
+        lbw,
+        ubw,
+        lbg,
+        ubg,
+        w0,
+        n,
+        dt_s,
+        path.duration_s,
+        np.asarray(lead_eq_m, dtype=float),
+        expanded,
+    )
 
 
 def build_min_time_nlp(
@@ -365,14 +394,28 @@ def build_min_time_nlp(
         + _slack_penalty(sc, ss, n)
     )
     g = ca.vertcat(ca.vec(g_dyn), ca.vec(coupling), ca.vec(fn), acc, ca.vec(tube), progress)
-    lbg = np.concatenate([
-        np.zeros(nx * n), np.full(n, -np.inf), np.tile([lim.normal_force_min_n / FN_SCALE, -np.inf], n),
-        np.full(nu * n, -np.inf), np.zeros(nu * n), np.full(n, -np.inf), np.zeros(n),
-    ])  # fmt: skip
-    ubg = np.concatenate([
-        np.zeros(nx * n), np.zeros(n), np.tile([np.inf, lim.normal_force_max_n / FN_SCALE], n),
-        np.zeros(nu * n), np.full(nu * n, np.inf), np.ones(n), np.full(n, np.inf),
-    ])  # fmt: skip
+    lbg = np.concatenate(
+        [
+            np.zeros(nx * n),
+            np.full(n, -np.inf),
+            np.tile([lim.normal_force_min_n / FN_SCALE, -np.inf], n),
+            np.full(nu * n, -np.inf),
+            np.zeros(nu * n),
+            np.full(n, -np.inf),
+            np.zeros(n),
+        ]
+    )
+    ubg = np.concatenate(
+        [
+            np.zeros(nx * n),
+            np.zeros(n),
+            np.tile([np.inf, lim.normal_force_max_n / FN_SCALE], n),
+            np.zeros(nu * n),
+            np.full(nu * n, np.inf),
+            np.ones(n),
+            np.full(n, np.inf),
+        ]
+    )
     lbw, ubw = _bounds(sc, path, lead_eq_m, n, options.end_tol_m)
     s_lo = np.zeros(n + 1)
     s_hi = np.full(n + 1, path.length_m / SIGMA_SCALE)
@@ -386,6 +429,16 @@ def build_min_time_nlp(
     w0 = np.concatenate([_pack(x_guess, u_guess, np.zeros((n_slacks, n))), arc / SIGMA_SCALE, [1.0]])
     w0 = np.clip(w0, lbw, ubw)
     return PlanNLP(
-        "min_time", {"x": w, "f": f, "g": g}, lbw, ubw, lbg, ubg, w0, n, t0 / n, t0,
-        np.asarray(lead_eq_m, dtype=float), expanded,
-    )  # fmt: skip
+        "min_time",
+        {"x": w, "f": f, "g": g},
+        lbw,
+        ubw,
+        lbg,
+        ubg,
+        w0,
+        n,
+        t0 / n,
+        t0,
+        np.asarray(lead_eq_m, dtype=float),
+        expanded,
+    )

@@ -199,8 +199,9 @@ class FaultInjector:
         if t_s >= self._burst_end_s and self._hit(
             "camera_drop", _per_step(cfg.camera_drop_burst_rate_hz, self.frame_s)
         ):
-            length = self._rng["camera_drop"].uniform(min(self.frame_s, cfg.camera_drop_burst_max_s),
-                                                      cfg.camera_drop_burst_max_s)  # fmt: skip
+            length = self._rng["camera_drop"].uniform(
+                min(self.frame_s, cfg.camera_drop_burst_max_s), cfg.camera_drop_burst_max_s
+            )
             self._burst_end_s = t_s + length
             lost = math.ceil(length / self.frame_s - 1e-9)
             self._record("camera_drop", t_s, t_s + lost * self.frame_s + self.latency_s)

@@ -431,9 +431,12 @@ class ClosedLoop:
         bias = (truth.camera_bias_x_m, truth.camera_bias_y_m)
         injector = fault_injector(scenario, self.seed)
         self.camera = Camera(
-            scenario.camera, np.random.default_rng(self.seed), bias_m=bias,
-            noise_std_m=truth.camera_noise_std_m, faults=injector,
-        )  # fmt: skip
+            scenario.camera,
+            np.random.default_rng(self.seed),
+            bias_m=bias,
+            noise_std_m=truth.camera_noise_std_m,
+            faults=injector,
+        )
         start_rng = np.random.default_rng([self.rig_seed, START_STREAM])
         epm0, capsule0, theta0 = start_pose(scenario, plant, path, start_rng)
         plant.reset(capsule0, theta_s=theta0)
@@ -631,12 +634,25 @@ class ClosedLoop:
             obs.on_end(self, metrics)
         arm_run = check_arm_run(self.scenario, self.actuator, self.flags, metrics)
         return RunResult(
-            scenario=self.scenario, controller=self.name, seed=self.seed, path=self.path, log=arrays,
-            metrics=metrics, flags=self.flags, step_stats=stats, limit_counts=limits, wall_time_s=wall,
-            sim_time_s=(self.k - self.k_first) * self.dt, plant_steps=self.k - self.k_first,
-            meta=dict(self.meta), predictions=self.predictions, realtime=pacing, truth=self.truth,
-            fault_events=[] if self.injector is None else list(self.injector.events), arm_run=arm_run,
-        )  # fmt: skip
+            scenario=self.scenario,
+            controller=self.name,
+            seed=self.seed,
+            path=self.path,
+            log=arrays,
+            metrics=metrics,
+            flags=self.flags,
+            step_stats=stats,
+            limit_counts=limits,
+            wall_time_s=wall,
+            sim_time_s=(self.k - self.k_first) * self.dt,
+            plant_steps=self.k - self.k_first,
+            meta=dict(self.meta),
+            predictions=self.predictions,
+            realtime=pacing,
+            truth=self.truth,
+            fault_events=[] if self.injector is None else list(self.injector.events),
+            arm_run=arm_run,
+        )
 
     def run(self, observers: Sequence[Observer] = ()) -> RunResult:
         """Reset, step until the run is over (``observers`` called in each frame), return the result."""
@@ -674,7 +690,14 @@ def simulate(
         dropped, invalid commands) are values in the result, not exceptions.
     """
     loop = ClosedLoop(
-        scenario, controller, path, seed, actuator=actuator, plant=plant, plant_seed=plant_seed,
-        realtime=realtime, meta=meta,
-    )  # fmt: skip
+        scenario,
+        controller,
+        path,
+        seed,
+        actuator=actuator,
+        plant=plant,
+        plant_seed=plant_seed,
+        realtime=realtime,
+        meta=meta,
+    )
     return loop.run([ProgressBar(f"simulate {loop.name}")] if progress else [])

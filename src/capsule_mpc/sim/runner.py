@@ -441,9 +441,12 @@ def score_run(
     tol = scenario.sim.completion_tol_m
     end_s = float(arrays["t_s"][-1]) if len(arrays["t_s"]) else 0.0
     metrics = run_metrics(
-        arrays, path, window_end_s=max(end_s, 0.0), arrival_tol_m=tol,
+        arrays,
+        path,
+        window_end_s=max(end_s, 0.0),
+        arrival_tol_m=tol,
         deadline_ms=1e3 / scenario.camera.rate_hz,
-    )  # fmt: skip
+    )
     near = metrics["final_error_mm"] <= tol * 1e3
     progress = arrays["progress_m"]
     left_mm = max(path.length_m - float(progress[-1]), 0.0) * 1e3 if len(progress) else math.nan
@@ -451,8 +454,13 @@ def score_run(
     flags.stalled = flags.at_rest and not near
     outcome = flags.describe(metrics["final_error_mm"], left_mm, end_s)
     metrics.update(
-        completed=flags.completed, at_rest=flags.at_rest, decoupled=flags.decoupled,
-        dropped=flags.dropped, stalled=flags.stalled, timed_out=flags.timed_out,
-        invalid_commands=flags.invalid_commands, outcome=outcome,
-    )  # fmt: skip
+        completed=flags.completed,
+        at_rest=flags.at_rest,
+        decoupled=flags.decoupled,
+        dropped=flags.dropped,
+        stalled=flags.stalled,
+        timed_out=flags.timed_out,
+        invalid_commands=flags.invalid_commands,
+        outcome=outcome,
+    )
     return metrics
