@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import casadi as ca
@@ -203,3 +204,16 @@ def test_default_height_gives_2_to_4_weights(scenario, table):
         f_n = table.evaluate(lead, h)[2] - weight
         assert 2 <= f_n / weight <= 4
     assert -0.03 < eq[0] < -0.005 and abs(eq[1]) < 1e-6  # rests off-centre along the array
+
+
+def test_a_tables_casadi_function_is_built_once_and_follows_the_values(scenario, table):
+    h = scenario.plate.epm_height_m
+    first = table.casadi_function()
+    assert table.casadi_function() is first  # the same table: the function already built
+    assert capsule_force_function(scenario, "lookup") is first  # the table read again from the cache
+    doubled = dataclasses.replace(table, force_n=2.0 * table.force_n)  # same key, other values
+    other = doubled.casadi_function()
+    assert other is not first
+    lead = [0.004, -0.002]
+    expected = 2.0 * np.asarray(first(lead, h)).ravel()
+    assert np.asarray(other(lead, h)).ravel() == pytest.approx(expected, rel=1e-9)

@@ -31,6 +31,11 @@ __all__ = ["ForceMap", "cache_directory", "force_map", "force_map_key"]
 
 #: Bump when the table's meaning or layout changes, to invalidate old caches.
 _FORMAT_VERSION = 1
+#: B-spline functions built by :meth:`ForceMap.casadi_function`, by (table digest, name), newest last:
+#: building one takes about a second and a table's function never changes, so the controller, the
+#: path checks and the learning share one per table. At most :data:`_MAX_FUNCTIONS` are kept.
+_FUNCTIONS: dict[tuple[str, str], ca.Function] = {}
+_MAX_FUNCTIONS = 8
 
 
 def cache_directory(scenario: Scenario) -> Path:
@@ -140,7 +145,24 @@ class ForceMap:
         return np.asarray((1 - w) * lo + w * hi, dtype=float)
 
     def casadi_function(self, name: str = "force_lookup") -> ca.Function:
-        """CasADi B-spline of the table: ``F = f(lead (2), height (1))`` with F = (F_x, F_y, F_att)."""
+        """CasADi B-spline of the table: ``F = f(lead (2), height (1))`` with F = (F_x, F_y, F_att).
+
+        Built once per table (its grid and values) and name in a process: the same function is
+        returned again."""
+        digest = hashlib.sha256()
+        for array in (self.lead_x_m, self.lead_y_m, self.height_m, self.force_n):
+            digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
+        index = (digest.hexdigest(), name)
+        cached = _FUNCTIONS.get(index)
+        if cached is not None:
+            return cached
+        function = self._build_function(name)
+        _FUNCTIONS[index] = function
+        while len(_FUNCTIONS) > _MAX_FUNCTIONS:
+            del _FUNCTIONS[next(iter(_FUNCTIONS))]
+        return function
+
+    def _build_function(self, name: str) -> ca.Function:
         # CasADi wants the grid values column-major (first axis fastest), outputs innermost.
         values = np.transpose(self.force_n, (3, 0, 1, 2)).ravel(order="F")
         spline = ca.interpolant(
