@@ -615,6 +615,43 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "The same pipe at 0.045 m/s, where the bends ask the most of the arm.",
     ),
     (
+        "controllers_rectangle_jerk10",
+        "Jerk limit 10 m/s³ (rectangle, `lab`)",
+        render_sweep,
+        "The rectangle with the EPM jerk limit `limits.jerk_mps3` doubled from 5 to 10 m/s³ "
+        "(`benchmarks/configs/rectangle_jerk10.yaml`); same draws as the rectangle's table above, so "
+        "the two tables compare draw for draw.",
+    ),
+    (
+        "controllers_rectangle_jerk20",
+        "Jerk limit 20 m/s³ (rectangle, `lab`)",
+        render_sweep,
+        "The rectangle with the EPM jerk limit at 20 m/s³ (`benchmarks/configs/rectangle_jerk20.yaml`).",
+    ),
+    (
+        "controllers_rectangle_arm125hz",
+        "Arm at 125 Hz (rectangle, `lab`)",
+        render_sweep,
+        "The rectangle with the arm's setpoints streamed at 125 Hz, a CB3 UR5's RTDE rate (the default "
+        "is an e-Series' 500 Hz; `benchmarks/configs/rectangle_arm125hz.yaml`).",
+    ),
+    (
+        "controllers_rectangle_100hz",
+        "Localisation at 100 Hz (rectangle, `lab`)",
+        render_sweep,
+        "The rectangle with the capsule measured at 100 Hz with one frame of latency, as magnetic "
+        "localisation gives it (`configs/rectangle_100hz.yaml`: the MPC plans 21 stages, the first one "
+        "frame long, the others 20 ms).",
+    ),
+    (
+        "controllers_friction_step",
+        "A friction step (rectangle, `lab`)",
+        render_sweep,
+        "The rectangle with the plate's friction 50 % higher for x ≥ 0 (a raised-cosine edge 3 mm "
+        "wide), which only the plant knows: the controller must find the change from the "
+        "measurements (`configs/friction_step.yaml`).",
+    ),
+    (
         "friction_ablation_lab",
         "What the friction model is worth (`lab`)",
         render_ablation,
