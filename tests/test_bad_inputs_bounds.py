@@ -48,12 +48,13 @@ WORK = [
     ("capsule_mpc.experiments.runs", "check_epm_height"),
     ("capsule_mpc.sim", "simulate"),
     ("capsule_mpc.learning.demonstrations", "run_demonstrations"),
-    ("capsule_mpc.cli.demonstrate", "run_demonstrations"),
+    ("capsule_mpc.experiments.demonstrate", "run_demonstrations"),
     ("capsule_mpc.planner", "plan_path"),
+    ("capsule_mpc.experiments.plan", "plan_path"),
     ("capsule_mpc.planner", "cached_plan"),
     ("capsule_mpc.experiments.bench", "run_benchmark"),
     ("capsule_mpc.experiments.sweep.campaign", "sweep"),
-    ("capsule_mpc.cli.arm", "export_arm_trajectory"),
+    ("capsule_mpc.experiments.arm_export", "export_arm_trajectory"),
     ("capsule_mpc.cli.docs", "write_reference_docs"),
 ]
 
@@ -70,12 +71,13 @@ PREIMPORT = [
     "capsule_mpc.experiments.runs",
     "capsule_mpc.experiments.demo",
     "capsule_mpc.experiments.compare",
+    "capsule_mpc.experiments.demonstrate",
+    "capsule_mpc.experiments.plan",
+    "capsule_mpc.experiments.arm_export",
     "capsule_mpc.experiments.sweep.campaign",
     "capsule_mpc.cli.simulate",
     "capsule_mpc.cli.info",
-    "capsule_mpc.cli.demonstrate",
     "capsule_mpc.cli.sweep",
-    "capsule_mpc.cli.arm",
     "capsule_mpc.cli.docs",
 ]
 

@@ -340,11 +340,11 @@ def test_cli_bad_input_exits_2_with_a_clear_message(tmp_path, capsys):
 
 
 def test_cli_failed_solve_exits_1(tmp_path, monkeypatch, capsys):
-    import capsule_mpc.planner as planner
+    import capsule_mpc.experiments.plan as planning
 
-    real = planner.plan_path
+    real = planning.plan_path
     monkeypatch.setattr(
-        planner, "plan_path", lambda sc, p, v, **kw: real(sc, p, v, PlannerOptions(max_iter=2), **kw)
+        planning, "plan_path", lambda sc, p, v, **kw: real(sc, p, v, PlannerOptions(max_iter=2), **kw)
     )
     wp = _waypoints(tmp_path, "0.0,0.0\n0.03,0.0\n")
     out = tmp_path / "fail"

@@ -10,13 +10,19 @@ import argparse
 import math
 import os
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..budget import MAX_RUNS
-from ..config import ConfigError
+from ..experiments.inputs import refuse_repeats
+
+if TYPE_CHECKING:
+    from ..learning.demonstrations import BreakawayPlan
 
 __all__ = [
+    "add_breakaway_arguments",
+    "add_rig_arguments",
     "input_files",
     "int_at_least",
     "out_folder",
@@ -114,16 +120,36 @@ def out_folder(text: str) -> str:
     return text
 
 
-def refuse_repeats(option: str, values: Sequence[object]) -> None:
-    """Refuse a value given twice to a list option (it would be counted twice).
+def add_rig_arguments(p: argparse.ArgumentParser, seed_default: int | None = 0) -> None:
+    """Add ``--plant`` and ``--seed``: the rig every run runs on (a plant preset and its draw's seed)."""
+    p.add_argument(
+        "--plant",
+        choices=("ideal", "lab", "hard"),
+        default=None,
+        help="the rig's plant preset: the simulated truth around the nominal rig (default: the config's "
+        "plant.preset)",
+    )
+    default = "sim.seed of the config" if seed_default is None else str(seed_default)
+    p.add_argument(
+        "--seed",
+        type=seed,
+        default=seed_default,
+        help=f"seed of the rig's plant draw, an integer >= 0 (default {default}); every run runs on that "
+        "one draw, each with its own camera-noise seed derived from it",
+    )
 
-    Raises
-    ------
-    ConfigError
-        ``"<option>: <value> is given more than once"``.
-    """
-    seen: set[object] = set()
-    for value in values:
-        if value in seen:
-            raise ConfigError(f"{option}: {value!r} is given more than once")
-        seen.add(value)
+
+def add_breakaway_arguments(p: argparse.ArgumentParser, defaults: BreakawayPlan) -> None:
+    """Add the breakaway experiments' options, with the rest times, pull speed and pull length of
+    ``defaults`` as their defaults."""
+    g = p.add_argument_group("breakaway experiments (static friction)")
+    g.add_argument("--no-breakaway", action="store_true", help="do not run the breakaway experiments")
+    g.add_argument("--rest-times", type=float, nargs="+", default=list(defaults.rest_s), metavar="T",
+                   help="rest times before each pull, s, each in [0, 30] (default "
+                   + " ".join(f"{t:g}" for t in defaults.rest_s) + ")")  # fmt: skip
+    g.add_argument("--pull-speed", type=positive_speed, default=defaults.speed_mps,
+                   help=f"pull speed, m/s, in (0, limits.speed_mps] "
+                   f"(default {defaults.speed_mps:g})")  # fmt: skip
+    g.add_argument("--pull", type=float, default=defaults.pull_m,
+                   help="pull length along x and along y, m, in (0, 0.035) "
+                   f"(default {defaults.pull_m:g})")  # fmt: skip

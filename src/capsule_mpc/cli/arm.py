@@ -9,46 +9,22 @@ plan, a row beyond the limits or outside the workspace (the file, the 1-based da
 field are named), a plan longer than the budget allows (rows, span, the setpoints' memory:
 :mod:`capsule_mpc.budget`), a trajectory the arm cannot follow or that fails its final check
 (time and EPM position named), no or a bad config, or an output folder that cannot be written.
+
+The work is :mod:`capsule_mpc.experiments.arm_export`.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
-from pathlib import Path
 from typing import Any
 
-from ..arm import ArmError, export_arm_trajectory, read_epm_plan_csv
+from ..arm import ArmError
 from ..config import ConfigError, load_config
-from ..outputs import output_folder
+from ..experiments.arm_export import export_lines, export_plan, plan_config
 from .arguments import input_files
 
-__all__ = ["PLAN_CONFIG", "plan_config", "register", "run"]
-
-#: The scenario file ``plan`` and ``simulate`` write beside their results.
-PLAN_CONFIG = "config.yaml"
-
-
-def plan_config(plan: str | Path, config: str | Path | None) -> tuple[Path, str]:
-    """The scenario an EPM plan is checked and exported with, and where it came from in words.
-
-    ``config`` if given; else the :data:`PLAN_CONFIG` beside the plan.
-
-    Raises
-    ------
-    ConfigError
-        Neither exists (``--config: required ...``).
-    """
-    if config is not None:
-        return Path(config), "--config"
-    beside = Path(plan).resolve().parent / PLAN_CONFIG
-    if beside.is_file():
-        return beside, "the config beside the plan"
-    raise ConfigError(
-        f"--config: required: no {PLAN_CONFIG} beside {plan}; give the scenario the plan was made for "
-        "(its limits, workspace and arm), e.g. --config configs/paper.yaml"
-    )
+__all__ = ["register", "run"]
 
 
 def register(sub: Any) -> None:
@@ -85,9 +61,6 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export ``--plan`` into ``--out``; 2 if anything fails (nothing written), else 0."""
-    from ..arm.checks import check_epm_plan, default_max_deviation_m
-    from ..budget import check_arm_export
-
     try:
         config, source = plan_config(args.plan, args.config)
     except ConfigError as exc:
@@ -96,41 +69,11 @@ def run(args: argparse.Namespace) -> int:
     scenario = load_config(config)
     print(f"config: {config} ({source})")
     try:
-        t, p = read_epm_plan_csv(args.plan, default_height_m=scenario.plate.epm_height_m)
-        # Every row first (span included), then what the setpoints need: before any Ruckig or IK work.
-        check_epm_plan(scenario, t, p, default_max_deviation_m(scenario))
-        check_arm_export(scenario, float(t[-1] - t[0]), f"{args.plan}: t_s")
-        wall0 = time.perf_counter()
         inputs = input_files(args, "--plan", "--config")
-        refusals = (ArmError, ValueError, OSError)  # nothing written: what was is removed
-        with output_folder(args.out, "arm-export", refusals=refusals, inputs=inputs) as folder:
-            result = export_arm_trajectory(scenario, t, p, folder.path, plot=not args.no_plot)
+        done = export_plan(scenario, args.plan, args.out, plot=not args.no_plot, inputs=inputs)
     except (ArmError, ValueError, OSError) as exc:
         where = f"{args.plan}: " if isinstance(exc, ArmError) else ""
         print(f"capsule-mpc arm-export: {where}{exc} (nothing written)", file=sys.stderr)
         return 2
-    wall = time.perf_counter() - wall0
-    s = result.summary
-    smoothing = s.get("smoothing", {})
-    check = s["check"]
-    ik = s["ik"]
-    rate, n_set, dur = s["arm_rate_hz"], s["n_setpoints"], s["duration_s"]
-    print(f"{len(t)} plan points -> {n_set} setpoints at {rate:g} Hz ({dur:.2f} s)")
-    dev_rms = smoothing.get("rms_deviation_m", 0.0) * 1e3
-    lag = smoothing.get("end_lag_s", 0.0)
-    print(
-        f"  EPM deviation from the plan max {check['max_deviation_m'] * 1e3:.2f} mm (tolerance "
-        f"{check['tolerance_m'] * 1e3:.2f} mm), rms {dev_rms:.2f} mm; end {lag:.3f} s late"
-    )
-    jerk = max(s["max_fd_jerk_mps3"])
-    print(f"  worst finite-difference jerk {jerk:.4f} m/s^3 (limit {max(s['limits']['jerk_mps3'])})")
-    steps = ik["total_iterations"] / max(ik["n_points"], 1)
-    ik_err = ik["max_position_error_m"]
-    print(f"  IK: worst EPM position error {ik_err:.2e} m, {steps:.2f} Newton steps per point")
-    used = max(a / b for a, b in zip(s["max_joint_speed_radps"], s["joint_speed_limit_radps"]))
-    margin = min(s["min_joint_margin_rad"])
-    print(f"  joints: closest to a position limit {margin:.3f} rad; speed {used:.1%} of allowed")
-    print(f"  Ruckig + IK + checks + files: {wall:.2f} s")
-    for kind, path in result.paths.items():
-        print(f"  {kind:10s} {path}")
+    print("\n".join(export_lines(done)))
     return 0

@@ -14,10 +14,10 @@ from typing import Any
 
 from ..budget import check_run, speed_source
 from ..config import ConfigError, Scenario, load_config, packaged_config_path
+from ..experiments.demonstrate import DEFAULT_SPEEDS_MPS, check_demonstrations, rig_scenario
 from ..learning.demonstrations import BreakawayPlan
 from ..outputs import output_folder
-from .arguments import input_files, positive_speed
-from .demonstrate import DEFAULT_SPEEDS_MPS, add_rig_arguments, check_demonstrations, rig_scenario
+from .arguments import add_rig_arguments, input_files, positive_speed
 
 __all__ = ["DEFAULT_OUT", "check_demo", "register", "run"]
 

@@ -1,170 +1,29 @@
 """``capsule-mpc demonstrate``: the ``follow`` baseline at several speeds and breakaway experiments,
-all on one rig (a plant preset and the seed of its draw), written as run logs."""
+all on one rig (a plant preset and the seed of its draw), written as run logs
+(:mod:`capsule_mpc.experiments.demonstrate`)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..budget import MAX_RUNS, check_run, speed_source
-from ..config import ConfigError, Scenario, config_from_dict, load_config
-from ..learning.demonstrations import (
-    BREAKAWAY_DIRECTIONS,
-    BREAKAWAY_PULL_M,
-    BREAKAWAY_REST_S,
-    BREAKAWAY_SPEED_MPS,
-    DEMO_PATHS,
-    BreakawayPlan,
-    breakaway_path,
-    demo_path,
-    run_demonstrations,
+from ..config import load_config
+from ..experiments.demonstrate import (
+    DEFAULT_SPEEDS_MPS,
+    breakaway_plan,
+    check_demonstrations,
+    record_demonstrations,
+    report_lines,
+    rig_scenario,
 )
-from ..outputs import output_folder
-from .arguments import input_files, positive_speed, refuse_repeats, run_count, seed
-from .learn import output_problem
+from ..experiments.inputs import output_problem
+from ..learning.demonstrations import DEMO_PATHS, BreakawayPlan
+from .arguments import add_breakaway_arguments, add_rig_arguments, input_files, positive_speed, run_count
 
-__all__ = [
-    "DEFAULT_SPEEDS_MPS",
-    "add_rig_arguments",
-    "breakaway_plan",
-    "check_demonstrations",
-    "register",
-    "rig_scenario",
-    "run",
-]
-
-#: The default demonstration speeds, m/s (inside and around the paper's 0.005-0.04 m/s range).
-DEFAULT_SPEEDS_MPS = (0.005, 0.01, 0.02, 0.03, 0.04)
-
-
-def check_demonstrations(
-    scenario: Scenario,
-    speeds_mps: Sequence[float],
-    path_kinds: Sequence[str],
-    repeats: int = 1,
-    breakaway: BreakawayPlan | None = None,
-) -> None:
-    """Refuse demonstrations the rig or the machine cannot run, before any of them runs.
-
-    No speed or path kind given twice, at most :data:`capsule_mpc.budget.MAX_RUNS` runs, and each
-    run within the budget's bounds (:func:`capsule_mpc.budget.check_run`, the slowest speed on
-    each path kind). :func:`~capsule_mpc.learning.demonstrations.run_demonstrations` checks the
-    speeds against the EPM's limit.
-
-    Raises
-    ------
-    ConfigError
-        Naming ``--speeds``, ``--paths``, ``--repeats`` or ``--pull-speed`` and the allowed range.
-    """
-    refuse_repeats("--speeds", list(speeds_mps))
-    refuse_repeats("--paths", list(path_kinds))
-    runs = len(speeds_mps) * len(path_kinds) * repeats
-    n_break = 0 if breakaway is None else len(breakaway.rest_s) * len(breakaway.directions) * repeats
-    if runs + n_break > MAX_RUNS:
-        raise ConfigError(
-            f"--repeats {repeats}: {len(path_kinds)} paths x {len(speeds_mps)} speeds x {repeats} repeats = "
-            f"{runs} runs and {n_break} breakaway runs; at most {MAX_RUNS} in all "
-            "(capsule_mpc.budget.MAX_RUNS)"
-        )
-    if breakaway is not None:
-        limit = scenario.limits.speed_mps
-        if breakaway.speed_mps > limit:
-            raise ConfigError(
-                f"--pull-speed: must be in (0, {limit:g}] m/s (limits.speed_mps), got {breakaway.speed_mps:g}"
-            )
-        for direction in breakaway.directions:
-            path = breakaway_path(scenario, direction, breakaway)
-            check_run(
-                scenario, path.length_m, breakaway.speed_mps, f"--pull-speed {breakaway.speed_mps:g} m/s"
-            )
-    slowest = min(speeds_mps)
-    paths = sorted(
-        ((demo_path(scenario, kind, slowest), kind) for kind in path_kinds), key=lambda p: -p[0].length_m
-    )
-    for path, kind in paths:  # the longest first: the speed it needs suits the others
-        check_run(scenario, path.length_m, slowest, f"{speed_source('--speeds', slowest)} ({kind})")
-
-
-def add_rig_arguments(p: argparse.ArgumentParser, seed_default: int | None = 0) -> None:
-    """Add ``--plant`` and ``--seed``: the rig every run runs on (a plant preset and its draw's seed)."""
-    p.add_argument(
-        "--plant",
-        choices=("ideal", "lab", "hard"),
-        default=None,
-        help="the rig's plant preset: the simulated truth around the nominal rig (default: the config's "
-        "plant.preset)",
-    )
-    default = "sim.seed of the config" if seed_default is None else str(seed_default)
-    p.add_argument(
-        "--seed",
-        type=seed,
-        default=seed_default,
-        help=f"seed of the rig's plant draw, an integer >= 0 (default {default}); every run runs on that "
-        "one draw, each with its own camera-noise seed derived from it",
-    )
-
-
-def rig_scenario(scenario: Scenario, plant_preset: str | None) -> Scenario:
-    """``scenario`` with ``plant.preset`` set to ``plant_preset`` (unchanged for None)."""
-    if plant_preset is None or plant_preset == scenario.plant.preset:
-        return scenario
-    data = scenario.model_dump(mode="json", exclude_none=True)
-    data["plant"]["preset"] = plant_preset
-    if isinstance(scenario.friction.learned, Path):  # keep a relative model file loadable
-        data["friction"]["learned"] = scenario.controller_friction().model_dump(
-            mode="json", exclude_none=True
-        )
-    out = config_from_dict(data)
-    out.source_path = scenario.source_path
-    return out
-
-
-def breakaway_plan(args: argparse.Namespace) -> BreakawayPlan | None:
-    """The breakaway experiments the options ask for; None with ``--no-breakaway``.
-
-    Raises
-    ------
-    ConfigError
-        Naming the option and the allowed range.
-    """
-    if args.no_breakaway:
-        return None
-    refuse_repeats("--rest-times", list(args.rest_times))
-    try:
-        return BreakawayPlan(
-            rest_s=tuple(args.rest_times),
-            speed_mps=args.pull_speed,
-            pull_m=args.pull,
-            directions=tuple(BREAKAWAY_DIRECTIONS),
-        )
-    except ValueError as exc:
-        text = str(exc)
-        for field, option in (
-            ("rest_s", "--rest-times"),
-            ("speed_mps", "--pull-speed"),
-            ("pull_m", "--pull"),
-        ):
-            text = text.replace(f"breakaway {field}", option)
-        raise ConfigError(text) from None
-
-
-def add_breakaway_arguments(p: argparse.ArgumentParser) -> None:
-    """Add the breakaway experiments' options."""
-    g = p.add_argument_group("breakaway experiments (static friction)")
-    g.add_argument("--no-breakaway", action="store_true", help="do not run the breakaway experiments")
-    g.add_argument("--rest-times", type=float, nargs="+", default=list(BREAKAWAY_REST_S), metavar="T",
-                   help="rest times before each pull, s, each in [0, 30] (default "
-                   + " ".join(f"{t:g}" for t in BREAKAWAY_REST_S) + ")")  # fmt: skip
-    g.add_argument("--pull-speed", type=positive_speed, default=BREAKAWAY_SPEED_MPS,
-                   help=f"pull speed, m/s, in (0, limits.speed_mps] "
-                   f"(default {BREAKAWAY_SPEED_MPS:g})")  # fmt: skip
-    g.add_argument("--pull", type=float, default=BREAKAWAY_PULL_M,
-                   help="pull length along x and along y, m, in (0, 0.035) "
-                   f"(default {BREAKAWAY_PULL_M:g})")  # fmt: skip
+__all__ = ["register", "run"]
 
 
 def register(sub: Any) -> None:
@@ -193,7 +52,7 @@ def register(sub: Any) -> None:
                    "in all")  # fmt: skip
     add_rig_arguments(p)
     p.add_argument("--no-cache", action="store_true", help="re-run even if a matching run exists")
-    add_breakaway_arguments(p)
+    add_breakaway_arguments(p, BreakawayPlan())
     p.set_defaults(func=run)
 
 
@@ -209,24 +68,16 @@ def run(args: argparse.Namespace) -> int:
     if problem:
         print(f"capsule-mpc demonstrate: {problem}", file=sys.stderr)
         return 2
-    inputs = input_files(args, "--config")
-    try:
-        plan = breakaway_plan(args)
+    try:  # a bad value or an output folder refused is exit 2 (an OutputError is a ConfigError)
+        plan = None if args.no_breakaway else breakaway_plan(args.rest_times, args.pull_speed, args.pull)
         check_demonstrations(scenario, args.speeds, args.paths, args.repeats, plan)
-    except ConfigError as exc:
-        print(f"capsule-mpc demonstrate: {exc}", file=sys.stderr)
-        return 2
-    print(f"capsule-mpc demonstrate: on one rig: plant preset {scenario.plant.preset!r}, seed {args.seed}")
-    try:
-        # The folder is a cache of runs: earlier ones are kept (and reused when unchanged).
-        with output_folder(args.out, "demonstrate", replace_previous=False, inputs=inputs) as folder:
-            folder.status = 2  # until the runs are done: a bad value or a write error (below) is exit 2
-            runs = run_demonstrations(
-                scenario, args.speeds, args.out, repeats=args.repeats, seed=args.seed,
-                path_kinds=args.paths, use_cache=not args.no_cache, progress=True, breakaway=plan,
-            )  # fmt: skip
-            failed = [r for r in runs if r.status in ("decoupled", "dropped")]
-            folder.status = 1 if failed else 0
+        print(
+            f"capsule-mpc demonstrate: on one rig: plant preset {scenario.plant.preset!r}, seed {args.seed}"
+        )
+        runs, status = record_demonstrations(
+            scenario, args.speeds, args.out, repeats=args.repeats, seed=args.seed, path_kinds=args.paths,
+            use_cache=not args.no_cache, breakaway=plan, inputs=input_files(args, "--config"),
+        )  # fmt: skip
     except ValueError as exc:
         print(f"capsule-mpc demonstrate: {exc}", file=sys.stderr)
         return 2
@@ -234,13 +85,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc demonstrate: cannot write {exc.filename or args.out}: {exc.strerror or exc}",
               file=sys.stderr)  # fmt: skip
         return 2
-    frames = sum(r.n_frames for r in runs)
-    cached = sum(r.cached for r in runs)
-    n_break = sum(r.experiment == "breakaway" for r in runs)
-    print(
-        f"{len(runs)} demonstration run(s) ({n_break} breakaway, {cached} cached), {frames} frames, in "
-        f"{args.out} ({time.perf_counter() - start:.1f} s)"
-    )
-    for r in failed:
-        print(f"  warning: {r.run_dir} failed: {r.status}; its log is usable up to the failure")
-    return folder.status
+    print("\n".join(report_lines(runs, args.out, time.perf_counter() - start)))
+    return status
