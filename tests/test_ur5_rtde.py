@@ -152,9 +152,11 @@ def test_waitperiod_paces_the_stream_to_the_wall_clock(scenario):
     act = _connect(scenario, robot)
     act.reset(_start(scenario))
     _drive(act, (0.01, 0.0, 0.0), 0.4)
-    wall = np.array([c.wall_s for c in robot.named("servoJ")])
-    assert len(wall) == 200
-    assert np.median(np.diff(wall)) == pytest.approx(0.002, rel=0.1)
+    starts = np.array([c.wall_s for c in robot.named("initPeriod")])
+    assert len(starts) == len(robot.named("servoJ")) == 200
+    # a period never starts before the previous one is over (a loaded machine may start it late)
+    assert np.diff(starts).min() >= 0.002 - 1e-6
+    assert np.median(np.diff(starts)) < 0.002 * 3
 
 
 # -- the rate ---------------------------------------------------------------------------------
