@@ -469,6 +469,7 @@ def test_a_calibrated_rig_agrees_with_the_controller(scenario):
     _drive(act, (0.01, 0.01, 0.0), 0.3)
     assert act.stopped is None
     np.testing.assert_allclose(act.position_m, _start(scenario) + np.array([0.003, 0.003, 0.0]), atol=1e-3)
+    np.testing.assert_allclose(act.velocity_mps, [0.01, 0.01, 0.0], atol=2e-4)  # from the measured joints
     assert act.scenario.arm.base_xyz_m == pytest.approx((0.01, -0.46, 0.002))
 
 

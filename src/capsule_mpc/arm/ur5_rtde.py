@@ -305,6 +305,10 @@ class UR5RtdeActuator(Actuator):
     only after :meth:`reset` (pre-flight and a slow move to the start). Close it with
     :meth:`close` (or use it as a context manager): servoStop, stopScript, disconnect.
 
+    :meth:`reset`, :meth:`step_xyz` and :meth:`close` belong to one thread (the stream's);
+    :meth:`set_velocity_command`, :attr:`position_m`, :attr:`velocity_mps`, :attr:`stopped`,
+    :attr:`events` and :meth:`limit_counts` may be used from any other.
+
     Parameters
     ----------
     scenario : Scenario
@@ -476,6 +480,8 @@ class UR5RtdeActuator(Actuator):
         """Keep the measured joints (and speeds, default 0) and the EPM frame they put."""
         self._q_meas = q
         self._qd_meas = np.zeros(self.kin.nq) if qd is None else qd
+        # Kept per period: the kinematics' workspace is the stream's, not a reader thread's.
+        self._v_meas = self.kin.jacobian(q)[:3] @ self._qd_meas
         self._placement = self.kin.epm_placement(q)
         x, y, z = self._placement.translation.tolist()
         self._xyz = (x, y, z)
@@ -721,7 +727,7 @@ class UR5RtdeActuator(Actuator):
     @property
     def velocity_mps(self) -> np.ndarray:
         """EPM velocity (3,), m/s: the Jacobian at the measured joints times their measured speeds."""
-        return np.asarray(self.kin.jacobian(self._q_meas)[:3] @ self._qd_meas)
+        return np.array(self._v_meas)
 
     @property
     def q_measured_rad(self) -> np.ndarray:
