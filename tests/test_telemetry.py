@@ -17,7 +17,9 @@ from capsule_mpc.cli import main
 from capsule_mpc.experiments.runs import export_run_arm
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import ClosedLoop, write_run
-from capsule_mpc.telemetry import TOPICS, Telemetry, layout_json
+from capsule_mpc.telemetry.layout import layout_json
+from capsule_mpc.telemetry.observer import Telemetry
+from capsule_mpc.telemetry.topics import TOPICS
 
 REPO = Path(__file__).resolve().parents[1]
 #: A corner: a short MPC run with a prediction and a turn.

@@ -17,7 +17,8 @@ from websockets.sync.client import connect
 from capsule_mpc.config import ConfigError
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import ClosedLoop
-from capsule_mpc.telemetry import Telemetry, add_telemetry_arguments, parse_live_address, telemetry_observers
+from capsule_mpc.telemetry.observer import Telemetry, telemetry_observers
+from capsule_mpc.telemetry.options import add_telemetry_arguments, parse_live_address
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 SHORT = ReferencePath(np.array([[0.0, 0.0], [0.02, 0.0]]), False, 0.02)
@@ -119,6 +120,15 @@ def test_the_options_ask_for_the_mcap_in_the_run_folder_and_the_live_server(tmp_
         tel.close()
     assert _args("--live").live == "127.0.0.1:8765"
     assert list(tmp_path.iterdir()) == []  # nothing written by a telemetry whose run never started
+
+
+def test_a_live_address_in_use_is_refused_naming_the_option(tmp_path):
+    (first,) = telemetry_observers(_args("--no-mcap", "--live", "127.0.0.1:0"), tmp_path)
+    try:
+        with pytest.raises(ConfigError, match=r"--live: cannot serve on 127.0.0.1:\d+"):
+            telemetry_observers(_args("--no-mcap", "--live", f"127.0.0.1:{first.port}"), tmp_path)
+    finally:
+        first.close()
 
 
 @pytest.mark.parametrize(

@@ -67,7 +67,7 @@ def run_export(args: argparse.Namespace) -> int:
         print(f"capsule-mpc log export: --out: {problem}", file=sys.stderr)
         return 2
     # lazy: foxglove and the simulator load when a conversion starts, not for ``--help``
-    from ..telemetry import export_run
+    from ..telemetry.export import export_run
 
     written = export_run(args.run_dir, target)
     print(f"wrote {written}")

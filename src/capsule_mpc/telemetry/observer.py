@@ -3,6 +3,7 @@ writes every frame to an MCAP file and/or serves it live to Foxglove."""
 
 from __future__ import annotations
 
+import argparse
 import math
 from pathlib import Path
 from types import TracebackType
@@ -10,15 +11,17 @@ from typing import Any
 
 from foxglove.messages import LogLevel
 
+from ..errors import ConfigError
 from ..estimation import CapsuleEstimator
 from ..interfaces import Controller
 from ..sim import ClosedLoop, Frame, Observer
 from ..sim.runner import RunOutcome
 from .messages import Clock, RigGeometry
+from .options import MCAP_NAME, LiveAddress, parse_live_address
 from .publisher import RunPublisher
-from .sinks import LiveAddress, Sinks
+from .sinks import Sinks
 
-__all__ = ["Telemetry", "end_level"]
+__all__ = ["Telemetry", "end_level", "telemetry_observers"]
 
 
 def end_level(outcome: RunOutcome | str) -> LogLevel:
@@ -174,3 +177,28 @@ class Telemetry(Observer):
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close(complete=exc_type is None)
+
+
+def telemetry_observers(args: argparse.Namespace, out_dir: str | Path) -> list[Telemetry]:
+    """The observers the options of :func:`~.options.add_telemetry_arguments` ask for: none, or one
+    :class:`Telemetry`.
+
+    The MCAP goes to ``--mcap``, else to :data:`MCAP_NAME` in ``out_dir`` unless ``--no-mcap``; with
+    ``--live`` the server starts now (its address is printed on stderr by the caller, from
+    :attr:`Telemetry.live_url`). Close the telemetry when the run is over (:meth:`Telemetry.close`,
+    or use it as a context manager).
+
+    Raises
+    ------
+    ConfigError
+        A bad ``--live`` address, or one the server cannot listen on (in use, unknown host).
+    """
+    mcap_path = None if getattr(args, "no_mcap", False) else (args.mcap or Path(out_dir) / MCAP_NAME)
+    live = None if args.live is None else parse_live_address(args.live)
+    if mcap_path is None and live is None:
+        return []
+    host, port = (live.host, live.port) if live is not None else ("127.0.0.1", 0)
+    try:
+        return [Telemetry(mcap_path, live is not None, host=host, port=port)]
+    except RuntimeError as exc:  # foxglove's server could not bind
+        raise ConfigError(f"--live: cannot serve on {host}:{port}: {exc}") from None

@@ -1,27 +1,35 @@
-"""The telemetry options of a command that runs the loop (``--mcap``, ``--live``) and the observers
-they ask for."""
+"""The telemetry options of a command that runs the loop (``--mcap``, ``--no-mcap``, ``--live``).
+
+Light to import (a command's parser is built before any work): the observers these options ask
+for are made by :func:`capsule_mpc.telemetry.observer.telemetry_observers`.
+"""
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+from dataclasses import dataclass
 
 from ..errors import ConfigError
-from .observer import Telemetry
-from .sinks import LiveAddress
 
 __all__ = [
     "DEFAULT_LIVE",
     "MCAP_NAME",
     "add_telemetry_arguments",
     "parse_live_address",
-    "telemetry_observers",
 ]
 
 #: The MCAP file a run writes into its folder.
 MCAP_NAME = "run.mcap"
 #: The live server's address when ``--live`` is given without one.
 DEFAULT_LIVE = "127.0.0.1:8765"
+
+
+@dataclass(frozen=True)
+class LiveAddress:
+    """Host and port of the live server (port 0: a free port, chosen when it starts)."""
+
+    host: str = "127.0.0.1"
+    port: int = 8765
 
 
 def parse_live_address(text: str, option: str = "--live") -> LiveAddress:
@@ -62,24 +70,3 @@ def add_telemetry_arguments(p: argparse.ArgumentParser) -> None:
         help=f"serve the run live to Foxglove over WebSocket (default address {DEFAULT_LIVE}; port 0: any "
         "free port); best with --realtime",
     )  # fmt: skip
-
-
-def telemetry_observers(args: argparse.Namespace, out_dir: str | Path) -> list[Telemetry]:
-    """The observers :func:`add_telemetry_arguments`'s options ask for (none, or one :class:`Telemetry`).
-
-    The MCAP goes to ``--mcap``, else to :data:`MCAP_NAME` in ``out_dir`` unless ``--no-mcap``; with
-    ``--live`` the server starts now (its address is printed on stderr by the caller, from
-    :attr:`Telemetry.live_url`). Close the telemetry when the run is over (:meth:`Telemetry.close`,
-    or use it as a context manager).
-
-    Raises
-    ------
-    ConfigError
-        A bad ``--live`` address.
-    """
-    mcap_path = None if getattr(args, "no_mcap", False) else (args.mcap or Path(out_dir) / MCAP_NAME)
-    live = None if args.live is None else parse_live_address(args.live)
-    if mcap_path is None and live is None:
-        return []
-    host, port = (live.host, live.port) if live is not None else ("127.0.0.1", 0)
-    return [Telemetry(mcap_path, live is not None, host=host, port=port)]

@@ -18,19 +18,12 @@ from foxglove.mcap import MCAPWriteOptions
 from foxglove.websocket import ChannelView, Client, ServerListener
 
 from ..atomic import atomic_path
+from .options import LiveAddress
 
-__all__ = ["ChannelSpec", "LiveAddress", "Sinks"]
+__all__ = ["ChannelSpec", "Sinks"]
 
 #: The server's name, shown by Foxglove.
 SERVER_NAME = "capsule-mpc"
-
-
-@dataclass(frozen=True)
-class LiveAddress:
-    """Host and port of the live server (port 0: a free port, chosen when it starts)."""
-
-    host: str = "127.0.0.1"
-    port: int = 8765
 
 
 @dataclass(frozen=True)
