@@ -141,6 +141,9 @@ def test_live_addresses(text, host, port):
 
 
 @pytest.mark.parametrize("text", ["host:", "host:http", "1:70000", "-1", ""])
-def test_bad_live_addresses_are_refused_naming_the_option(text):
+def test_bad_live_addresses_are_refused_naming_the_option(text, capsys):
     with pytest.raises(ConfigError, match=r"--live: must be HOST:PORT"):
         parse_live_address(text)
+    with pytest.raises(SystemExit) as exit_info:  # on the command line: before any work
+        _args("--live", text)
+    assert exit_info.value.code == 2 and "--live: must be HOST:PORT" in capsys.readouterr().err

@@ -56,6 +56,15 @@ def parse_live_address(text: str, option: str = "--live") -> LiveAddress:
     return LiveAddress(host, port)
 
 
+def _live_option(text: str) -> str:
+    """An argparse ``type``: a ``--live`` address (checked; kept as given)."""
+    try:
+        parse_live_address(text)
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--live: ")) from None
+    return text
+
+
 def add_telemetry_arguments(p: argparse.ArgumentParser) -> None:
     """Add ``--mcap PATH``, ``--no-mcap`` and ``--live [HOST:PORT]`` to a command's parser."""
     mcap = p.add_mutually_exclusive_group()
@@ -66,7 +75,7 @@ def add_telemetry_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     mcap.add_argument("--no-mcap", action="store_true", help="write no MCAP log")
     p.add_argument(
-        "--live", nargs="?", const=DEFAULT_LIVE, default=None, metavar="HOST:PORT",
+        "--live", nargs="?", const=DEFAULT_LIVE, default=None, metavar="HOST:PORT", type=_live_option,
         help=f"serve the run live to Foxglove over WebSocket (default address {DEFAULT_LIVE}; port 0: any "
         "free port); best with --realtime",
     )  # fmt: skip
