@@ -10,7 +10,7 @@ The layers, bottom to top (a module may import its own layer and those below):
 4. baselines, planner -- controllers that plan offline or not at all;
 5. mpc -- the receding-horizon controller (uses the planner's plan as feed-forward);
 6. sim, arm -- the simulated rig and the robot arm (the arm never imports the simulator);
-7. learning, plots, experiments -- what runs the rig and draws or learns from it;
+7. learning, plots, experiments, telemetry -- what runs the rig and draws, learns from or logs it;
 8. cli -- the command line.
 """
 
@@ -32,14 +32,15 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("baselines", "planner"),
     ("mpc",),
     ("sim", "arm"),
-    ("learning", "plots", "experiments"),
+    ("learning", "plots", "experiments", "telemetry"),
     ("cli",),
 )
 LAYER_OF = {part: i for i, parts in enumerate(LAYERS) for part in parts}
 #: Third-party modules heavy enough to load only when used (inside the function that uses them).
 HEAVY = ("matplotlib", "scipy.spatial", "distributed", "dask")
-#: Package modules that load a heavy dependency (the arm loads Pinocchio).
-HEAVY_OWN = ("capsule_mpc.arm",)
+#: Package modules that load a heavy dependency (the arm loads Pinocchio; so does the telemetry's
+#: view of the arm).
+HEAVY_OWN = ("capsule_mpc.arm", "capsule_mpc.telemetry.robot")
 
 
 def _modules() -> dict[str, Path]:

@@ -31,6 +31,7 @@ __all__ = ["main"]
 #: sets ``func(args) -> int``.
 _COMMANDS = (
     "info", "docs", "demo", "learn", "demonstrate", "simulate", "compare", "arm", "plan", "bench", "sweep",
+    "log",
 )  # fmt: skip
 #: Exit status after Ctrl-C (128 + SIGINT, as a shell reports a command it interrupted); after
 #: SIGTERM or SIGHUP, 128 + that signal's number.
