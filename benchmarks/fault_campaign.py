@@ -33,8 +33,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _args import int_at_least
 
-from capsule_mpc.cli.arguments import int_at_least
 from capsule_mpc.config import FaultsConfig, Scenario, packaged_config_path
 from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.metrics import tracking_errors

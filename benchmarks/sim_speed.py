@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _args import int_at_least
 
-from capsule_mpc.cli.arguments import int_at_least
 from capsule_mpc.config import packaged_config_path
 from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.outputs import output_file_problem, write_report_file

@@ -46,6 +46,7 @@ WORK = [
     ("capsule_mpc.experiments.compare", "cached_plan"),
     ("capsule_mpc.magnetics", "force_map"),
     ("capsule_mpc.experiments.runs", "check_epm_height"),
+    ("capsule_mpc.experiments.runs", "simulate"),
     ("capsule_mpc.sim", "simulate"),
     ("capsule_mpc.learning.demonstrations", "run_demonstrations"),
     ("capsule_mpc.experiments.demonstrate", "run_demonstrations"),
@@ -66,6 +67,7 @@ PREIMPORT = [
     "capsule_mpc.planner",
     "capsule_mpc.planner.replay",
     "capsule_mpc.experiments.bench",
+    "capsule_mpc.experiments.info",
     "capsule_mpc.learning.logs",
     "capsule_mpc.learning.demonstrations",
     "capsule_mpc.experiments.runs",
@@ -76,7 +78,6 @@ PREIMPORT = [
     "capsule_mpc.experiments.arm_export",
     "capsule_mpc.experiments.sweep.campaign",
     "capsule_mpc.cli.simulate",
-    "capsule_mpc.cli.info",
     "capsule_mpc.cli.sweep",
     "capsule_mpc.cli.docs",
 ]

@@ -438,7 +438,8 @@ def test_the_demo_reads_its_learned_model_with_the_same_loader(tmp_path):
     assert not model_is_current(model, [log])
 
 
-def _sim_speed_main():
+def _sim_speed_main(monkeypatch):
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # as ``python benchmarks/sim_speed.py`` has it
     spec = importlib.util.spec_from_file_location("sim_speed", REPO / "benchmarks" / "sim_speed.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
@@ -456,12 +457,14 @@ def _sim_speed_main():
         ("under-a-file", r"sim_speed: --out: .*a_file\.txt is not a folder"),
     ],
 )
-def test_sim_speed_benchmark_refuses_a_bad_out_before_running(tmp_path, capsys, out_kind, message):
+def test_sim_speed_benchmark_refuses_a_bad_out_before_running(
+    tmp_path, capsys, monkeypatch, out_kind, message
+):
     folder = tmp_path / "given"
     folder.mkdir()
     (tmp_path / "a_file.txt").write_text("not a folder\n")
     out = folder if out_kind == "folder" else tmp_path / "a_file.txt" / "report.json"
-    assert _sim_speed_main()(["--out", str(out)]) == 2
+    assert _sim_speed_main(monkeypatch)(["--out", str(out)]) == 2
     assert re.search(message, capsys.readouterr().err)
     assert not any(folder.iterdir())
     assert (tmp_path / "a_file.txt").read_text() == "not a folder\n"

@@ -251,20 +251,20 @@ def test_arm_export_into_the_folder_of_its_plan_is_refused_and_the_plan_kept(wor
 def test_a_file_written_into_the_folder_during_a_run_is_not_claimed_nor_removed_by_the_next(
     workdir, capsys, monkeypatch
 ):
-    """The user saves notes into the run's folder while ``simulate`` runs (here: as it prints its result)."""
-    from capsule_mpc.cli import simulate
+    """The user saves notes into the run's folder while ``simulate`` runs (here: as its result is told)."""
+    from capsule_mpc.experiments import runs
 
-    printed = simulate._print_result
+    summary = runs.run_summary_text
 
-    def print_and_meanwhile_save_notes(result, out):
+    def summary_and_meanwhile_save_notes(result, out):
         (Path(out) / "notes.md").write_text("seen during the run\n")
-        printed(result, out)
+        return summary(result, out)
 
-    monkeypatch.setattr(simulate, "_print_result", print_and_meanwhile_save_notes)
+    monkeypatch.setattr(runs, "run_summary_text", summary_and_meanwhile_save_notes)
     args = [*COMMANDS["simulate"], "--no-progress", "--out", "run"]
     main(args)
     assert "notes.md" not in read_manifest(workdir / "run")["files"]
-    monkeypatch.setattr(simulate, "_print_result", printed)
+    monkeypatch.setattr(runs, "run_summary_text", summary)
     main(args)  # replaces the previous run's files: not the notes
     assert (workdir / "run" / "notes.md").read_text() == "seen during the run\n"
     assert "notes.md" not in read_manifest(workdir / "run")["files"]

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from capsule_mpc.cli import main
-from capsule_mpc.cli.bench import format_report
 from capsule_mpc.config import load_config, packaged_config_path
 from capsule_mpc.experiments.bench import TARGETS, bench_scenario, median_run, path_first_frames, variants
+from capsule_mpc.experiments.bench_report import format_report
 from capsule_mpc.mpc.problem import N_INPUT, N_STATE
 from capsule_mpc.paths import path_from_scenario
 

@@ -12,10 +12,10 @@ import pytest
 import yaml
 
 from capsule_mpc import ConfigError, dump_config, load_config
-from capsule_mpc.cli.info import scenario_figures
 from capsule_mpc.cli.reference import iter_config_fields
 from capsule_mpc.config import config_from_dict, packaged_config_path
 from capsule_mpc.config._loader import MOVED_KEYS
+from capsule_mpc.experiments.info import scenario_figures
 from capsule_mpc.path_reach import check_epm_height
 from capsule_mpc.path_reach import format_mm as _mm
 

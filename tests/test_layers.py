@@ -17,6 +17,7 @@ The layers, bottom to top (a module may import its own layer and those below):
 from __future__ import annotations
 
 import ast
+import json
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,9 @@ import pytest
 import capsule_mpc
 
 ROOT = Path(capsule_mpc.__file__).parent
+#: The repository: its benchmark scripts and notebooks use the library and the experiments, never
+#: the command line's modules.
+REPO = Path(__file__).resolve().parents[1]
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors", "atomic", "interrupt", "cache", "plan_options"),
     ("config",),
@@ -179,3 +183,50 @@ def test_the_graph_is_read_from_the_imports():
     assert "capsule_mpc.planner" in GRAPH["capsule_mpc.mpc.controller"]
     assert "capsule_mpc.arm" in GRAPH["capsule_mpc.sim.loop"]
     assert not any(dep.startswith("capsule_mpc.sim") for dep in GRAPH["capsule_mpc.arm.export"])
+
+
+def _cli_imports(source: str) -> list[str]:
+    """The imports of ``capsule_mpc.cli`` (or a module in it) in Python ``source``, with their lines."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            names = [node.module] + [f"{node.module}.{alias.name}" for alias in node.names]
+        else:
+            continue
+        found += [
+            f"line {node.lineno}: {n}"
+            for n in names
+            if n == "capsule_mpc.cli" or n.startswith("capsule_mpc.cli.")
+        ]
+    return found
+
+
+def _scripts() -> dict[str, str]:
+    """The source of every script in benchmarks/ and the code cells of every notebook, by file."""
+    out = {p.name: p.read_text(encoding="utf-8") for p in sorted((REPO / "benchmarks").glob("*.py"))}
+    for notebook in sorted((REPO / "notebooks").glob("*.ipynb")):
+        cells = json.loads(notebook.read_text(encoding="utf-8"))["cells"]
+        out[notebook.name] = "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "code")
+    return out
+
+
+def test_benchmarks_and_notebooks_do_not_import_the_command_line():
+    scripts = _scripts()
+    assert "mpc_bench.py" in scripts and "05_mpc.ipynb" in scripts  # both folders are read
+    found = {name: lines for name, source in scripts.items() if (lines := _cli_imports(source))}
+    assert found == {}
+
+
+def test_the_command_line_imports_are_found():
+    source = (
+        "import capsule_mpc.cli\nfrom capsule_mpc.cli.bench import run\nfrom capsule_mpc import cli, sim\n"
+    )
+    assert _cli_imports(source) == [
+        "line 1: capsule_mpc.cli",
+        "line 2: capsule_mpc.cli.bench",
+        "line 2: capsule_mpc.cli.bench.run",
+        "line 3: capsule_mpc.cli",
+    ]
+    assert _cli_imports("from capsule_mpc.experiments.bench import run_benchmark\n") == []

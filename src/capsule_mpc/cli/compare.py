@@ -9,17 +9,17 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..errors import ConfigError
-from ..interfaces import available_controllers
+from ..experiments import compare as comparison
+from ..experiments.compare import check_controllers
+from ..experiments.runs import prepare_run
 from ..outputs import output_folder
-from .arguments import input_files, refuse_repeats, run_count
+from .arguments import input_files, run_count
 from .simulate import add_run_arguments
 
-__all__ = ["check_controllers", "register", "run"]
+__all__ = ["register", "run"]
 
 
 def register(sub: Any) -> None:
@@ -42,63 +42,31 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--controllers", nargs="+", default=None, help="only these controllers (default: all available)"
     )
-    p.add_argument(
-        "--runs",
-        type=run_count,
-        default=1,
-        metavar="N",
-        help="seeds per controller, an integer in [1, 10000]: run k uses seed + k (default 1)",
-    )
+    p.add_argument("--runs", type=run_count, default=1, metavar="N", help="seeds per controller, an integer "
+                   "in [1, 10000]: run k uses seed + k (default 1)")  # fmt: skip
     p.set_defaults(func=run)
-
-
-def check_controllers(controllers: Sequence[str] | None) -> list[str]:
-    """The controllers a comparison runs (:func:`~capsule_mpc.experiments.compare.controller_names`),
-    after refusing an unknown one or one given twice.
-
-    Raises
-    ------
-    ConfigError
-        ``--controllers: unknown [...]; available: [...]`` or ``--controllers: 'x' is given more than once``.
-    """
-    known = available_controllers()
-    unknown = [n for n in controllers or [] if n not in known]
-    if unknown:
-        raise ConfigError(f"--controllers: unknown {unknown}; available: {known}")
-    refuse_repeats("--controllers", controllers or [])
-    from ..experiments.compare import controller_names  # lazy: keeps ``--help`` light
-
-    return controller_names(controllers)
 
 
 def run(args: argparse.Namespace) -> int:
     """Compare the controllers; exit status 1 if any controller failed on a seed, 2 on bad input."""
-    # lazy: the library (CasADi, Pinocchio) loads when the comparison starts, not for ``--help``
-    from ..experiments.compare import RUNS_FOLDER, compare_controllers, run_figures, summary_table
-    from ..experiments.runs import prepare_run
-
     names = check_controllers(args.controllers)
     scenario, path, meta = prepare_run(
-        args.config, args.waypoints, args.speed, args.plant, run_figures(names, args.runs)
+        args.config, args.waypoints, args.speed, args.plant, comparison.run_figures(names, args.runs)
     )
     seed = scenario.sim.seed if args.seed is None else args.seed
-    inputs = input_files(args, "--config", "--waypoints")
-    with output_folder(args.out, "compare", inputs=inputs) as folder:
-        summary = compare_controllers(
+    with output_folder(args.out, "compare", inputs=input_files(args, "--config", "--waypoints")) as folder:
+        summary = comparison.compare_controllers(
             scenario, path, folder.path, seed, controllers=args.controllers, meta=meta,
             progress=not args.no_progress, runs=args.runs,
         )  # fmt: skip
-        failures = [
-            (name, seed_entry["seed"], entry["error"])
-            for seed_entry in summary["runs"]
-            for name, entry in seed_entry["controllers"].items()
-            if "error" in entry
-        ]
+        failures = comparison.failed_runs(summary)
         folder.status = 1 if failures else 0
-    print(summary_table(summary["controllers"], args.runs), end="")
+    print(comparison.summary_table(summary["controllers"], args.runs), end="")
     for name, failed_seed, error in failures:
         print(f"capsule-mpc compare: controller {name!r} failed (seed {failed_seed}): {error}",
               file=sys.stderr)  # fmt: skip
-    folders = "one folder per controller" if args.runs == 1 else f"{RUNS_FOLDER}/seed_<S>/<controller>/"
+    folders = (
+        "one folder per controller" if args.runs == 1 else f"{comparison.RUNS_FOLDER}/seed_<S>/<controller>/"
+    )
     print(f"results in {Path(args.out).resolve()} (summary.json, summary.md, *.png, {folders})")
     return folder.status

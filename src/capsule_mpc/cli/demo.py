@@ -91,8 +91,8 @@ def run(args: argparse.Namespace) -> int:
     Exit status: 0; 1 if a controller raised or the fit failed; 2 on bad input (an unknown
     controller, a speed beyond the EPM's limit, work beyond the machine's bounds), before any work.
     """
-    from ..experiments.demo import run_demo  # lazy: the library loads when the demo starts
-    from .compare import check_controllers
+    from ..experiments.compare import check_controllers  # lazy: the library loads when the demo starts
+    from ..experiments.demo import run_demo
 
     wall0 = time.perf_counter()
     names = check_controllers(args.controllers)

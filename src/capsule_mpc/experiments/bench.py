@@ -46,6 +46,7 @@ import casadi as ca
 import numpy as np
 import yaml
 
+from ..budget import Workload, check_run, speed_source
 from ..config import Scenario, config_from_dict, dump_config, load_config, packaged_config_path
 from ..interfaces import Command, Measurement, StepOutcome
 from ..magnetics import cache_directory, force_map
@@ -53,6 +54,7 @@ from ..mpc.controller import MPCController, build_mpc_stack
 from ..mpc.solver import QP_SOLVERS
 from ..paths import ReferencePath, path_from_scenario
 from ..sim import simulate
+from .inputs import refuse_repeats
 
 __all__ = [
     "DEFAULT_FRAMES",
@@ -62,6 +64,7 @@ __all__ = [
     "TARGETS",
     "WARM_START_TARGET_S",
     "bench_scenario",
+    "check_bench",
     "closed_loop_timing",
     "fresh_process_build",
     "machine_info",
@@ -199,6 +202,37 @@ def path_first_frames(path: ReferencePath, frames: int, rate_hz: float) -> Refer
     arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(vertices, axis=0).T))])
     points = np.vstack([vertices[arc < cut_m], path.point_at_arc(cut_m)])
     return ReferencePath(points, closed=False, speed_mps=path.speed_mps)
+
+
+def check_bench(config: str | Path | None, horizons: Sequence[int], frames: int | None) -> None:
+    """Refuse a benchmark whose config is bad or whose closed-loop runs exceed the budget's bounds
+    (:func:`capsule_mpc.budget.check_run`: one MPC run at the longest horizon at a time), before any
+    work.
+
+    Parameters
+    ----------
+    config : str or Path, optional
+        Scenario YAML (default: the packaged ``rectangle.yaml``).
+    horizons : sequence of int
+        Horizons N to measure.
+    frames : int or None
+        Camera frames of motion per closed-loop run; None: the whole path.
+
+    Raises
+    ------
+    ConfigError
+        A bad config, a horizon given twice (naming ``--horizons``), or runs beyond the bounds
+        (naming ``path.speed_mps``).
+    """
+    refuse_repeats("--horizons", horizons)
+    base = load_config(config if config is not None else packaged_config_path("rectangle"))
+    longest = base.model_copy(update={"mpc": base.mpc.model_copy(update={"horizon": max(horizons)})})
+    path = path_from_scenario(base)
+    if frames:
+        path = path_first_frames(path, frames, base.camera.rate_hz)
+    check_run(
+        longest, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), Workload(predicting=1)
+    )
 
 
 # ---------------------------------------------------------------------------- fresh-process builds

@@ -55,7 +55,7 @@ from tqdm import tqdm
 
 from ..atomic import write_text_atomic
 from ..budget import Workload
-from ..config import Scenario
+from ..config import ConfigError, Scenario
 from ..interfaces import available_controllers
 from ..interrupt import raise_if_interrupted
 from ..metrics import START_WINDOW_S, run_metrics, stack_predictions
@@ -63,6 +63,7 @@ from ..paths import ReferencePath
 from ..planner import cached_plan
 from ..plots import plot_errors, plot_metrics, plot_trajectories
 from ..sim import CapsulePlant, RunResult, draw_plant_truth, simulate, write_run
+from .inputs import refuse_repeats
 from .runs import PREDICTION_FIGURE, write_prediction_figure
 
 __all__ = [
@@ -72,8 +73,10 @@ __all__ = [
     "RUNS_FOLDER",
     "SUMMARY_COLUMNS",
     "aggregate_runs",
+    "check_controllers",
     "compare_controllers",
     "controller_names",
+    "failed_runs",
     "failure_line",
     "json_value",
     "rescore_on_common_window",
@@ -279,6 +282,23 @@ def rescore_on_common_window(
     return common
 
 
+def check_controllers(controllers: Sequence[str] | None) -> list[str]:
+    """The controllers a comparison runs (:func:`controller_names`), after refusing an unknown one
+    or one given twice.
+
+    Raises
+    ------
+    ConfigError
+        ``--controllers: unknown [...]; available: [...]`` or ``--controllers: 'x' is given more than once``.
+    """
+    known = available_controllers()
+    unknown = [n for n in controllers or [] if n not in known]
+    if unknown:
+        raise ConfigError(f"--controllers: unknown {unknown}; available: {known}")
+    refuse_repeats("--controllers", controllers or [])
+    return controller_names(controllers)
+
+
 def controller_names(controllers: Sequence[str] | None) -> list[str]:
     if controllers is not None:
         return list(controllers)
@@ -372,6 +392,16 @@ def failure_line(name: str, exc: BaseException) -> str:
         f"{type(exc).__name__}: {reason} (traceback in summary.json; to see it alone: "
         f"capsule-mpc simulate --controller {name} with the same config and seed)"
     )
+
+
+def failed_runs(summary: Mapping[str, Any]) -> list[tuple[str, int, str]]:
+    """``(controller, seed, error)`` of every run of a comparison's ``summary`` whose controller raised."""
+    return [
+        (name, seed_entry["seed"], entry["error"])
+        for seed_entry in summary["runs"]
+        for name, entry in seed_entry["controllers"].items()
+        if "error" in entry
+    ]
 
 
 def summary_header(

@@ -1,10 +1,24 @@
-"""One closed-loop run as the commands make it: the scenario with its overrides checked against the
-machine's bounds, and the files a run leaves beside its log (the prediction figure, the arm's
-joint commands)."""
+"""One closed-loop run as the commands make it (what ``capsule-mpc simulate`` runs): the scenario with
+its overrides checked against the machine's bounds, and the files a run leaves beside its log.
+
+:func:`simulate_into` writes ``log.csv``, ``config.yaml``, ``run.json`` (see
+:mod:`capsule_mpc.sim.log`), ``trajectories.png`` and ``errors.png``; for a controller that
+predicts (the MPC) also ``predictions.npz`` and ``mpc_prediction.png``; with ``arm`` (by default
+for the MPC: :data:`ARM_CONTROLLERS`) the arm outputs of the EPM trajectory actually run (t >= 0):
+``epm_trajectory.csv``, ``joint_trajectory.csv``, ``joint_trajectory.yaml``,
+``joint_trajectory.png``, ``arm_summary.json`` (:func:`capsule_mpc.arm.export_arm_trajectory`).
+
+A realtime run paces the loop to the wall clock at the camera rate and reports deadline misses
+(:func:`capsule_mpc.sim.simulate`). The run's summary (:func:`run_summary_text`) says first, in
+words, how the run ended (:meth:`capsule_mpc.sim.RunResult.outcome_text`): completed, stalled N mm
+short of the end, timed out, decoupled or dropped (with the time), and every limit the actuator
+enforced (clamped by the workspace, acceleration-limited, speed-clipped: how many times).
+"""
 
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -12,21 +26,53 @@ import numpy as np
 
 from ..arm import ArmError, check_run_trajectory, export_arm_trajectory, write_arm_outputs
 from ..budget import Workload, check_run, speed_source
-from ..config import Scenario, config_from_dict, load_config
+from ..config import ConfigError, Scenario, config_from_dict, load_config
+from ..interfaces import available_controllers
 from ..magnetics import force_map
 from ..metrics import stack_predictions
 from ..mpc.grid import prediction_steps_s
 from ..path_reach import check_epm_height, check_epm_workspace
 from ..paths import ReferencePath, path_from_scenario
-from ..plots import plot_prediction
-from ..sim import RunResult
+from ..plots import plot_errors, plot_prediction, plot_trajectories
+from ..sim import RunResult, simulate, write_run
 
-__all__ = ["ARM_CONTROLLERS", "PREDICTION_FIGURE", "export_run_arm", "prepare_run", "write_prediction_figure"]
+__all__ = [
+    "ARM_CONTROLLERS",
+    "PREDICTION_FIGURE",
+    "check_controller",
+    "export_run_arm",
+    "prepare_run",
+    "run_summary_text",
+    "run_workload",
+    "simulate_into",
+    "write_prediction_figure",
+]
 
 #: Controllers whose runs also get the arm outputs by default (their EPM trajectory is new).
 ARM_CONTROLLERS = ("mpc",)
 #: File name of the predicted-vs-actual figure.
 PREDICTION_FIGURE = "mpc_prediction.png"
+
+
+def check_controller(controller: str) -> None:
+    """Refuse a controller no registry knows.
+
+    Raises
+    ------
+    ConfigError
+        ``--controller: unknown 'x'; available: [...]``.
+    """
+    known = available_controllers()
+    if controller not in known:
+        raise ConfigError(f"--controller: unknown {controller!r}; available: {known}")
+
+
+def run_workload(controller: str, arm: bool) -> Workload:
+    """What a run of ``controller`` (with the arm export if ``arm``) holds in memory at once, for
+    :func:`capsule_mpc.budget.check_run`."""
+    return Workload(
+        predicting=int(controller == "mpc"), plan="fixed" if controller == "plan" else None, arm=arm
+    )
 
 
 def prepare_run(
@@ -150,3 +196,86 @@ def _export_robot_run(result: RunResult, out_dir: str | Path) -> dict[str, Path]
         f"{', '.join(p.name for p in paths.values())}"
     )
     return dict(paths)
+
+
+def simulate_into(
+    scenario: Scenario,
+    controller: str,
+    path: ReferencePath,
+    seed: int,
+    out: Path,
+    *,
+    meta: dict[str, Any],
+    progress: bool = True,
+    realtime: bool = False,
+    arm: bool = False,
+    say: Callable[[str], None] = print,
+) -> RunResult:
+    """Run ``controller`` in closed loop and write the run and its figures into the folder ``out``
+    (module docstring); the arm outputs too with ``arm``. The summary (:func:`run_summary_text`)
+    goes to ``say``.
+
+    Parameters
+    ----------
+    scenario, path, meta : Scenario, ReferencePath, dict
+        What :func:`prepare_run` returned.
+    controller : str
+        A registered controller's name.
+    seed : int
+        The run's seed.
+    out : Path
+        The prepared output folder.
+    progress : bool
+        Show a progress bar.
+    realtime : bool
+        Pace the loop to the wall clock at the camera rate.
+    arm : bool
+        Write the arm outputs of the EPM trajectory run (:func:`export_run_arm`).
+    say : callable
+        Where the summary goes (default ``print``).
+    """
+    result = simulate(scenario, controller, path, seed, progress=progress, meta=meta, realtime=realtime)
+    write_run(result, out)
+    logs = {result.controller: result.log}
+    plot_trajectories(logs, path, out / "trajectories.png")
+    plot_errors(logs, path, out / "errors.png", {result.controller: result.metrics["motion_end_s"]})
+    write_prediction_figure(result, out / PREDICTION_FIGURE)
+    say(run_summary_text(result, out))
+    if arm:
+        export_run_arm(result, out)
+    return result
+
+
+def run_summary_text(result: RunResult, out: Path) -> str:
+    """How a run ended, its tracking and solve figures, its timing, and where its files are (``out``)."""
+    m = result.metrics
+    arrival = m["arrival_time_s"]
+    arrived = f"arrived at t = {arrival:.2f} s" if arrival == arrival else "never arrived"  # NaN: never
+    lines = [
+        f"{result.controller}: {result.outcome_text()}",
+        f"  tracking RMS {m['tracking_rms_mm']:.2f} mm (max {m['tracking_max_mm']:.2f}), "
+        f"cross-track RMS {m['cross_track_rms_mm']:.2f} mm (max {m['cross_track_max_mm']:.2f}), "
+        f"paper STD {m['paper_std_mm']:.2f} mm, {arrived} (nominal {m['nominal_time_s']:.2f} s), "
+        f"final error {m['final_error_mm']:.2f} mm",
+    ]
+    if m["solve_ms_median"] == m["solve_ms_median"]:  # not NaN: the controller reports solves
+        lines.append(
+            f"  solve time median {m['solve_ms_median']:.2f} ms, p99 {m['solve_ms_p99']:.2f} ms, max "
+            f"{m['solve_ms_max']:.1f} ms; solver failures {m['solver_failures']}"
+        )
+    rt = result.realtime
+    if rt is not None:
+        lines += [
+            f"  real time: {rt.frames} frames paced at {rt.period_ms:.1f} ms; deadline misses "
+            f"{rt.deadline_misses} ({rt.deadline_misses_motion} at t >= 0; {rt.overruns} steps longer than "
+            f"a frame), worst step {rt.worst_step_ms:.1f} ms at t = {rt.worst_step_t_s:.2f} s, worst "
+            f"lateness {rt.max_late_ms:.1f} ms; wall {result.wall_time_s:.2f} s for "
+            f"{result.sim_time_s:.2f} s simulated",
+            f"  results in {out}",
+        ]
+    else:
+        lines.append(
+            f"  solves over the frame period ({1e3 / result.scenario.camera.rate_hz:.1f} ms): "
+            f"{m['deadline_misses']}; {result.realtime_factor:.2g}x real time; results in {out}"
+        )
+    return "\n".join(lines)
