@@ -12,14 +12,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..budget import check_run, speed_source
-from ..config import ConfigError, Scenario, load_config, packaged_config_path
-from ..experiments.demonstrate import DEFAULT_SPEEDS_MPS, check_demonstrations, rig_scenario
-from ..learning.demonstrations import BreakawayPlan
+from ..config import load_config, packaged_config_path
+from ..experiments.demonstrate import DEFAULT_SPEEDS_MPS, rig_scenario
 from ..outputs import output_folder
 from .arguments import add_rig_arguments, input_files, positive_speed
 
-__all__ = ["DEFAULT_OUT", "check_demo", "register", "run"]
+__all__ = ["DEFAULT_OUT", "register", "run"]
 
 #: Where the demo writes its results (relative to the working directory).
 DEFAULT_OUT = Path("results") / "demo"
@@ -42,47 +40,15 @@ def register(sub: Any) -> None:
     p.add_argument("--config", default=None, help="base scenario YAML (default: packaged rectangle.yaml)")
     p.add_argument("--out", default=str(DEFAULT_OUT), help=f"output folder (default: {DEFAULT_OUT})")
     add_rig_arguments(p, seed_default=None)
-    p.add_argument(
-        "--speeds",
-        type=positive_speed,
-        nargs="+",
-        default=list(DEFAULT_SPEEDS_MPS),
-        help="demonstration speeds, m/s, each in (0, limits.speed_mps] and fast enough for a run within "
-        "an hour of simulated time (default: " + " ".join(f"{v:g}" for v in DEFAULT_SPEEDS_MPS) + ")",
-    )
-    p.add_argument(
-        "--controllers", nargs="+", default=None, help="compare only these (default: all available)"
-    )
+    p.add_argument("--speeds", type=positive_speed, nargs="+", default=list(DEFAULT_SPEEDS_MPS),
+                   help="demonstration speeds, m/s, each in (0, limits.speed_mps] and fast enough for a run "
+                   "within an hour of simulated time (default: "
+                   + " ".join(f"{v:g}" for v in DEFAULT_SPEEDS_MPS) + ")")  # fmt: skip
+    p.add_argument("--controllers", nargs="+", default=None,
+                   help="compare only these (default: all available)")  # fmt: skip
     p.add_argument("--no-cache", action="store_true", help="re-run the demonstrations and re-fit the model")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
-
-
-def check_demo(base: Scenario, speeds_mps: list[float], controllers: list[str]) -> None:
-    """Refuse a demo the rig or the machine cannot run, before any of it runs: a demonstration
-    speed beyond ``limits.speed_mps``, demonstrations or a comparison beyond the budget's bounds
-    (:func:`capsule_mpc.budget.check_run`).
-
-    Raises
-    ------
-    ConfigError
-        Naming ``--speeds`` or ``path.speed_mps`` and the allowed range.
-    """
-    from ..experiments.compare import run_figures
-    from ..learning.demonstrations import DEMO_PATHS
-    from ..paths import path_from_scenario
-
-    limit = base.limits.speed_mps
-    too_fast = [v for v in speeds_mps if v > limit]
-    if too_fast:
-        raise ConfigError(
-            f"--speeds: each must be in (0, {limit:g}] m/s (limits.speed_mps), got {too_fast[0]:g}"
-        )
-    check_demonstrations(base, speeds_mps, DEMO_PATHS, breakaway=BreakawayPlan())
-    path = path_from_scenario(base)
-    check_run(
-        base, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), run_figures(controllers, 1)
-    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -92,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     controller, a speed beyond the EPM's limit, work beyond the machine's bounds), before any work.
     """
     from ..experiments.compare import check_controllers  # lazy: the library loads when the demo starts
-    from ..experiments.demo import run_demo
+    from ..experiments.demo import check_demo, run_demo
 
     wall0 = time.perf_counter()
     names = check_controllers(args.controllers)

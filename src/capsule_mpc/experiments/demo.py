@@ -35,20 +35,23 @@ from typing import Final, Literal
 import yaml
 
 from ..atomic import write_text_atomic
+from ..budget import check_run, speed_source
 from ..config import ConfigError, Scenario, load_config, read_yaml
 from ..learning import LearningDataError, LogOptions, learn_from_logs, write_model
 from ..learning.core import static_text
-from ..learning.demonstrations import BreakawayPlan, run_demonstrations
+from ..learning.demonstrations import DEMO_PATHS, BreakawayPlan, run_demonstrations
 from ..learning.plots import save_figures
 from ..magnetics import force_map
 from ..outputs import output_folder
 from ..paths import path_from_scenario
-from .compare import compare_controllers, summary_table
+from .compare import compare_controllers, run_figures, summary_table
+from .demonstrate import check_demonstrations
 
 __all__ = [
     "FORCE_MODEL",
     "LEARNED_MODEL",
     "SCENARIO_FILE",
+    "check_demo",
     "demonstrate_stage",
     "derived_scenario_text",
     "learn_stage",
@@ -63,6 +66,38 @@ LEARNED_MODEL = "learned_friction.yaml"
 SCENARIO_FILE = "scenario.yaml"
 #: The force model the friction is learned with and the controllers then use.
 FORCE_MODEL: Final[Literal["lookup"]] = "lookup"
+
+
+def check_demo(base: Scenario, speeds_mps: Sequence[float], controllers: Sequence[str]) -> None:
+    """Refuse a demo the rig or the machine cannot run, before any of it runs: a demonstration
+    speed beyond ``limits.speed_mps``, demonstrations or a comparison beyond the budget's bounds
+    (:func:`capsule_mpc.budget.check_run`).
+
+    Parameters
+    ----------
+    base : Scenario
+        The rig's scenario (the config with its plant preset).
+    speeds_mps : sequence of float
+        Demonstration speeds, m/s.
+    controllers : sequence of str
+        The controllers the comparison runs.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``--speeds`` or ``path.speed_mps`` and the allowed range.
+    """
+    limit = base.limits.speed_mps
+    too_fast = [v for v in speeds_mps if v > limit]
+    if too_fast:
+        raise ConfigError(
+            f"--speeds: each must be in (0, {limit:g}] m/s (limits.speed_mps), got {too_fast[0]:g}"
+        )
+    check_demonstrations(base, speeds_mps, DEMO_PATHS, breakaway=BreakawayPlan())
+    path = path_from_scenario(base)
+    check_run(
+        base, path.length_m, path.speed_mps, speed_source(None, path.speed_mps), run_figures(controllers, 1)
+    )
 
 
 def model_is_current(model_path: Path, log_paths: Sequence[Path]) -> bool:
