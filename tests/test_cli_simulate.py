@@ -209,7 +209,8 @@ def test_simulate_mpc_writes_predictions_and_arm_outputs(tmp_path, short_path, q
     follow = ["simulate", "--controller", "follow", "--config", str(quick_config), "--out", str(out)]
     status = main([*follow, "--waypoints", str(short_path), "--no-progress"])
     after = {p.name for p in out.iterdir()}
-    assert after == {"log.csv", "config.yaml", "run.json", "trajectories.png", "errors.png", MANIFEST_NAME}
+    run_files = {"log.csv", "config.yaml", "run.json", "run.mcap", "trajectories.png", "errors.png"}
+    assert after == run_files | {MANIFEST_NAME}
     manifest = read_manifest(out)
     assert manifest["command"] == "simulate" and manifest["exit_status"] == status == run_status(out)
     assert manifest["status"] == ("complete" if status == 0 else "failed")  # a stalled run is no success

@@ -109,11 +109,12 @@ def _args(*argv: str) -> argparse.Namespace:
 
 
 def test_the_options_ask_for_the_mcap_in_the_run_folder_and_the_live_server(tmp_path):
-    (tel,) = telemetry_observers(_args(), tmp_path)
+    (tel,) = telemetry_observers(tmp_path, **vars(_args()))
     assert tel.mcap_path == tmp_path / "run.mcap" and tel.port is None
     tel.close()
-    assert telemetry_observers(_args("--no-mcap"), tmp_path) == []
-    (tel,) = telemetry_observers(_args("--mcap", str(tmp_path / "x.mcap"), "--live", "127.0.0.1:0"), tmp_path)
+    assert telemetry_observers(tmp_path, **vars(_args("--no-mcap"))) == []
+    options = _args("--mcap", str(tmp_path / "x.mcap"), "--live", "127.0.0.1:0")
+    (tel,) = telemetry_observers(tmp_path, **vars(options))
     try:
         assert tel.mcap_path == Path(tmp_path / "x.mcap") and tel.port and tel.port > 0
     finally:
@@ -123,10 +124,10 @@ def test_the_options_ask_for_the_mcap_in_the_run_folder_and_the_live_server(tmp_
 
 
 def test_a_live_address_in_use_is_refused_naming_the_option(tmp_path):
-    (first,) = telemetry_observers(_args("--no-mcap", "--live", "127.0.0.1:0"), tmp_path)
+    (first,) = telemetry_observers(tmp_path, **vars(_args("--no-mcap", "--live", "127.0.0.1:0")))
     try:
         with pytest.raises(ConfigError, match=r"--live: cannot serve on 127.0.0.1:\d+"):
-            telemetry_observers(_args("--no-mcap", "--live", f"127.0.0.1:{first.port}"), tmp_path)
+            telemetry_observers(tmp_path, **vars(_args("--no-mcap", "--live", f"127.0.0.1:{first.port}")))
     finally:
         first.close()
 

@@ -79,6 +79,7 @@ OUTPUT_NAMES = (
     "trajectories.png",
     "errors.png",
     "mpc_prediction.png",
+    "run.mcap",
     # the arm export of arm-export, plan and simulate
     "epm_trajectory.csv",
     "joint_trajectory.csv",

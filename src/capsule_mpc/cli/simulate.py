@@ -9,11 +9,13 @@ are still written); 2 a bad config, waypoint file or option (nothing is run or w
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from typing import Any
 
 from ..errors import ConfigError
 from ..outputs import output_folder
+from ..telemetry.options import add_telemetry_arguments
 from .arguments import input_files, seed
 
 __all__ = ["EXIT_COMPLETED", "EXIT_RUN_FAILED", "add_run_arguments", "register", "run"]
@@ -79,6 +81,7 @@ def register(sub: Any) -> None:
         "--arm", action="store_true", default=None, help="write the arm outputs (default: only for mpc)"
     )
     arm.add_argument("--no-arm", dest="arm", action="store_false", help="do not write the arm outputs")
+    add_telemetry_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -86,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     """Simulate ``--controller`` into ``--out``; the exit status: :data:`EXIT_COMPLETED`,
     :data:`EXIT_RUN_FAILED` (its files are written all the same), 2 on bad input (module docstring)."""
     from ..experiments import runs  # lazy: the library (CasADi, Pinocchio) loads when a run starts
+    from ..telemetry.observer import telemetry_observers  # lazy: foxglove loads when a run starts
 
     try:
         runs.check_controller(args.controller)
@@ -96,10 +100,15 @@ def run(args: argparse.Namespace) -> int:
     work = runs.run_workload(args.controller, want_arm)
     scenario, path, meta = runs.prepare_run(args.config, args.waypoints, args.speed, args.plant, work)
     run_seed = scenario.sim.seed if args.seed is None else args.seed
-    with output_folder(args.out, "simulate", inputs=input_files(args, "--config", "--waypoints")) as folder:
+    inputs = input_files(args, "--config", "--waypoints", "--mcap")
+    with output_folder(args.out, "simulate", inputs=inputs) as folder, contextlib.ExitStack() as stack:
+        telemetry = telemetry_observers(folder.path, mcap=args.mcap, no_mcap=args.no_mcap, live=args.live)
+        for tel in map(stack.enter_context, telemetry):
+            if tel.live_url:
+                print(f"live view: {tel.live_url} (Foxglove: Open connection)", file=sys.stderr)
         result = runs.simulate_into(
             scenario, args.controller, path, run_seed, folder.path, meta=meta,
-            progress=not args.no_progress, realtime=args.realtime, arm=want_arm,
+            progress=not args.no_progress, realtime=args.realtime, arm=want_arm, observers=telemetry,
         )  # fmt: skip
         folder.status = EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
     return folder.status

@@ -18,7 +18,7 @@ enforced (clamped by the workspace, acceleration-limited, speed-clipped: how man
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,7 @@ from ..mpc.grid import prediction_steps_s
 from ..path_reach import check_epm_height, check_epm_workspace
 from ..paths import ReferencePath, path_from_scenario
 from ..plots import plot_errors, plot_prediction, plot_trajectories
-from ..sim import RunResult, simulate, write_run
+from ..sim import Observer, RunResult, simulate, write_run
 
 __all__ = [
     "ARM_CONTROLLERS",
@@ -210,6 +210,7 @@ def simulate_into(
     realtime: bool = False,
     arm: bool = False,
     say: Callable[[str], None] = print,
+    observers: Sequence[Observer] = (),
 ) -> RunResult:
     """Run ``controller`` in closed loop and write the run and its figures into the folder ``out``
     (module docstring); the arm outputs too with ``arm``. The summary (:func:`run_summary_text`)
@@ -233,8 +234,13 @@ def simulate_into(
         Write the arm outputs of the EPM trajectory run (:func:`export_run_arm`).
     say : callable
         Where the summary goes (default ``print``).
+    observers : sequence of Observer
+        Called in every frame of the run (e.g. the MCAP log and live view of
+        :mod:`capsule_mpc.telemetry`).
     """
-    result = simulate(scenario, controller, path, seed, progress=progress, meta=meta, realtime=realtime)
+    result = simulate(
+        scenario, controller, path, seed, progress=progress, meta=meta, realtime=realtime, observers=observers
+    )
     write_run(result, out)
     logs = {result.controller: result.log}
     plot_trajectories(logs, path, out / "trajectories.png")

@@ -677,11 +677,13 @@ def simulate(
     meta: dict[str, Any] | None = None,
     realtime: bool = False,
     plant_seed: int | None = None,
+    observers: Sequence[Observer] = (),
 ) -> RunResult:
     """Run one closed-loop simulation: :class:`ClosedLoop` run to its end.
 
     Parameters are those of :class:`ClosedLoop`, plus ``progress``: show a progress bar (appears
-    only if the run takes longer than a second).
+    only if the run takes longer than a second), and ``observers``: called in every frame
+    (:meth:`ClosedLoop.run`; e.g. :class:`capsule_mpc.telemetry.observer.Telemetry`).
 
     Returns
     -------
@@ -700,4 +702,5 @@ def simulate(
         realtime=realtime,
         meta=meta,
     )
-    return loop.run([ProgressBar(f"simulate {loop.name}")] if progress else [])
+    bar = [ProgressBar(f"simulate {loop.name}")] if progress else []
+    return loop.run([*bar, *observers])

@@ -3,7 +3,6 @@ writes every frame to an MCAP file and/or serves it live to Foxglove."""
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 from types import TracebackType
@@ -179,12 +178,14 @@ class Telemetry(Observer):
         self.close(complete=exc_type is None)
 
 
-def telemetry_observers(args: argparse.Namespace, out_dir: str | Path) -> list[Telemetry]:
-    """The observers the options of :func:`~.options.add_telemetry_arguments` ask for: none, or one
-    :class:`Telemetry`.
+def telemetry_observers(
+    out_dir: str | Path, *, mcap: str | Path | None = None, no_mcap: bool = False, live: str | None = None
+) -> list[Telemetry]:
+    """The observers the options of :func:`~.options.add_telemetry_arguments` ask for (their values
+    as keywords: ``mcap``, ``no_mcap``, ``live``): none, or one :class:`Telemetry`.
 
-    The MCAP goes to ``--mcap``, else to :data:`MCAP_NAME` in ``out_dir`` unless ``--no-mcap``; with
-    ``--live`` the server starts now (its address is printed on stderr by the caller, from
+    The MCAP goes to ``mcap``, else to :data:`MCAP_NAME` in ``out_dir`` unless ``no_mcap``; with
+    ``live`` (``HOST:PORT``) the server starts now (its address is printed on stderr by the caller, from
     :attr:`Telemetry.live_url`). Close the telemetry when the run is over (:meth:`Telemetry.close`,
     or use it as a context manager).
 
@@ -193,12 +194,12 @@ def telemetry_observers(args: argparse.Namespace, out_dir: str | Path) -> list[T
     ConfigError
         A bad ``--live`` address, or one the server cannot listen on (in use, unknown host).
     """
-    mcap_path = None if getattr(args, "no_mcap", False) else (args.mcap or Path(out_dir) / MCAP_NAME)
-    live = None if args.live is None else parse_live_address(args.live)
-    if mcap_path is None and live is None:
+    mcap_path = None if no_mcap else (mcap or Path(out_dir) / MCAP_NAME)
+    address = None if live is None else parse_live_address(live)
+    if mcap_path is None and address is None:
         return []
-    host, port = (live.host, live.port) if live is not None else ("127.0.0.1", 0)
+    host, port = (address.host, address.port) if address is not None else ("127.0.0.1", 0)
     try:
-        return [Telemetry(mcap_path, live is not None, host=host, port=port)]
+        return [Telemetry(mcap_path, address is not None, host=host, port=port)]
     except RuntimeError as exc:  # foxglove's server could not bind
         raise ConfigError(f"--live: cannot serve on {host}:{port}: {exc}") from None
