@@ -1,8 +1,7 @@
 """``capsule-mpc sweep``: a campaign, controllers on many seeded plant draws, in parallel on Dask.
 
 What it runs, writes and resumes, and its exit status: :mod:`capsule_mpc.experiments.sweep`; this
-command parses the options and calls :func:`capsule_mpc.experiments.sweep.campaign.run_sweep`.
-"""
+command parses the options and calls :func:`capsule_mpc.experiments.sweep.campaign.run_sweep`."""
 
 from __future__ import annotations
 
@@ -10,8 +9,7 @@ import argparse
 from typing import Any
 
 from ..experiments.sweep.vary import parse_vary
-from .arguments import input_files, int_at_least, run_count
-from .compare import check_controllers
+from .arguments import int_at_least, run_count
 from .simulate import add_run_arguments
 
 __all__ = ["register", "run"]
@@ -34,28 +32,29 @@ def register(sub: Any) -> None:
         ),
     )
     add_run_arguments(p)
+    p.add_argument("--runs", type=run_count, required=True, metavar="N", help="runs (seeds), in [1, 10000]")
+    p.add_argument("--controllers", nargs="+", help="only these controllers (default: all available)")
     p.add_argument(
-        "--runs", type=run_count, required=True, metavar="N", help="number of runs (seeds), in [1, 10000]"
-    )
-    p.add_argument(
-        "--controllers", nargs="+", default=None, help="only these controllers (default: all available)"
-    )
-    p.add_argument(
-        "--vary", type=parse_vary, action="append", default=None, metavar="plant.FIELD=LO:HI",
+        "--vary",
+        type=parse_vary,
+        action="append",
+        metavar="plant.FIELD=LO:HI",
         help="draw this plant field uniformly from [LO, HI] in every run (repeatable); FIELD is a drawable "
         "field of the plant section and LO, HI lie in its allowed range (docs/config.md)",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--scheduler", default=None, metavar="ADDRESS",
+        "--scheduler",
+        metavar="ADDRESS",
         help="address of a running Dask scheduler (e.g. tcp://host:8786) to run on, instead of a "
         "LocalCluster on this machine; its workers need capsule_mpc installed",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--workers", type=int_at_least(1), default=None, metavar="K",
+        "--workers",
+        type=int_at_least(1),
+        metavar="K",
         help="worker processes of the LocalCluster, >= 1 (default: the CPU count; no more than --runs); "
-        "not with --scheduler; at most as many as half the memory available holds (capsule_mpc.budget); "
-        "a run whose worker dies is recorded as crashed at once",
-    )  # fmt: skip
+        "not with --scheduler; at most as many as half the memory available holds (capsule_mpc.budget)",
+    )
     p.set_defaults(func=run)
 
 
@@ -65,8 +64,16 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.sweep.campaign import run_sweep
 
     return run_sweep(
-        args.config, args.out, args.runs, check_controllers(args.controllers),
-        waypoints=args.waypoints, speed=args.speed, plant=args.plant, seed=args.seed,
-        vary=args.vary or [], workers=args.workers, scheduler=args.scheduler,
-        inputs=input_files(args, "--config", "--waypoints"), progress=not args.no_progress,
-    )  # fmt: skip
+        args.config,
+        args.out,
+        args.runs,
+        args.controllers,
+        waypoints=args.waypoints,
+        speed=args.speed,
+        plant=args.plant,
+        seed=args.seed,
+        vary=args.vary or [],
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=not args.no_progress,
+    )

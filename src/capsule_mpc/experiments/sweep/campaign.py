@@ -23,6 +23,7 @@ from ...paths import ReferencePath
 from ..compare import (
     RUNS_FOLDER,
     aggregate_runs,
+    check_controllers,
     controller_names,
     json_value,
     run_figures,
@@ -185,7 +186,7 @@ def run_sweep(
     config: str | Path | None,
     out: str | Path,
     runs: int,
-    controllers: Sequence[str],
+    controllers: Sequence[str] | None = None,
     *,
     waypoints: str | Path | None = None,
     speed: float | None = None,
@@ -194,7 +195,6 @@ def run_sweep(
     vary: Sequence[VaryRange] = (),
     workers: int | None = None,
     scheduler: str | None = None,
-    inputs: Mapping[str, str | Path | None] | None = None,
     progress: bool = True,
 ) -> int:
     """``capsule-mpc sweep``: check the input, then run :func:`sweep` into ``out`` (resuming the
@@ -208,16 +208,15 @@ def run_sweep(
         The ``--out`` folder (:func:`capsule_mpc.outputs.output_folder`).
     runs : int
         Number of runs, >= 1.
-    controllers : sequence of str
-        The controllers (checked by the caller).
+    controllers : sequence of str, optional
+        ``--controllers`` (default every available one;
+        :func:`~capsule_mpc.experiments.compare.check_controllers`).
     seed : int, optional
         Seed of the first run (default the config's ``sim.seed``).
     vary : sequence of VaryRange
         ``--vary`` ranges (:func:`~.vary.check_vary` refuses those the scenario cannot take).
     workers, scheduler
         ``--workers`` and ``--scheduler`` (:func:`local_workers`).
-    inputs : mapping, optional
-        The input files by option, which ``out`` must not hold.
     progress : bool
         A progress bar over the runs.
 
@@ -229,27 +228,39 @@ def run_sweep(
     Raises
     ------
     ConfigError
-        Bad input, before anything is written: ``--workers``, ``--scheduler``, ``--vary``, the
-        config or the path, or ``out`` holding a sweep with other arguments.
+        Bad input, before anything is written: ``--controllers``, ``--workers``, ``--scheduler``,
+        ``--vary``, the config or the path, or ``out`` holding the config or the waypoints, or a
+        sweep with other arguments.
     """
+    names = check_controllers(controllers)
     local = local_workers(runs, workers, scheduler)
-    work = replace(run_figures(controllers, 1), processes=local) if local else Workload(runs=0)
+    work = replace(run_figures(names, 1), processes=local) if local else Workload(runs=0)
     scenario, path, meta = prepare_run(config, waypoints, speed, plant, work)
     check_vary(scenario, vary)
     seed = scenario.sim.seed if seed is None else seed
-    resume = check_resume(out, sweep_spec(scenario, path, seed, runs, controllers, vary))
+    resume = check_resume(out, sweep_spec(scenario, path, seed, runs, names, vary))
     if resume:
         done = len(finished_runs(Path(out), [seed + k for k in range(runs)]))
         print(f"capsule-mpc sweep: resuming the sweep in {out}: {done} of {runs} runs done")
+    inputs = {"--config": config, "--waypoints": waypoints}  # the folder must not hold them
     with ExitStack() as stack:
         client = stack.enter_context(dask_client(scheduler, None)) if scheduler else None
         folder = stack.enter_context(
             output_folder(out, "sweep", replace_previous=not resume, resume=resume, inputs=inputs)
         )
         summary = sweep(
-            scenario, path, folder.path, seed, runs, controllers=controllers, vary=vary,
-            workers=local, client=client, meta=meta, progress=progress,
-        )  # fmt: skip
+            scenario,
+            path,
+            folder.path,
+            seed,
+            runs,
+            controllers=names,
+            vary=vary,
+            workers=local,
+            client=client,
+            meta=meta,
+            progress=progress,
+        )
         failures = sweep_failures(summary)
         folder.status = 1 if failures else 0
     print(summary_table(summary["controllers"], runs), end="")
