@@ -1,4 +1,5 @@
-"""Bad input to ``sweep``: its arguments, ``--vary`` (syntax, field, order, ranges) and the executor's.
+"""Bad input to ``sweep``: its arguments, ``--vary`` (syntax, field, order, ranges) and Dask's
+(``--workers`` with ``--scheduler``, a scheduler that does not answer).
 
 Every case runs the command through ``capsule_mpc.cli.main`` and asserts exit code 2, that the
 message on stderr is one line naming the argument (and the allowed values where there are some),
@@ -122,33 +123,12 @@ def test_workers_below_one(base, tmp_path, capsys, workers):
     assert "argument --workers: must be an integer >= 1" in line and not out.exists()
 
 
-def test_an_unknown_executor(base, tmp_path, capsys):
-    line = _refused_by_argparse([*base, "--runs", "2", "--executor", "ray", "--out", str(tmp_path)], capsys)
-    assert "argument --executor: invalid choice: 'ray'" in line and "'process', 'dask'" in line
-
-
-def test_scheduler_without_the_dask_executor(base, tmp_path, capsys):
-    out = tmp_path / "out"
-    line = _refused([*base, "--runs", "2", "--scheduler", "tcp://127.0.0.1:8786", "--out", str(out)], capsys)
-    assert line == "capsule-mpc: --scheduler: needs --executor dask, got --executor process"
-    assert not out.exists()
-
-
 def test_workers_with_a_scheduler(base, tmp_path, capsys):
     out = tmp_path / "out"
-    args = [
-        *base,
-        "--runs",
-        "2",
-        "--executor",
-        "dask",
-        "--scheduler",
-        "tcp://127.0.0.1:8786",
-        "--workers",
-        "2",
-    ]
+    args = [*base, "--runs", "2", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2"]
     line = _refused([*args, "--out", str(out)], capsys)
-    assert line.startswith("capsule-mpc: --workers: not with --scheduler") and not out.exists()
+    assert line == "capsule-mpc: --workers: not with --scheduler (the cluster's workers are its own)"
+    assert not out.exists()
 
 
 def test_an_unreachable_scheduler(base, tmp_path, capsys, monkeypatch):
@@ -157,9 +137,7 @@ def test_an_unreachable_scheduler(base, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(tasks, "SCHEDULER_TIMEOUT_S", 1.0)
     out = tmp_path / "out"
     address = "tcp://127.0.0.1:9"  # the discard port: nothing listens there
-    line = _refused(
-        [*base, "--runs", "2", "--executor", "dask", "--scheduler", address, "--out", str(out)], capsys
-    )
+    line = _refused([*base, "--runs", "2", "--scheduler", address, "--out", str(out)], capsys)
     assert line.startswith(f"capsule-mpc: --scheduler {address}: cannot reach the Dask scheduler: ")
     assert not out.exists()
 

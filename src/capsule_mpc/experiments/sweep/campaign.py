@@ -1,20 +1,36 @@
-"""The sweep itself: its runs on an executor, each written as it finishes, then the summary."""
+"""The sweep itself (:func:`sweep`: its runs on Dask, each written as it finishes, then the
+summary), and ``capsule-mpc sweep`` around it (:func:`run_sweep`: the checks before any work, the
+output folder, the report)."""
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Sequence
+import sys
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from contextlib import ExitStack, closing
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
 from ...atomic import write_text_atomic
-from ...config import Scenario
+from ...budget import Workload, check_processes
+from ...config import ConfigError, Scenario
+from ...outputs import output_folder
 from ...paths import ReferencePath
-from ..compare import RUNS_FOLDER, aggregate_runs, controller_names, json_value, summary_header
+from ..compare import (
+    RUNS_FOLDER,
+    aggregate_runs,
+    check_controllers,
+    controller_names,
+    json_value,
+    run_figures,
+    summary_header,
+    summary_table,
+)
+from ..runs import prepare_run
 from .results import (
     SPEC_FILE,
     check_resume,
@@ -22,15 +38,16 @@ from .results import (
     summary_markdown,
     sweep_spec,
     worst_runs,
+    worst_table,
     write_figures,
 )
-from .tasks import EXECUTORS, SeedTask, dask_client, run_on_dask, run_on_process_pool, run_seed
-from .vary import VaryRange
+from .tasks import Outcome, SeedTask, dask_client, run_on_dask, run_seed
+from .vary import VaryRange, check_vary
 
 if TYPE_CHECKING:
     from distributed import Client
 
-__all__ = ["sweep"]
+__all__ = ["local_workers", "run_sweep", "sweep", "sweep_failures"]
 
 
 def sweep(
@@ -42,7 +59,6 @@ def sweep(
     *,
     controllers: Sequence[str] | None = None,
     vary: Sequence[VaryRange] = (),
-    executor: str = "process",
     workers: int | None = None,
     client: Client | None = None,
     meta: dict[str, Any] | None = None,
@@ -65,13 +81,12 @@ def sweep(
         As for :func:`capsule_mpc.experiments.compare.compare_controllers`.
     vary : sequence of VaryRange
         Plant fields drawn from these ranges instead of the preset's (:func:`parse_vary`).
-    executor : {"process", "dask"}
-        A local process pool, or Dask distributed.
     workers : int, optional
-        Worker processes of the pool (or of the ``LocalCluster`` when ``client`` is None);
-        default the CPU count.
+        Worker processes of the ``LocalCluster`` started when ``client`` is None (default the CPU
+        count; no more than there are runs to do).
     client : distributed.Client, optional
-        With ``executor="dask"``: the cluster to run on (default a new ``LocalCluster``).
+        The Dask cluster to run on; default a new ``LocalCluster``
+        (:func:`~.tasks.dask_client`), started only if a run is left to do.
     meta : dict, optional
         Provenance (``config``, ``waypoints_file``) for the summary.
     progress : bool
@@ -82,20 +97,18 @@ def sweep(
     Returns
     -------
     dict
-        The summary written to ``summary.json`` (module docstring).
+        The summary written to ``summary.json`` (:mod:`capsule_mpc.experiments.sweep`).
 
     Raises
     ------
     ValueError
-        ``runs`` < 1, or an unknown ``executor``.
+        ``runs`` < 1.
     ConfigError
         ``out`` holds a sweep with other arguments.
     """
 
     if runs < 1:
         raise ValueError(f"runs: must be an integer >= 1, got {runs}")
-    if executor not in EXECUTORS:
-        raise ValueError(f"executor: must be one of {EXECUTORS}, got {executor!r}")
     out = Path(out)
     meta = dict(meta or {})
     names = controller_names(controllers)
@@ -106,15 +119,15 @@ def sweep(
     done = finished_runs(out, seeds)
     todo = [SeedTask(scenario, path, s, tuple(names), tuple(vary), meta) for s in seeds if s not in done]
     with ExitStack() as stack:
-        if executor == "dask" and todo:
-            client = client if client is not None else stack.enter_context(dask_client(None, workers))
-            outcomes = run_on_dask(task, todo, client)
-        else:
-            outcomes = run_on_process_pool(task, todo, workers or os.cpu_count() or 1)
+        outcomes: Iterable[Outcome] = ()
+        if todo:
+            local = min(workers or os.cpu_count() or 1, len(todo))
+            client = client if client is not None else stack.enter_context(dask_client(None, local))
+            outcomes = stack.enter_context(closing(run_on_dask(task, todo, client)))
         bar = stack.enter_context(
             tqdm(total=runs, initial=len(done), desc="sweep", unit="run", disable=not progress)
         )
-        for finished, entry in stack.enter_context(closing(outcomes)):
+        for finished, entry in outcomes:
             write_text_atomic(
                 out / RUNS_FOLDER / f"seed_{finished.seed}.json", json.dumps(entry, indent=2) + "\n"
             )
@@ -135,3 +148,124 @@ def sweep(
     write_text_atomic(out / "summary.json", json.dumps(json_value(summary), indent=2) + "\n")
     write_text_atomic(out / "summary.md", summary_markdown(scenario, path, seeds, summary))
     return summary
+
+
+def local_workers(runs: int, workers: int | None, scheduler: str | None) -> int | None:
+    """The worker processes a sweep starts on this machine: ``--workers`` (default the CPU count),
+    no more than ``runs``; None with ``--scheduler`` (the cluster's workers are its own).
+
+    Raises
+    ------
+    ConfigError
+        ``--workers`` with ``--scheduler``, or more workers than half the memory available holds
+        (:func:`capsule_mpc.budget.check_processes`).
+    """
+    if scheduler is not None:
+        if workers is not None:
+            raise ConfigError("--workers: not with --scheduler (the cluster's workers are its own)")
+        return None
+    local = min(workers or os.cpu_count() or 1, runs)
+    check_processes(local)
+    return local
+
+
+def sweep_failures(summary: Mapping[str, Any]) -> list[str]:
+    """What failed in a sweep: each crashed run, and each controller that failed on a seed."""
+    failures = []
+    for entry in summary["runs"]:
+        if "crashed" in entry:
+            failures.append(f"run of seed {entry['seed']} crashed: {entry['crashed']}")
+            continue
+        for name, result in entry["controllers"].items():
+            if "error" in result:
+                failures.append(f"controller {name!r} failed (seed {entry['seed']}): {result['error']}")
+    return failures
+
+
+def run_sweep(
+    config: str | Path | None,
+    out: str | Path,
+    runs: int,
+    controllers: Sequence[str] | None = None,
+    *,
+    waypoints: str | Path | None = None,
+    speed: float | None = None,
+    plant: str | None = None,
+    seed: int | None = None,
+    vary: Sequence[VaryRange] = (),
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> int:
+    """``capsule-mpc sweep``: check the input, then run :func:`sweep` into ``out`` (resuming the
+    one there) and print its table, its worst runs and what failed; the exit status.
+
+    Parameters
+    ----------
+    config, waypoints, speed, plant
+        As for :func:`capsule_mpc.experiments.runs.prepare_run`.
+    out : str or Path
+        The ``--out`` folder (:func:`capsule_mpc.outputs.output_folder`).
+    runs : int
+        Number of runs, >= 1.
+    controllers : sequence of str, optional
+        ``--controllers`` (default every available one;
+        :func:`~capsule_mpc.experiments.compare.check_controllers`).
+    seed : int, optional
+        Seed of the first run (default the config's ``sim.seed``).
+    vary : sequence of VaryRange
+        ``--vary`` ranges (:func:`~.vary.check_vary` refuses those the scenario cannot take).
+    workers, scheduler
+        ``--workers`` and ``--scheduler`` (:func:`local_workers`).
+    progress : bool
+        A progress bar over the runs.
+
+    Returns
+    -------
+    int
+        0, or 1 when a controller failed or a run crashed (each named on stderr).
+
+    Raises
+    ------
+    ConfigError
+        Bad input, before anything is written: ``--controllers``, ``--workers``, ``--scheduler``,
+        ``--vary``, the config or the path, or ``out`` holding the config or the waypoints, or a
+        sweep with other arguments.
+    """
+    names = check_controllers(controllers)
+    local = local_workers(runs, workers, scheduler)
+    work = replace(run_figures(names, 1), processes=local) if local else Workload(runs=0)
+    scenario, path, meta = prepare_run(config, waypoints, speed, plant, work)
+    check_vary(scenario, vary)
+    seed = scenario.sim.seed if seed is None else seed
+    resume = check_resume(out, sweep_spec(scenario, path, seed, runs, names, vary))
+    if resume:
+        done = len(finished_runs(Path(out), [seed + k for k in range(runs)]))
+        print(f"capsule-mpc sweep: resuming the sweep in {out}: {done} of {runs} runs done")
+    inputs = {"--config": config, "--waypoints": waypoints}  # the folder must not hold them
+    with ExitStack() as stack:
+        client = stack.enter_context(dask_client(scheduler, None)) if scheduler else None
+        folder = stack.enter_context(
+            output_folder(out, "sweep", replace_previous=not resume, resume=resume, inputs=inputs)
+        )
+        summary = sweep(
+            scenario,
+            path,
+            folder.path,
+            seed,
+            runs,
+            controllers=names,
+            vary=vary,
+            workers=local,
+            client=client,
+            meta=meta,
+            progress=progress,
+        )
+        failures = sweep_failures(summary)
+        folder.status = 1 if failures else 0
+    print(summary_table(summary["controllers"], runs), end="")
+    print(worst_table(summary["worst"]), end="")
+    for failure in failures:
+        print(f"capsule-mpc sweep: {failure}", file=sys.stderr)
+    print(f"results in {Path(out).resolve()} (summary.json, summary.md, *.png, {RUNS_FOLDER}/seed_<S>.json)")
+    return folder.status

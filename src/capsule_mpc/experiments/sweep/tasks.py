@@ -1,25 +1,33 @@
-"""The runs of a sweep and where they run: a local process pool or Dask distributed.
+"""The runs of a sweep and where they run: Dask distributed.
 
 A run (:class:`SeedTask`: every controller on one seed's plant draw) is one task, run by
-:func:`run_seed` wherever the executor puts it; its result depends on the seed only (the
-wall-clock figures :data:`WALL_CLOCK_KEYS` apart, and with ``plant.compute_delay_mode:
-solve_time``). :func:`run_on_process_pool` and :func:`run_on_dask` yield the runs as they finish;
-a run whose worker dies is yielded as :func:`crashed_entry`, and the others go on.
+:func:`run_seed` on a Dask worker; its result depends on the seed only (the wall-clock figures
+:data:`WALL_CLOCK_KEYS` apart, and with ``plant.compute_delay_mode: solve_time``), not on the
+worker or the number of workers. :func:`run_on_dask` yields the runs as they finish, with no more
+of them on the cluster than it has worker threads, so that a worker holds the run it executes
+and no other. A run whose worker dies is yielded as :func:`crashed_entry`, and the others go on:
+Dask records a task as failed (``KilledWorker``) once it was running on more workers that died
+than the scheduler's ``distributed.scheduler.allowed-failures``.
+
+:func:`dask_client` connects to a running scheduler or starts a ``LocalCluster`` on this machine:
+worker processes of one thread each, started by nannies (a worker that dies is replaced), with
+``allowed_failures`` 0 (:data:`LOCAL_ALLOWED_FAILURES`: a run that kills its worker is recorded
+as crashed at once, never retried on another worker), no per-worker memory limit (the sweep's
+memory is bounded by :mod:`capsule_mpc.budget` before it starts) and :func:`dask_setup` as the
+workers' preload: Ctrl-C and a hang-up sent to the terminal's process group are the
+``capsule-mpc`` process's to handle (it closes the cluster, which stops the workers). A cluster of
+one's own (``--scheduler``) keeps its scheduler's setting (Dask's default is 3 deaths).
 """
 
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import os
 import signal
 import threading
-import traceback
 import uuid
 from collections import deque
 from collections.abc import Callable, Generator, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -33,29 +41,33 @@ from ..compare import json_value, run_seed_controllers
 from .vary import VaryRange, draw_varied, with_plant_values
 
 if TYPE_CHECKING:
-    from distributed import Client
+    from distributed import Client, Future, Worker
 
 __all__ = [
-    "EXECUTORS",
+    "LOCAL_ALLOWED_FAILURES",
     "SCHEDULER_TIMEOUT_S",
     "WALL_CLOCK_KEYS",
     "Outcome",
     "SeedTask",
     "crashed_entry",
     "dask_client",
+    "dask_setup",
     "run_on_dask",
-    "run_on_process_pool",
     "run_seed",
 ]
 
-#: The executors of ``--executor``.
-EXECUTORS = ("process", "dask")
 #: Metrics measured on the wall clock, which differ between two runs of the same seed.
 WALL_CLOCK_KEYS = frozenset(
     {"solve_ms_median", "solve_ms_p99", "solve_ms_max", "step_ms_max", "deadline_misses", "realtime_factor"}
 )
 #: How long ``--scheduler`` may take to answer, s.
 SCHEDULER_TIMEOUT_S = 10.0
+#: ``allowed_failures`` of a ``LocalCluster``'s scheduler: how many of its workers may die running
+#: a task before the task fails with ``KilledWorker``. 0: the first death records the run as
+#: crashed (a run that kills its worker does so again on another one).
+LOCAL_ALLOWED_FAILURES = 0
+#: The preload of a ``LocalCluster``'s workers (the module holding :func:`dask_setup`).
+WORKER_PRELOAD = __name__
 
 
 @dataclass(frozen=True)
@@ -119,100 +131,16 @@ def crashed_entry(task: SeedTask, reason: str) -> dict[str, Any]:
 Outcome = tuple[SeedTask, dict[str, Any]]
 
 
-def _init_worker() -> None:
-    """Worker initializer: Ctrl-C and a hang-up, sent to the whole process group, are the parent's
-    to handle (it stops the workers; SIGTERM is how it does, so that one is left alone), and tqdm's
-    lock is a thread lock (a worker shows no bars; tqdm's default cross-process lock is a named
-    semaphore, reported as leaked when the worker is terminated)."""
-
+def dask_setup(worker: Worker) -> None:
+    """Preload of a ``LocalCluster``'s worker process (Dask calls it as the worker starts, in its
+    main thread): Ctrl-C and a hang-up, sent to the whole process group, are the parent's to
+    handle (it closes the cluster; SIGTERM, how a nanny stops its worker, is left alone), and
+    tqdm's lock is a thread lock (a worker shows no bars; tqdm's default cross-process lock is a
+    named semaphore, reported as leaked when the worker is terminated)."""
     for signum in (signal.SIGINT, getattr(signal, "SIGHUP", None)):
         if signum is not None:
             signal.signal(signum, signal.SIG_IGN)
     tqdm.set_lock(threading.RLock())
-
-
-def _new_pool(workers: int) -> ProcessPoolExecutor:
-
-    # spawn: a fresh interpreter per worker, whatever threads (tqdm, CasADi) the parent runs
-    context = multiprocessing.get_context("spawn")
-    return ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker)
-
-
-def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Stop a pool now, its running tasks included (no public API for that before Python 3.14).
-
-    The workers are terminated first; the pool's manager thread then sees them gone, and the
-    shutdown releases its queues (whose semaphores would otherwise be reported as leaked by
-    multiprocessing's resource tracker when ``capsule-mpc`` ends at once after Ctrl-C).
-    """
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    for proc in procs:
-        proc.terminate()
-    for proc in procs:
-        proc.join(timeout=5)
-    pool.shutdown(wait=True, cancel_futures=True)
-
-
-def run_on_process_pool(
-    fn: Callable[[SeedTask], dict[str, Any]], tasks: Sequence[SeedTask], workers: int
-) -> Generator[Outcome, None, None]:
-    """Run ``tasks`` on a process pool; yield each (task, result) as it finishes.
-
-    At most ``workers`` tasks are in flight. A worker that dies breaks the pool and every task in
-    flight: those are run again one at a time on a new pool, so the one that kills its worker
-    is found and recorded as crashed (:func:`crashed_entry`), and the others finish.
-    """
-    queue, suspects = deque(tasks), deque[SeedTask]()
-    running: dict[Future[dict[str, Any]], SeedTask] = {}
-    pool = _new_pool(workers)
-    try:
-        alone = False  # whether the task in flight is a suspect run by itself
-
-        def submit(task: SeedTask, source: deque[SeedTask]) -> bool:
-            """Submit ``task`` (taken from ``source``); if the pool broke since the last wait (a
-            worker died while another task finished), put it back and say so."""
-            try:
-                running[pool.submit(fn, task)] = task
-            except BrokenProcessPool:
-                source.appendleft(task)
-                return False
-            return True
-
-        while queue or suspects or running:
-            submitted = True
-            if not running and suspects:
-                alone = True
-                submitted = submit(suspects.popleft(), suspects)
-            elif not running:
-                alone = False
-            while submitted and not alone and queue and len(running) < workers:
-                submitted = submit(queue.popleft(), queue)
-            broken = not submitted
-            done, _ = wait(running, return_when=FIRST_COMPLETED) if running else (set(), set())
-            for future in done:
-                task = running.pop(future)
-                try:
-                    result = future.result()
-                except BrokenProcessPool as exc:
-                    if alone:
-                        yield task, crashed_entry(task, f"the worker process died ({exc})")
-                    else:
-                        suspects.append(task)
-                    broken = True
-                except Exception as exc:  # the task could not run there (e.g. not picklable)
-                    yield task, crashed_entry(task, f"{type(exc).__name__}: {exc}")
-                else:
-                    yield task, result
-            if broken:  # the pool is gone with every task in flight: retry them one at a time
-                suspects.extend(running.values())
-                running.clear()
-                _stop_pool(pool)
-                pool = _new_pool(workers)
-        pool.shutdown(wait=True)
-    except BaseException as exc:  # Ctrl-C or SIGTERM (in the parent), or the caller stopped
-        traceback.clear_frames(exc.__traceback__)  # an interrupted shutdown's frames hold its queues
-        _stop_pool(pool)
-        raise
 
 
 def run_on_dask(
@@ -220,35 +148,52 @@ def run_on_dask(
 ) -> Generator[Outcome, None, None]:
     """Run ``tasks`` on a Dask cluster; yield each (task, result) as it finishes.
 
-    Dask runs a task whose worker died on another worker; one that kills its workers repeatedly
-    (``distributed.scheduler.allowed-failures``) ends in ``KilledWorker`` and is recorded as crashed.
+    At most as many tasks are on the cluster as its workers have threads (counted again as each
+    task finishes; at least one), so that a worker that dies takes no task but the one it was
+    running. That task, once ``allowed-failures`` workers died running it, is yielded as
+    :func:`crashed_entry`; so is one that raised. The tasks still on the cluster are cancelled
+    when the generator is closed (Ctrl-C, or the caller stopped).
     """
-    from distributed import as_completed  # lazy: Dask only when it runs the sweep
+    from distributed import KilledWorker, as_completed  # lazy: Dask only when it runs the sweep
 
     token = uuid.uuid4().hex[:8]
-    futures = {
-        client.submit(fn, task, key=f"capsule-mpc-sweep-{token}-seed-{task.seed}", pure=False): task
-        for task in tasks
-    }
+    queue = deque(tasks)
+    running: dict[Future, SeedTask] = {}
+    finished = as_completed()
+
+    def submit() -> None:
+        slots = max(1, sum(client.nthreads().values()))
+        while queue and len(running) < slots:
+            task = queue.popleft()
+            future = client.submit(fn, task, key=f"capsule-mpc-sweep-{token}-seed-{task.seed}", pure=False)
+            running[future] = task
+            finished.add(future)
+
     try:
-        for future in as_completed(futures):
-            task = futures[future]
+        submit()
+        for future in finished:
+            task = running.pop(future)
             try:
                 result = future.result()
-            except Exception as exc:  # KilledWorker, or the task could not run there
-                yield task, crashed_entry(task, f"{type(exc).__name__}: {exc}")
-            else:
-                yield task, result
+            except KilledWorker as exc:
+                deaths = f"{exc.allowed_failures + 1} worker death(s)"
+                result = crashed_entry(task, f"the worker process died running it (KilledWorker: {deaths})")
+            except Exception as exc:  # the task raised, or could not run there (e.g. not picklable)
+                result = crashed_entry(task, f"{type(exc).__name__}: {exc}")
+            submit()
+            yield task, result
     finally:
-        client.cancel(list(futures))
+        if running:
+            client.cancel(list(running))
 
 
 @contextmanager
 def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Client]:
     """A Dask client: of the scheduler at ``scheduler``, else of a new ``LocalCluster``.
 
-    The ``LocalCluster`` has ``workers`` worker processes (default the CPU count) of one thread
-    each, as a cluster's workers run one task at a time; it is closed on exit.
+    The ``LocalCluster`` (module docstring) has ``workers`` worker processes (default the CPU
+    count) of one thread each, as a cluster's workers run one task at a time; it is closed on
+    exit, its workers stopped, however the block ends.
 
     Raises
     ------
@@ -272,8 +217,11 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Client]:
             n_workers=workers or os.cpu_count() or 1,
             threads_per_worker=1,
             processes=True,
+            memory_limit=0,
+            preload=[WORKER_PRELOAD],
+            scheduler_kwargs={"allowed_failures": LOCAL_ALLOWED_FAILURES},
             dashboard_address=None,
-            silence_logs=logging.ERROR,
+            silence_logs=logging.CRITICAL,
         ) as cluster,
         Client(cluster) as client,
     ):
