@@ -16,8 +16,7 @@ from ..experiments import compare as comparison
 from ..experiments.compare import check_controllers
 from ..experiments.runs import prepare_run
 from ..outputs import output_folder
-from .arguments import input_files, run_count
-from .simulate import add_run_arguments
+from .arguments import add_run_arguments, input_files, run_count
 
 __all__ = ["register", "run"]
 

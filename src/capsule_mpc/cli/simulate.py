@@ -16,9 +16,9 @@ from typing import Any
 from ..errors import ConfigError
 from ..outputs import output_folder
 from ..telemetry.options import add_telemetry_arguments
-from .arguments import input_files, seed
+from .arguments import add_run_arguments, input_files
 
-__all__ = ["EXIT_COMPLETED", "EXIT_RUN_FAILED", "add_run_arguments", "register", "run"]
+__all__ = ["EXIT_COMPLETED", "EXIT_RUN_FAILED", "register", "run"]
 
 #: Exit status of a run that completed / failed (stalled, timed out, decoupled, dropped); bad input is 2.
 EXIT_COMPLETED, EXIT_RUN_FAILED = 0, 1
@@ -28,25 +28,6 @@ _EXIT_HELP = (
     "path's end); 1 the run failed (stalled, timed out, decoupled or dropped; its files are still "
     "written); 2 a bad config, waypoint file or option."
 )
-
-
-def add_run_arguments(p: argparse.ArgumentParser) -> None:
-    """The options ``simulate`` and ``compare`` share."""
-    p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
-    p.add_argument("--out", required=True, help="output folder (created)")
-    p.add_argument("--seed", type=seed, default=None,
-                   help="random seed, an integer >= 0 (default: sim.seed of the config)")  # fmt: skip
-    p.add_argument("--waypoints", default=None, help="CSV with header x_m,y_m replacing the config's path "
-                   "(at most 10000 waypoints)")  # fmt: skip
-    p.add_argument(
-        "--speed", type=float, default=None,
-        help="nominal path speed, m/s (overrides path.speed_mps); at most what the EPM can follow on the "
-        "path (0.072 m/s on the rectangle with the default limits), and at least what keeps a run "
-        "within an hour of simulated time and half the memory available (capsule_mpc.budget)",
-    )  # fmt: skip
-    p.add_argument("--plant", choices=("ideal", "lab", "hard"), default=None, help="plant preset: the "
-                   "simulated truth around the nominal rig (overrides plant.preset)")  # fmt: skip
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def register(sub: Any) -> None:

@@ -9,8 +9,7 @@ import argparse
 from typing import Any
 
 from ..experiments.sweep.vary import parse_vary
-from .arguments import int_at_least, run_count
-from .simulate import add_run_arguments
+from .arguments import add_run_arguments, int_at_least, run_count
 
 __all__ = ["register", "run"]
 
