@@ -357,8 +357,17 @@ def test_a_write_failing_midway_leaves_nothing(base, tmp_path, capsys, monkeypat
         raise OSError(errno.ENOSPC, "No space left on device", str(fname))
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full)
-    argv = _learn("--log", str(log), "--out", str(out / "m.yaml"), "--samples-out", str(out / "s.csv"),
-                  "--figures", str(out / "fig"), *FAST)  # fmt: skip
+    argv = _learn(
+        "--log",
+        str(log),
+        "--out",
+        str(out / "m.yaml"),
+        "--samples-out",
+        str(out / "s.csv"),
+        "--figures",
+        str(out / "fig"),
+        *FAST,
+    )
     before = _snapshot(tmp_path)
     assert main(argv) == 2
     message = capsys.readouterr().err
@@ -373,8 +382,17 @@ def test_a_valid_run_writes_every_output_and_no_temporary_file(base, tmp_path, c
     inputs, rows = base
     log = _write_log(inputs / "log.csv", rows)
     out = tmp_path / "out"
-    argv = _learn("--log", str(log), "--out", str(out / "m.yaml"), "--samples-out", str(out / "s.csv"),
-                  "--figures", str(out / "fig"), *FAST)  # fmt: skip
+    argv = _learn(
+        "--log",
+        str(log),
+        "--out",
+        str(out / "m.yaml"),
+        "--samples-out",
+        str(out / "s.csv"),
+        "--figures",
+        str(out / "fig"),
+        *FAST,
+    )
     assert main(argv) == 0
     written = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
     assert written == ["fig/friction_c_fit.png", "fig/friction_residuals.png", "m.yaml", "s.csv"]

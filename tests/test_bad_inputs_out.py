@@ -43,12 +43,11 @@ LONG_NAME = "a" * 300
 COMMANDS: dict[str, list[str]] = {
     "simulate": ["simulate", "--config", QUICK, "--waypoints", "wp.csv", "--controller", "follow"],
     "compare": ["compare", "--config", QUICK, "--waypoints", "wp.csv", "--controllers", "follow"],
-    "sweep": ["sweep", "--config", QUICK, "--waypoints", "wp.csv", "--controllers", "follow",
-              "--runs", "1"],
+    "sweep": ["sweep", "--config", QUICK, "--waypoints", "wp.csv", "--controllers", "follow", "--runs", "1"],
     "plan": ["plan", "--config", RECTANGLE, "--waypoints", "wp.csv"],
     "arm-export": ["arm-export", "--config", RECTANGLE, "--plan", "plan.csv"],
     "demonstrate": ["demonstrate", "--speeds", "0.02"],
-}  # fmt: skip
+}
 #: The commands with a --no-progress option.
 NO_PROGRESS = {"simulate", "compare", "sweep", "plan"}
 

@@ -169,11 +169,14 @@ def test_needs_follow_the_direction_of_travel():
 @pytest.mark.parametrize(
     ("mu0", "message"),
     [
-        (0.5, "needs the EPM 31.6 mm from its rest position over the capsule (friction mu = 0.284), "
-              "beyond the coupling limit limits.max_lead_m = 25 mm: lower the speed"),
+        (
+            0.5,
+            "needs the EPM 31.6 mm from its rest position over the capsule (friction mu = 0.284), "
+            "beyond the coupling limit limits.max_lead_m = 25 mm: lower the speed",
+        ),
         (5.0, "finds no steady lead (the magnet cannot pull the capsule against friction mu = 4.78): "),
     ],
-)  # fmt: skip
+)
 def test_a_speed_the_magnet_cannot_pull_is_a_config_error(mu0, message):
     """More friction than the coupling limit allows (the MPC never leads that far), or more than any lead."""
     scenario = load_config(RECTANGLE)

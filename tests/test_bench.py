@@ -61,8 +61,9 @@ def test_report_layout_and_machine_info(report):
 def test_build_times_cold_compile_once_per_horizon_then_warm_cache(report):
     first, second = report["cases"]
     assert [(c["variant"], c["qp_solver"], c["horizon"]) for c in (first, second)] == [
-        ("rti/hpipm", "hpipm", HORIZON), ("rti/piqp", "piqp", HORIZON)
-    ]  # fmt: skip
+        ("rti/hpipm", "hpipm", HORIZON),
+        ("rti/piqp", "piqp", HORIZON),
+    ]
     # Stage-wise: N_STATE states and N_INPUT inputs per stage, N_STATE states at the last.
     assert first["n_variables"] == second["n_variables"] == (N_STATE + N_INPUT) * HORIZON + N_STATE
     assert set(first["build"]) == {"uncompiled", "compiled_cold", "compiled_warm"}
@@ -138,8 +139,12 @@ def test_bench_scenario_overrides_only_the_mpc_fields(tmp_path):
 
 def test_variants_pair_each_sqp_scheme_with_each_qp_solver():
     assert variants(["rti", "ipopt", "sqp"], ["hpipm", "piqp"]) == [
-        ("rti", "hpipm"), ("rti", "piqp"), ("ipopt", None), ("sqp", "hpipm"), ("sqp", "piqp")
-    ]  # fmt: skip
+        ("rti", "hpipm"),
+        ("rti", "piqp"),
+        ("ipopt", None),
+        ("sqp", "hpipm"),
+        ("sqp", "piqp"),
+    ]
     with pytest.raises(ValueError, match="qp_solvers: each must be one of"):
         variants(["rti"], ["osqp"])
     with pytest.raises(ValueError, match="schemes: each must be"):
@@ -149,8 +154,13 @@ def test_variants_pair_each_sqp_scheme_with_each_qp_solver():
 def test_median_run_reports_the_middle_run_and_every_runs_spread():
     def run(median_ms: float, recoveries: int = 0) -> dict:
         stats = {"median_ms": median_ms, "p99_ms": 2 * median_ms, "max_ms": 3 * median_ms}
-        return {"controller_step": stats, "controller_step_cpu": stats, "solve": stats,
-                "recoveries": recoveries, "frame_times": [median_ms]}  # fmt: skip
+        return {
+            "controller_step": stats,
+            "controller_step_cpu": stats,
+            "solve": stats,
+            "recoveries": recoveries,
+            "frame_times": [median_ms],
+        }
 
     runs = [run(1.3, 1), run(0.9, 2), run(1.1, 3)]
     chosen, summaries = median_run(runs)

@@ -226,8 +226,19 @@ def test_learn_friction_writes_static_friction_intervals_rig_and_force_model(
 ):
     out, runs = lab_runs
     model_path = tmp_path / "model.yaml"
-    code = main(["learn-friction", "--log", str(out), "--out", str(model_path), "--degree", "1",
-                 "--force-model", "lookup"])  # fmt: skip
+    code = main(
+        [
+            "learn-friction",
+            "--log",
+            str(out),
+            "--out",
+            str(model_path),
+            "--degree",
+            "1",
+            "--force-model",
+            "lookup",
+        ]
+    )
     assert code == 0
     text = capsys.readouterr().out
     assert "static friction from 3 breakaway(s)" in text and "static_mu_1s = " in text and "[" in text
@@ -315,8 +326,20 @@ def test_a_model_without_a_force_model_loads_with_a_warning(tmp_path):
 
 
 def test_demonstrate_cli_runs_on_the_rig_it_is_given(tmp_path, capsys, table):
-    args = ["demonstrate", "--speeds", "0.03", "--paths", "straight_x", "--no-breakaway", "--plant", "ideal",
-            "--seed", "9", "--out", str(tmp_path)]  # fmt: skip
+    args = [
+        "demonstrate",
+        "--speeds",
+        "0.03",
+        "--paths",
+        "straight_x",
+        "--no-breakaway",
+        "--plant",
+        "ideal",
+        "--seed",
+        "9",
+        "--out",
+        str(tmp_path),
+    ]
     assert main(args) == 0
     assert "plant preset 'ideal', seed 9" in capsys.readouterr().out
     manifest = json.loads((tmp_path / "demonstrations.json").read_text())

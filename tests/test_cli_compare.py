@@ -21,29 +21,48 @@ PER_SEED = [
     {
         "seed": 7,
         "controllers": {
-            "a": {"tracking_rms_mm": 1.0, "arrival_time_s": 4.0, "decoupled": True, "solver_failures": 0,
-                  "run_dir": "x/7/a"},
-            "b": {"tracking_rms_mm": 5.0, "arrival_time_s": math.nan, "decoupled": False,
-                  "solver_failures": 3},
+            "a": {
+                "tracking_rms_mm": 1.0,
+                "arrival_time_s": 4.0,
+                "decoupled": True,
+                "solver_failures": 0,
+                "run_dir": "x/7/a",
+            },
+            "b": {
+                "tracking_rms_mm": 5.0,
+                "arrival_time_s": math.nan,
+                "decoupled": False,
+                "solver_failures": 3,
+            },
         },
     },
     {
         "seed": 8,
         "controllers": {
-            "a": {"tracking_rms_mm": 2.5, "arrival_time_s": None, "decoupled": False, "solver_failures": 1,
-                  "run_dir": "x/8/a"},
+            "a": {
+                "tracking_rms_mm": 2.5,
+                "arrival_time_s": None,
+                "decoupled": False,
+                "solver_failures": 1,
+                "run_dir": "x/8/a",
+            },
             "b": {"error": "RuntimeError: boom", "traceback": "..."},
         },
     },
     {
         "seed": 9,
         "controllers": {
-            "a": {"tracking_rms_mm": 4.0, "arrival_time_s": 6.0, "decoupled": True, "solver_failures": 2,
-                  "run_dir": "x/9/a"},
+            "a": {
+                "tracking_rms_mm": 4.0,
+                "arrival_time_s": 6.0,
+                "decoupled": True,
+                "solver_failures": 2,
+                "run_dir": "x/9/a",
+            },
             "b": {"tracking_rms_mm": 7.0, "arrival_time_s": 3.0, "decoupled": np.True_, "solver_failures": 0},
         },
     },
-]  # fmt: skip
+]
 
 
 def test_aggregate_mean_and_spread_against_numpy():
@@ -161,9 +180,12 @@ def test_several_seeds_are_scored_on_a_common_window(tmp_path, table, rectangle_
         assert window == pytest.approx(max(float(log["t_s"][-1]) for log in logs.values()))
         for name, log in logs.items():  # every run re-scored on the seed's window, as its run.json says
             again = run_metrics(
-                log, SHORT, window_end_s=window, arrival_tol_m=scenario.sim.completion_tol_m,
+                log,
+                SHORT,
+                window_end_s=window,
+                arrival_tol_m=scenario.sim.completion_tol_m,
                 deadline_ms=1e3 / scenario.camera.rate_hz,
-            )  # fmt: skip
+            )
             assert entries[name]["tracking_rms_mm"] == pytest.approx(again["tracking_rms_mm"])
             run_json = json.loads((dirs[name] / "run.json").read_text())
             assert run_json["metrics"]["window_end_s"] == pytest.approx(window)
@@ -254,16 +276,18 @@ def test_compare_into_a_folder_another_command_writes_is_refused(tmp_path, capsy
 
 
 #: What CasADi raised when a root finder failed inside a mapped step (a real message, shortened).
-_CASADI_DUMP = "\n".join([
-    "Error in Function::call for 'map525_capsule_step' [Map] at .../casadi/core/function.cpp:514:",
-    "Error in Function::operator() for 'capsule_step' [MXFunction] at .../casadi/core/function.cpp:1736:",
-    ".../casadi/interfaces/sundials/kinsol_interface.cpp:703: nlpsol process failed. Set 'error_on_fail' "
-    'option to false to ignore this error. Module "KINSol" returned flag "KIN_LINESEARCH_NONCONV".',
-    "The description of this flag is:",
-    '"The line search algorithm was unable to find an iterate sufficiently distinct from the current '
-    'iterate, or could not find an iterate satisfying the sufficient decrease condition."',
-    "Consult KINSOL documentation for more information.",
-])  # fmt: skip
+_CASADI_DUMP = "\n".join(
+    [
+        "Error in Function::call for 'map525_capsule_step' [Map] at .../casadi/core/function.cpp:514:",
+        "Error in Function::operator() for 'capsule_step' [MXFunction] at .../casadi/core/function.cpp:1736:",
+        ".../casadi/interfaces/sundials/kinsol_interface.cpp:703: nlpsol process failed. Set 'error_on_fail' "
+        'option to false to ignore this error. Module "KINSol" returned flag "KIN_LINESEARCH_NONCONV".',
+        "The description of this flag is:",
+        '"The line search algorithm was unable to find an iterate sufficiently distinct from the current '
+        'iterate, or could not find an iterate satisfying the sufficient decrease condition."',
+        "Consult KINSOL documentation for more information.",
+    ]
+)
 
 
 @pytest.mark.parametrize(

@@ -59,10 +59,21 @@ def test_compare_runs_every_controller_on_the_same_seed(
     assert summary["seed"] == load_config().sim.seed
     assert set(summary["controllers"]) == {"follow", "paper_0.8v"}
     for entry in summary["controllers"].values():
-        for key in ("cross_track_rms_mm", "cross_track_max_mm", "paper_std_mm", "arrival_time_s",
-                    "tracking_rms_mm", "final_error_mm",
-                    "nominal_time_s", "decoupled", "dropped", "solve_ms_median", "solve_ms_p99",
-                    "solver_failures", "deadline_misses"):  # fmt: skip
+        for key in (
+            "cross_track_rms_mm",
+            "cross_track_max_mm",
+            "paper_std_mm",
+            "arrival_time_s",
+            "tracking_rms_mm",
+            "final_error_mm",
+            "nominal_time_s",
+            "decoupled",
+            "dropped",
+            "solve_ms_median",
+            "solve_ms_p99",
+            "solver_failures",
+            "deadline_misses",
+        ):
             assert key in entry
     for name in ("summary.md", "trajectories.png", "errors.png", "metrics.png"):
         assert (out / name).stat().st_size > 0
@@ -124,8 +135,11 @@ def test_demo_demonstrates_learns_and_compares_with_a_cache(tmp_path, capsys, ta
     assert "(0 cached)" in first and "friction model: c(v) of degree 4" in first
     # The fit's verdict (weak or not) is printed and kept in the model file, as learn-friction does.
     printed = [ln.split("WARNING: ", 1)[1] for ln in first.splitlines() if "WARNING: " in ln]
-    header = [ln.split("WARNING: ", 1)[1] for ln in (out / "learned_friction.yaml").read_text().splitlines()
-              if ln.startswith("# WARNING: ")]  # fmt: skip
+    header = [
+        ln.split("WARNING: ", 1)[1]
+        for ln in (out / "learned_friction.yaml").read_text().splitlines()
+        if ln.startswith("# WARNING: ")
+    ]
     assert printed == header and printed  # two speeds only: the fit is flagged
 
     # Second run: demonstrations reused, no re-fit, the comparison runs again.
@@ -192,8 +206,14 @@ def test_simulate_mpc_writes_predictions_and_arm_outputs(tmp_path, short_path, q
     args = ["simulate", "--controller", "mpc", "--config", str(quick_config), "--out", str(out)]
     assert main([*args, "--waypoints", str(short_path), "--no-progress"]) == run_status(out)
     names = {p.name for p in out.iterdir()}
-    assert {"mpc_prediction.png", "predictions.npz", "epm_trajectory.csv", "joint_trajectory.csv",
-            "joint_trajectory.yaml", "joint_trajectory.png"} <= names  # fmt: skip
+    assert {
+        "mpc_prediction.png",
+        "predictions.npz",
+        "epm_trajectory.csv",
+        "joint_trajectory.csv",
+        "joint_trajectory.yaml",
+        "joint_trajectory.png",
+    } <= names
     log = read_log(out / "log.csv")
     joints = np.loadtxt(out / "joint_trajectory.csv", delimiter=",", skiprows=1)
     moving = log["t_s"] >= 0

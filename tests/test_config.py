@@ -51,9 +51,13 @@ def test_round_trip_is_identical(tmp_path):
 
 @pytest.mark.parametrize(
     ("section", "key"),
-    [(sec, key) for sec in ("capsule", "ipm", "plate") for key in PAPER[sec] if key != "grade"
-     and key != "setup" and key != "gravity_mps2"],
-)  # fmt: skip
+    [
+        (sec, key)
+        for sec in ("capsule", "ipm", "plate")
+        for key in PAPER[sec]
+        if key != "grade" and key != "setup" and key != "gravity_mps2"
+    ],
+)
 def test_every_required_field_missing_is_named(tmp_path, section, key):
     data = yaml.safe_load(yaml.safe_dump(PAPER))
     del data[section][key]
@@ -208,14 +212,20 @@ def test_exponent_floats_are_numbers(tmp_path):
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("base: paper\ncapsule:\n  mass_kg: 0.02\n  mass_kg: 0.03\n",
-         "line 4: duplicate key 'mass_kg' (first given at line 3)"),
-        ("base: paper\nname: a\nplate: {}\nname: b\n",
-         "line 4: duplicate key 'name' (first given at line 2)"),
-        ("base: paper\nlimits: {speed_mps: 0.05, speed_mps: 0.06}\n",
-         "line 2: duplicate key 'speed_mps' (first given at line 2)"),
+        (
+            "base: paper\ncapsule:\n  mass_kg: 0.02\n  mass_kg: 0.03\n",
+            "line 4: duplicate key 'mass_kg' (first given at line 3)",
+        ),
+        (
+            "base: paper\nname: a\nplate: {}\nname: b\n",
+            "line 4: duplicate key 'name' (first given at line 2)",
+        ),
+        (
+            "base: paper\nlimits: {speed_mps: 0.05, speed_mps: 0.06}\n",
+            "line 2: duplicate key 'speed_mps' (first given at line 2)",
+        ),
     ],
-)  # fmt: skip
+)
 def test_duplicate_keys_are_refused_with_their_line(tmp_path, text, message):
     path = tmp_path / "dup.yaml"
     path.write_text(text)
@@ -245,19 +255,30 @@ def test_binary_and_bom_files(tmp_path):
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
-        ({"plate": {"epm_height_m": 0.3}}, r"plate\.epm_height_m: must be within the EPM workspace heights "
-         r"\[0\.085, 0\.105\] m \(limits\.workspace_min_m\[2\], limits\.workspace_max_m\[2\]"),
-        ({"plate": {"epm_height_m": 0.03}, "limits": {"workspace_min_m": [-0.18, -0.13, 0.0]}},
-         r"plate\.epm_height_m: must be >= 0\.035 m \(half the EPM height 0\.025 \+ plate\.thickness_m "
-         r"0\.003 \+ half the capsule diameter 0\.007"),
-        ({"force_map": {"height_offsets_m": [0.0, 0.01]}},
-         r"force_map\.height_offsets_m: must span the EPM's true height offsets \[-0\.001, 0\.001\] m"),
-        ({"force_map": {"height_offsets_m": [-0.002, 0.002]}, "plant": {"preset": "hard"}},
-         r"force_map\.height_offsets_m: must span the EPM's true height offsets \[-0\.003, 0\.003\] m"),
-        ({"force_map": {"height_offsets_m": [-0.002, 0.002]}, "plant": {"epm_height_offset_m": 0.004}},
-         r"\[0, 0\.004\] m"),
+        (
+            {"plate": {"epm_height_m": 0.3}},
+            r"plate\.epm_height_m: must be within the EPM workspace heights "
+            r"\[0\.085, 0\.105\] m \(limits\.workspace_min_m\[2\], limits\.workspace_max_m\[2\]",
+        ),
+        (
+            {"plate": {"epm_height_m": 0.03}, "limits": {"workspace_min_m": [-0.18, -0.13, 0.0]}},
+            r"plate\.epm_height_m: must be >= 0\.035 m \(half the EPM height 0\.025 \+ plate\.thickness_m "
+            r"0\.003 \+ half the capsule diameter 0\.007",
+        ),
+        (
+            {"force_map": {"height_offsets_m": [0.0, 0.01]}},
+            r"force_map\.height_offsets_m: must span the EPM's true height offsets \[-0\.001, 0\.001\] m",
+        ),
+        (
+            {"force_map": {"height_offsets_m": [-0.002, 0.002]}, "plant": {"preset": "hard"}},
+            r"force_map\.height_offsets_m: must span the EPM's true height offsets \[-0\.003, 0\.003\] m",
+        ),
+        (
+            {"force_map": {"height_offsets_m": [-0.002, 0.002]}, "plant": {"epm_height_offset_m": 0.004}},
+            r"\[0, 0\.004\] m",
+        ),
     ],
-)  # fmt: skip
+)
 def test_epm_height_within_what_the_models_cover(tmp_path, changes, message):
     data = yaml.safe_load(yaml.safe_dump(PAPER))
     for section, values in changes.items():
@@ -272,8 +293,10 @@ def test_epm_height_within_what_the_models_cover(tmp_path, changes, message):
     assert load_config(_write(tmp_path, data)).force_map.height_offsets_m == [-0.005, 0.0, 0.005]
 
 
-@pytest.mark.parametrize(("lead_m", "text"), [(-1e-15, "+0.0"), (1e-15, "+0.0"), (-0.0, "+0.0"),
-                                              (-0.04914, "-49.1"), (0.00006, "+0.1")])  # fmt: skip
+@pytest.mark.parametrize(
+    ("lead_m", "text"),
+    [(-1e-15, "+0.0"), (1e-15, "+0.0"), (-0.0, "+0.0"), (-0.04914, "-49.1"), (0.00006, "+0.1")],
+)
 def test_leads_print_without_a_negative_zero(lead_m, text):
     # The rest lead's y of a symmetric rig is 0 up to the root finder's noise of either sign.
     assert _mm(lead_m) == text

@@ -321,8 +321,18 @@ def test_plan_interrupted_while_its_nlp_is_built_exits_at_once(tmp_path):
 def test_compare_interrupted_in_the_planner_stage_records_nothing(tmp_path):
     (tmp_path / "wp.csv").write_text(SHORT_PATH)
     out = tmp_path / "cmp"
-    args = ["compare", "--config", str(QUICK), "--waypoints", "wp.csv", "--out", str(out),
-            "--controllers", "follow", "plan"]  # fmt: skip
+    args = [
+        "compare",
+        "--config",
+        str(QUICK),
+        "--waypoints",
+        "wp.csv",
+        "--out",
+        str(out),
+        "--controllers",
+        "follow",
+        "plan",
+    ]
     status, stdout, err, _ = _run_and_interrupt(args, IPOPT_RUNNING, tmp_path, setup=SLOW_IPOPT)
     assert status == 130, err
     assert _ends_with_the_message(_last_lines(err))
@@ -360,9 +370,24 @@ def test_a_sweep_stopped_by_a_signal_exits_128_plus_n_and_leaves_no_process(tmp_
     psutil = pytest.importorskip("psutil")
     (tmp_path / "wp.csv").write_text(SHORT_PATH)
     out = tmp_path / "sw"
-    args = ["sweep", "--config", str(QUICK), "--waypoints", "wp.csv", "--plant", "ideal", "--controllers",
-            "follow", "--runs", "40", "--workers", "2", "--no-progress",
-            "--out", str(out)]  # fmt: skip
+    args = [
+        "sweep",
+        "--config",
+        str(QUICK),
+        "--waypoints",
+        "wp.csv",
+        "--plant",
+        "ideal",
+        "--controllers",
+        "follow",
+        "--runs",
+        "40",
+        "--workers",
+        "2",
+        "--no-progress",
+        "--out",
+        str(out),
+    ]
     env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))
     code = "import sys; from capsule_mpc.cli import main; sys.exit(main())"
     proc = subprocess.Popen(

@@ -450,8 +450,13 @@ def test_a_precise_fit_is_not_flagged(scenario, constants):
 
 
 def test_noise_that_swamps_c_is_flagged_as_imprecise_and_unresolved(scenario, constants):
-    samples = synthetic_samples(NOISY["coefficients"], constants, NOISY["n"],
-                                traction_noise_n=NOISY["traction_noise_n"], seed=NOISY["seed"])  # fmt: skip
+    samples = synthetic_samples(
+        NOISY["coefficients"],
+        constants,
+        NOISY["n"],
+        traction_noise_n=NOISY["traction_noise_n"],
+        seed=NOISY["seed"],
+    )
     q = learn_friction(samples, scenario, degree=4).quality
     assert q.weak and q.rel_half_width_max > MAX_REL_HALF_WIDTH
     imprecise = next(r for r in q.reasons if r.startswith("imprecise: "))
@@ -534,8 +539,18 @@ def test_cli_learns_from_samples(tmp_path, capsys, scenario, constants):
     samples = synthetic_samples(TRUE_C, constants, 2000, traction_noise_n=0.001, seed=9)
     write_samples_csv(samples, tmp_path / "s.csv")
     out = tmp_path / "m.yaml"
-    code = main(["learn-friction", "--samples", str(tmp_path / "s.csv"), "--out", str(out), "--robust",
-                 "--figures", str(tmp_path / "fig")])  # fmt: skip
+    code = main(
+        [
+            "learn-friction",
+            "--samples",
+            str(tmp_path / "s.csv"),
+            "--out",
+            str(out),
+            "--robust",
+            "--figures",
+            str(tmp_path / "fig"),
+        ]
+    )
     assert code == 0
     text = capsys.readouterr().out
     assert "learned c(v) from 2000 samples" in text and "(Huber)" in text
@@ -549,8 +564,22 @@ def test_cli_learns_from_samples(tmp_path, capsys, scenario, constants):
 def test_cli_learns_from_logs_as_json(tmp_path, capsys, scenario, synthetic_logs):
     folder = synthetic_logs[0].parent
     out = tmp_path / "m.yaml"
-    code = main(["learn-friction", "--log", str(folder), "--out", str(out), "--degree", "2", "--json",
-                 "--force-model", "dipole", "--samples-out", str(tmp_path / "s.csv")])  # fmt: skip
+    code = main(
+        [
+            "learn-friction",
+            "--log",
+            str(folder),
+            "--out",
+            str(out),
+            "--degree",
+            "2",
+            "--json",
+            "--force-model",
+            "dipole",
+            "--samples-out",
+            str(tmp_path / "s.csv"),
+        ]
+    )
     assert code == 0
     info = json.loads(capsys.readouterr().out)
     assert info["force_model"] == "dipole" and info["degree"] == 2
@@ -561,8 +590,13 @@ def test_cli_learns_from_logs_as_json(tmp_path, capsys, scenario, synthetic_logs
 
 
 def test_cli_flags_a_weak_fit_in_text_json_and_the_model_file(tmp_path, capsys, scenario, constants):
-    samples = synthetic_samples(NOISY["coefficients"], constants, NOISY["n"],
-                                traction_noise_n=NOISY["traction_noise_n"], seed=NOISY["seed"])  # fmt: skip
+    samples = synthetic_samples(
+        NOISY["coefficients"],
+        constants,
+        NOISY["n"],
+        traction_noise_n=NOISY["traction_noise_n"],
+        seed=NOISY["seed"],
+    )
     write_samples_csv(samples, tmp_path / "s.csv")
     out = tmp_path / "m.yaml"
     assert main(["learn-friction", "--samples", str(tmp_path / "s.csv"), "--out", str(out)]) == 0

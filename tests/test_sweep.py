@@ -246,8 +246,12 @@ def test_ctrl_c_stops_the_workers_keeps_finished_runs_and_the_same_arguments_res
     code = "import sys; from capsule_mpc.cli import main; sys.exit(main())"
     proc = subprocess.Popen(
         [sys.executable, "-c", code, *args, "--no-progress"],
-        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
-    )  # fmt: skip
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
     first = out / RUNS_FOLDER / "seed_0.json"
     deadline = time.monotonic() + 60
     while not first.exists():
@@ -309,16 +313,25 @@ def test_worst_runs_rank_finite_values_list_flags_and_failures():
     ]
     worst = worst_runs(per_seed)["a"]
     assert worst["metrics"]["tracking_rms_mm"] == [
-        {"seed": 7, "value": 9.0}, {"seed": 5, "value": 2.0}, {"seed": 8, "value": 2.0},
-    ]  # fmt: skip
+        {"seed": 7, "value": 9.0},
+        {"seed": 5, "value": 2.0},
+        {"seed": 8, "value": 2.0},
+    ]
     assert worst["metrics"]["arrival_time_s"] == [{"seed": 9, "value": 4.0}, {"seed": 7, "value": 3.0}]
     assert worst["flags"] == {"decoupled": [], "dropped": [], "stalled": [5, 8]}
     assert worst["failed"] == [6]
 
 
 def test_spec_difference_names_the_argument_or_the_config_field():
-    base = {"command": "sweep", "seed": 0, "runs": 3, "controllers": ["follow"], "vary": {}, "path": {},
-            "config": {"plant": {"preset": "lab", "mu0_scale": None}, "name": "x"}}  # fmt: skip
+    base = {
+        "command": "sweep",
+        "seed": 0,
+        "runs": 3,
+        "controllers": ["follow"],
+        "vary": {},
+        "path": {},
+        "config": {"plant": {"preset": "lab", "mu0_scale": None}, "name": "x"},
+    }
     assert spec_difference(base, dict(base)) is None
     assert spec_difference(base, {**base, "runs": 4}) == "--runs: 3 in the folder, 4 now"
     other = {**base, "config": {"plant": {"preset": "hard", "mu0_scale": None}, "name": "x"}}

@@ -25,9 +25,15 @@ REPO = Path(__file__).resolve().parents[1]
 #: A corner: a short MPC run with a prediction and a turn.
 CORNER = ReferencePath(np.array([[0.0, 0.0], [0.03, 0.0], [0.03, 0.02]]), False, 0.02)
 PER_FRAME = (
-    "/tf", "/capsule/true", "/epm/pose", "/reference/pose", "/mpc/prediction", "/run/tracking",
-    "/run/command", "/arm/joint_states",
-)  # fmt: skip
+    "/tf",
+    "/capsule/true",
+    "/epm/pose",
+    "/reference/pose",
+    "/mpc/prediction",
+    "/run/tracking",
+    "/run/command",
+    "/arm/joint_states",
+)
 ONCE = ("/rig/scene", "/tf_static", "/robot_description")
 
 
@@ -43,9 +49,10 @@ def read_mcap(path: Path) -> tuple[dict[str, dict], dict[str, list[tuple[int, ob
         for cid, ch in summary.channels.items():
             schema = summary.schemas[ch.schema_id]
             channels[ch.topic] = {
-                "schema": schema.name, "encoding": ch.message_encoding,
+                "schema": schema.name,
+                "encoding": ch.message_encoding,
                 "count": summary.statistics.channel_message_counts.get(cid, 0),
-            }  # fmt: skip
+            }
         for schema, channel, message in reader.iter_messages(log_time_order=True):
             if channel.message_encoding == "json":
                 decoded: object = json.loads(message.data)
@@ -139,11 +146,13 @@ def test_the_prediction_is_the_controller_s_and_the_events_tell_the_run(mpc_run)
 def _matrix(tf) -> np.ndarray:
     """The 4x4 matrix of a decoded FrameTransform."""
     x, y, z, w = tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w
-    rot = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])  # fmt: skip
+    rot = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     m = np.eye(4)
     m[:3, :3], m[:3, 3] = rot, [tf.translation.x, tf.translation.y, tf.translation.z]
     return m
@@ -156,7 +165,7 @@ def test_the_arm_s_frames_put_its_flange_where_its_kinematics_do(mpc_run):
 
     result, _folder, _channels, messages, _metadata = mpc_run
     kin = ArmKinematics(result.scenario.arm)
-    (_, static), = messages["/tf_static"]  # fmt: skip
+    ((_, static),) = messages["/tf_static"]
     edges = {tf.child_frame_id: tf for tf in static.transforms}
     k = len(messages["/tf"]) // 2
     (_, moving), (_, joints) = messages["/tf"][k], messages["/arm/joint_states"][k]

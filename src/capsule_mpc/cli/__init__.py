@@ -30,9 +30,19 @@ __all__ = ["main"]
 #: Sub-modules of this package that each define ``register(subparsers)``; the parser they add
 #: sets ``func(args) -> int``.
 _COMMANDS = (
-    "info", "docs", "demo", "learn", "demonstrate", "simulate", "compare", "arm", "plan", "bench", "sweep",
+    "info",
+    "docs",
+    "demo",
+    "learn",
+    "demonstrate",
+    "simulate",
+    "compare",
+    "arm",
+    "plan",
+    "bench",
+    "sweep",
     "log",
-)  # fmt: skip
+)
 #: Exit status after Ctrl-C (128 + SIGINT, as a shell reports a command it interrupted); after
 #: SIGTERM or SIGHUP, 128 + that signal's number.
 EXIT_INTERRUPTED = 130

@@ -145,31 +145,57 @@ def add_breakaway_arguments(p: argparse.ArgumentParser, defaults: BreakawayPlan)
     ``defaults`` as their defaults."""
     g = p.add_argument_group("breakaway experiments (static friction)")
     g.add_argument("--no-breakaway", action="store_true", help="do not run the breakaway experiments")
-    g.add_argument("--rest-times", type=float, nargs="+", default=list(defaults.rest_s), metavar="T",
-                   help="rest times before each pull, s, each in [0, 30] (default "
-                   + " ".join(f"{t:g}" for t in defaults.rest_s) + ")")  # fmt: skip
-    g.add_argument("--pull-speed", type=positive_speed, default=defaults.speed_mps,
-                   help=f"pull speed, m/s, in (0, limits.speed_mps] "
-                   f"(default {defaults.speed_mps:g})")  # fmt: skip
-    g.add_argument("--pull", type=float, default=defaults.pull_m,
-                   help="pull length along x and along y, m, in (0, 0.035) "
-                   f"(default {defaults.pull_m:g})")  # fmt: skip
+    g.add_argument(
+        "--rest-times",
+        type=float,
+        nargs="+",
+        default=list(defaults.rest_s),
+        metavar="T",
+        help="rest times before each pull, s, each in [0, 30] (default "
+        + " ".join(f"{t:g}" for t in defaults.rest_s)
+        + ")",
+    )
+    g.add_argument(
+        "--pull-speed",
+        type=positive_speed,
+        default=defaults.speed_mps,
+        help=f"pull speed, m/s, in (0, limits.speed_mps] (default {defaults.speed_mps:g})",
+    )
+    g.add_argument(
+        "--pull",
+        type=float,
+        default=defaults.pull_m,
+        help=f"pull length along x and along y, m, in (0, 0.035) (default {defaults.pull_m:g})",
+    )
 
 
 def add_run_arguments(p: argparse.ArgumentParser) -> None:
     """The options ``simulate`` and ``compare`` share."""
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
     p.add_argument("--out", required=True, help="output folder (created)")
-    p.add_argument("--seed", type=seed, default=None,
-                   help="random seed, an integer >= 0 (default: sim.seed of the config)")  # fmt: skip
-    p.add_argument("--waypoints", default=None, help="CSV with header x_m,y_m replacing the config's path "
-                   "(at most 10000 waypoints)")  # fmt: skip
     p.add_argument(
-        "--speed", type=float, default=None,
+        "--seed",
+        type=seed,
+        default=None,
+        help="random seed, an integer >= 0 (default: sim.seed of the config)",
+    )
+    p.add_argument(
+        "--waypoints",
+        default=None,
+        help="CSV with header x_m,y_m replacing the config's path (at most 10000 waypoints)",
+    )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=None,
         help="nominal path speed, m/s (overrides path.speed_mps); at most what the EPM can follow on the "
         "path (0.072 m/s on the rectangle with the default limits), and at least what keeps a run "
         "within an hour of simulated time and half the memory available (capsule_mpc.budget)",
-    )  # fmt: skip
-    p.add_argument("--plant", choices=("ideal", "lab", "hard"), default=None, help="plant preset: the "
-                   "simulated truth around the nominal rig (overrides plant.preset)")  # fmt: skip
+    )
+    p.add_argument(
+        "--plant",
+        choices=("ideal", "lab", "hard"),
+        default=None,
+        help="plant preset: the simulated truth around the nominal rig (overrides plant.preset)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -45,16 +45,18 @@ def register(sub: Any) -> None:
         ),
     )
     p.add_argument(
-        "--plan", required=True,
+        "--plan",
+        required=True,
         help="EPM trajectory CSV (e.g. epm_plan.csv or a run log): at most 3600000 rows spanning at most "
         "3600 s, whose arm setpoints fit in half the memory available (capsule_mpc.budget)",
-    )  # fmt: skip
+    )
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument(
-        "--config", default=None,
+        "--config",
+        default=None,
         help="scenario YAML the plan was made for (default: config.yaml beside the plan; required "
         "without one)",
-    )  # fmt: skip
+    )
     p.add_argument("--no-plot", action="store_true", help="skip the joint figure")
     p.set_defaults(func=run)
 

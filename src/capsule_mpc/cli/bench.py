@@ -48,23 +48,56 @@ def register(sub: Any) -> None:
         ),
     )
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged rectangle.yaml)")
-    p.add_argument("--horizons", type=int_at_least(2, 200), nargs="+", default=list(DEFAULT_HORIZONS),
-                   metavar="N", help="horizons N to measure, each in [2, 200] (default: "
-                   f"{' '.join(map(str, DEFAULT_HORIZONS))})")  # fmt: skip
-    p.add_argument("--schemes", nargs="+", default=list(DEFAULT_SCHEMES), choices=("rti", "sqp", "ipopt"),
-                   help=f"per-frame schemes (default: {' '.join(DEFAULT_SCHEMES)})")  # fmt: skip
-    p.add_argument("--qp-solvers", nargs="+", default=list(DEFAULT_QP_SOLVERS), choices=QP_SOLVERS,
-                   help="QP solvers of the rti and sqp schemes (default: "
-                   f"{' '.join(DEFAULT_QP_SOLVERS)})")  # fmt: skip
-    p.add_argument("--frames", type=int_at_least(0), default=DEFAULT_FRAMES, help="camera frames of motion "
-                   f"per closed-loop run, >= 0; 0: the whole path (default {DEFAULT_FRAMES})")  # fmt: skip
-    p.add_argument("--repeats", type=run_count, default=1, help="closed-loop runs per variant and N, in "
-                   "[1, 10000]; the run with the median step time is reported, the spread over the runs "
-                   "beside it (default 1)")  # fmt: skip
-    p.add_argument("--seed", type=seed, default=None,
-                   help="random seed, an integer >= 0 (default: sim.seed of the config)")  # fmt: skip
-    p.add_argument("--out", type=bench_out, default=DEFAULT_OUT, help=f"JSON file (.json), or folder for "
-                   f"{REPORT_NAME} ({DEFAULT_OUT}); the figure (.png) goes beside it")  # fmt: skip
+    p.add_argument(
+        "--horizons",
+        type=int_at_least(2, 200),
+        nargs="+",
+        default=list(DEFAULT_HORIZONS),
+        metavar="N",
+        help=f"horizons N to measure, each in [2, 200] (default: {' '.join(map(str, DEFAULT_HORIZONS))})",
+    )
+    p.add_argument(
+        "--schemes",
+        nargs="+",
+        default=list(DEFAULT_SCHEMES),
+        choices=("rti", "sqp", "ipopt"),
+        help=f"per-frame schemes (default: {' '.join(DEFAULT_SCHEMES)})",
+    )
+    p.add_argument(
+        "--qp-solvers",
+        nargs="+",
+        default=list(DEFAULT_QP_SOLVERS),
+        choices=QP_SOLVERS,
+        help=f"QP solvers of the rti and sqp schemes (default: {' '.join(DEFAULT_QP_SOLVERS)})",
+    )
+    p.add_argument(
+        "--frames",
+        type=int_at_least(0),
+        default=DEFAULT_FRAMES,
+        help="camera frames of motion "
+        f"per closed-loop run, >= 0; 0: the whole path (default {DEFAULT_FRAMES})",
+    )
+    p.add_argument(
+        "--repeats",
+        type=run_count,
+        default=1,
+        help="closed-loop runs per variant and N, in "
+        "[1, 10000]; the run with the median step time is reported, the spread over the runs "
+        "beside it (default 1)",
+    )
+    p.add_argument(
+        "--seed",
+        type=seed,
+        default=None,
+        help="random seed, an integer >= 0 (default: sim.seed of the config)",
+    )
+    p.add_argument(
+        "--out",
+        type=bench_out,
+        default=DEFAULT_OUT,
+        help=f"JSON file (.json), or folder for "
+        f"{REPORT_NAME} ({DEFAULT_OUT}); the figure (.png) goes beside it",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=run)
 
@@ -77,8 +110,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc bench: {exc}", file=sys.stderr)
         return 2
     say = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
-    report = bench.run_benchmark(args.config, args.horizons, args.schemes, args.frames or None, args.seed,
-                                 progress=say, qp_solvers=args.qp_solvers, repeats=args.repeats)  # fmt: skip
+    report = bench.run_benchmark(
+        args.config,
+        args.horizons,
+        args.schemes,
+        args.frames or None,
+        args.seed,
+        progress=say,
+        qp_solvers=args.qp_solvers,
+        repeats=args.repeats,
+    )
     out, figure = bench_report.save_report(report, args.out)
     print(bench_report.format_report(report))
     print(f"wrote {out}, {figure}")

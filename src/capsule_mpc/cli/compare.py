@@ -41,8 +41,13 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--controllers", nargs="+", default=None, help="only these controllers (default: all available)"
     )
-    p.add_argument("--runs", type=run_count, default=1, metavar="N", help="seeds per controller, an integer "
-                   "in [1, 10000]: run k uses seed + k (default 1)")  # fmt: skip
+    p.add_argument(
+        "--runs",
+        type=run_count,
+        default=1,
+        metavar="N",
+        help="seeds per controller, an integer in [1, 10000]: run k uses seed + k (default 1)",
+    )
     p.set_defaults(func=run)
 
 
@@ -55,15 +60,22 @@ def run(args: argparse.Namespace) -> int:
     seed = scenario.sim.seed if args.seed is None else args.seed
     with output_folder(args.out, "compare", inputs=input_files(args, "--config", "--waypoints")) as folder:
         summary = comparison.compare_controllers(
-            scenario, path, folder.path, seed, controllers=args.controllers, meta=meta,
-            progress=not args.no_progress, runs=args.runs,
-        )  # fmt: skip
+            scenario,
+            path,
+            folder.path,
+            seed,
+            controllers=args.controllers,
+            meta=meta,
+            progress=not args.no_progress,
+            runs=args.runs,
+        )
         failures = comparison.failed_runs(summary)
         folder.status = 1 if failures else 0
     print(comparison.summary_table(summary["controllers"], args.runs), end="")
     for name, failed_seed, error in failures:
-        print(f"capsule-mpc compare: controller {name!r} failed (seed {failed_seed}): {error}",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"capsule-mpc compare: controller {name!r} failed (seed {failed_seed}): {error}", file=sys.stderr
+        )
     folders = (
         "one folder per controller" if args.runs == 1 else f"{comparison.RUNS_FOLDER}/seed_<S>/<controller>/"
     )

@@ -40,12 +40,17 @@ def register(sub: Any) -> None:
     p.add_argument("--config", default=None, help="base scenario YAML (default: packaged rectangle.yaml)")
     p.add_argument("--out", default=str(DEFAULT_OUT), help=f"output folder (default: {DEFAULT_OUT})")
     add_rig_arguments(p, seed_default=None)
-    p.add_argument("--speeds", type=positive_speed, nargs="+", default=list(DEFAULT_SPEEDS_MPS),
-                   help="demonstration speeds, m/s, each in (0, limits.speed_mps] and fast enough for a run "
-                   "within an hour of simulated time (default: "
-                   + " ".join(f"{v:g}" for v in DEFAULT_SPEEDS_MPS) + ")")  # fmt: skip
-    p.add_argument("--controllers", nargs="+", default=None,
-                   help="compare only these (default: all available)")  # fmt: skip
+    p.add_argument(
+        "--speeds",
+        type=positive_speed,
+        nargs="+",
+        default=list(DEFAULT_SPEEDS_MPS),
+        help="demonstration speeds, m/s, each in (0, limits.speed_mps] and fast enough for a run "
+        "within an hour of simulated time (default: " + " ".join(f"{v:g}" for v in DEFAULT_SPEEDS_MPS) + ")",
+    )
+    p.add_argument(
+        "--controllers", nargs="+", default=None, help="compare only these (default: all available)"
+    )
     p.add_argument("--no-cache", action="store_true", help="re-run the demonstrations and re-fit the model")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
@@ -70,7 +75,14 @@ def run(args: argparse.Namespace) -> int:
         base = rig_scenario(load_config(config), args.plant)
         seed = base.sim.seed if args.seed is None else args.seed
         folder.status = run_demo(
-            base, config, folder.path, seed, args.speeds, controllers=args.controllers,
-            use_cache=not args.no_cache, progress=not args.no_progress, wall0=wall0,
-        )  # fmt: skip
+            base,
+            config,
+            folder.path,
+            seed,
+            args.speeds,
+            controllers=args.controllers,
+            use_cache=not args.no_cache,
+            progress=not args.no_progress,
+            wall0=wall0,
+        )
     return folder.status

@@ -41,15 +41,28 @@ def register(sub: Any) -> None:
         ),
     )
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
-    p.add_argument("--speeds", type=positive_speed, nargs="+", default=list(DEFAULT_SPEEDS_MPS),
-                   help="arm speeds, m/s, each in (0, limits.speed_mps] and fast enough for a run within an "
-                   "hour of simulated time (default 0.005 0.01 0.02 0.03 0.04)")  # fmt: skip
-    p.add_argument("--paths", nargs="+", choices=DEMO_PATHS, default=list(DEMO_PATHS),
-                   help="demonstration paths (default: all)")  # fmt: skip
+    p.add_argument(
+        "--speeds",
+        type=positive_speed,
+        nargs="+",
+        default=list(DEFAULT_SPEEDS_MPS),
+        help="arm speeds, m/s, each in (0, limits.speed_mps] and fast enough for a run within an "
+        "hour of simulated time (default 0.005 0.01 0.02 0.03 0.04)",
+    )
+    p.add_argument(
+        "--paths",
+        nargs="+",
+        choices=DEMO_PATHS,
+        default=list(DEMO_PATHS),
+        help="demonstration paths (default: all)",
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the run folders")
-    p.add_argument("--repeats", type=run_count, default=1,
-                   help="runs per path and speed, and per breakaway (default 1); at most 10000 runs "
-                   "in all")  # fmt: skip
+    p.add_argument(
+        "--repeats",
+        type=run_count,
+        default=1,
+        help="runs per path and speed, and per breakaway (default 1); at most 10000 runs in all",
+    )
     add_rig_arguments(p)
     p.add_argument("--no-cache", action="store_true", help="re-run even if a matching run exists")
     add_breakaway_arguments(p, BreakawayPlan())
@@ -75,15 +88,24 @@ def run(args: argparse.Namespace) -> int:
             f"capsule-mpc demonstrate: on one rig: plant preset {scenario.plant.preset!r}, seed {args.seed}"
         )
         runs, status = record_demonstrations(
-            scenario, args.speeds, args.out, repeats=args.repeats, seed=args.seed, path_kinds=args.paths,
-            use_cache=not args.no_cache, breakaway=plan, inputs=input_files(args, "--config"),
-        )  # fmt: skip
+            scenario,
+            args.speeds,
+            args.out,
+            repeats=args.repeats,
+            seed=args.seed,
+            path_kinds=args.paths,
+            use_cache=not args.no_cache,
+            breakaway=plan,
+            inputs=input_files(args, "--config"),
+        )
     except ValueError as exc:
         print(f"capsule-mpc demonstrate: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"capsule-mpc demonstrate: cannot write {exc.filename or args.out}: {exc.strerror or exc}",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"capsule-mpc demonstrate: cannot write {exc.filename or args.out}: {exc.strerror or exc}",
+            file=sys.stderr,
+        )
         return 2
     print("\n".join(report_lines(runs, args.out, time.perf_counter() - start)))
     return status

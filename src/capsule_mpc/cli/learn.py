@@ -67,30 +67,62 @@ def register(sub: Any) -> None:
     p.add_argument("--out", required=True, metavar="MODEL.yaml", help="where to write the learned model")
     p.add_argument("--degree", type=_degree, default=4, help="polynomial degree (default 4, as the paper)")
     p.add_argument("--robust", action="store_true", help="Huber loss instead of least squares (outliers)")
-    p.add_argument("--speed-floor", type=_non_negative, default=SPEED_FLOOR_MPS,
-                   help=f"exclude samples slower than this, m/s (default {SPEED_FLOOR_MPS})")  # fmt: skip
-    p.add_argument("--min-log-ratio", type=_non_negative, default=MIN_LOG_RATIO,
-                   help=f"exclude samples with |ln(v*/v)| below this (default {MIN_LOG_RATIO})")  # fmt: skip
+    p.add_argument(
+        "--speed-floor",
+        type=_non_negative,
+        default=SPEED_FLOOR_MPS,
+        help=f"exclude samples slower than this, m/s (default {SPEED_FLOOR_MPS})",
+    )
+    p.add_argument(
+        "--min-log-ratio",
+        type=_non_negative,
+        default=MIN_LOG_RATIO,
+        help=f"exclude samples with |ln(v*/v)| below this (default {MIN_LOG_RATIO})",
+    )
     logs = p.add_argument_group("run logs (--log)")
-    p.add_argument("--force-model", choices=("dipole", "lookup"), default=None,
-                   help="force model for F and F_N, recorded in the model (default: the config's "
-                   "force_model); a scenario using the model must use the same one")  # fmt: skip
-    logs.add_argument("--truth", action="store_true",
-                      help="use the simulator's true capsule position instead of the camera's")  # fmt: skip
-    logs.add_argument("--window", type=_positive, default=LogOptions.window_s,
-                      help=f"Savitzky-Golay window, s (default {LogOptions.window_s})")  # fmt: skip
-    logs.add_argument("--polyorder", type=int, default=LogOptions.polyorder,
-                      help=f"Savitzky-Golay order, 2..5 (default {LogOptions.polyorder})")  # fmt: skip
-    logs.add_argument("--max-gap-frames", type=int, default=LogOptions.max_gap_frames,
-                      help="longest run of dropped camera frames to interpolate (default "
-                      f"{LogOptions.max_gap_frames}); longer gaps are cut out")  # fmt: skip
-    logs.add_argument("--speed-source", choices=("epm", "capsule"), default="epm",
-                      help="speed and direction: the EPM's (paper) or the capsule's")  # fmt: skip
+    p.add_argument(
+        "--force-model",
+        choices=("dipole", "lookup"),
+        default=None,
+        help="force model for F and F_N, recorded in the model (default: the config's "
+        "force_model); a scenario using the model must use the same one",
+    )
+    logs.add_argument(
+        "--truth",
+        action="store_true",
+        help="use the simulator's true capsule position instead of the camera's",
+    )
+    logs.add_argument(
+        "--window",
+        type=_positive,
+        default=LogOptions.window_s,
+        help=f"Savitzky-Golay window, s (default {LogOptions.window_s})",
+    )
+    logs.add_argument(
+        "--polyorder",
+        type=int,
+        default=LogOptions.polyorder,
+        help=f"Savitzky-Golay order, 2..5 (default {LogOptions.polyorder})",
+    )
+    logs.add_argument(
+        "--max-gap-frames",
+        type=int,
+        default=LogOptions.max_gap_frames,
+        help="longest run of dropped camera frames to interpolate (default "
+        f"{LogOptions.max_gap_frames}); longer gaps are cut out",
+    )
+    logs.add_argument(
+        "--speed-source",
+        choices=("epm", "capsule"),
+        default="epm",
+        help="speed and direction: the EPM's (paper) or the capsule's",
+    )
     logs.add_argument("--steady-tol", type=_positive, default=LogOptions.steady_tolerance,
                       help="exclude samples where |v_capsule - v_EPM| > TOL |v_EPM| "
                       f"(default {LogOptions.steady_tolerance})")  # fmt: skip
-    logs.add_argument("--keep-transients", action="store_true",
-                      help="do not exclude unsteady samples (as the paper)")  # fmt: skip
+    logs.add_argument(
+        "--keep-transients", action="store_true", help="do not exclude unsteady samples (as the paper)"
+    )
     logs.add_argument(
         "--samples-out", metavar="CSV", help="also write the extracted samples as a samples CSV"
     )
@@ -109,17 +141,35 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     scenario = load_config(args.config)
     outputs = LearnOutputs(Path(args.out), _path(args.samples_out), _path(args.figures))
-    fit = {"degree": args.degree, "robust": args.robust, "speed_floor_mps": args.speed_floor,
-           "min_log_ratio": args.min_log_ratio}  # fmt: skip
+    fit = {
+        "degree": args.degree,
+        "robust": args.robust,
+        "speed_floor_mps": args.speed_floor,
+        "min_log_ratio": args.min_log_ratio,
+    }
     try:  # a ConfigError (an output refused) is a ValueError
         check_outputs(outputs, from_samples=args.samples is not None)
-        options = None if args.samples is not None else LogOptions(
-            window_s=args.window, polyorder=args.polyorder, max_gap_frames=args.max_gap_frames,
-            truth=args.truth, force_model=args.force_model, speed_source=args.speed_source,
-            steady_tolerance=None if args.keep_transients else args.steady_tol,
-        )  # fmt: skip
-        result = learn_model(scenario, logs=args.log, samples=args.samples, log_options=options,
-                             force_model=args.force_model, **fit)  # fmt: skip
+        options = (
+            None
+            if args.samples is not None
+            else LogOptions(
+                window_s=args.window,
+                polyorder=args.polyorder,
+                max_gap_frames=args.max_gap_frames,
+                truth=args.truth,
+                force_model=args.force_model,
+                speed_source=args.speed_source,
+                steady_tolerance=None if args.keep_transients else args.steady_tol,
+            )
+        )
+        result = learn_model(
+            scenario,
+            logs=args.log,
+            samples=args.samples,
+            log_options=options,
+            force_model=args.force_model,
+            **fit,
+        )
         refuse_overwriting_inputs(outputs, result.samples.sources)
     except (LearningDataError, ValueError) as exc:
         print(f"capsule-mpc learn-friction: {exc}", file=sys.stderr)
@@ -127,8 +177,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         figures = write_outputs(outputs, result)
     except OSError as exc:
-        print(f"capsule-mpc learn-friction: cannot write {exc.filename or args.out}: {exc.strerror or exc}; "
-              "nothing written", file=sys.stderr)  # fmt: skip
+        print(
+            f"capsule-mpc learn-friction: cannot write {exc.filename or args.out}: {exc.strerror or exc}; "
+            "nothing written",
+            file=sys.stderr,
+        )
         return 2
     info = learning_summary(result, time.perf_counter() - start, args.out, figures)
     if not args.json:

@@ -40,18 +40,23 @@ def register(sub: Any) -> None:
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
     p.add_argument("--out", required=True, help="output folder (created)")
     p.add_argument(
-        "--variant", choices=("fixed", "min_time"), default="fixed",
+        "--variant",
+        choices=("fixed", "min_time"),
+        default="fixed",
         help="fixed: track the reference at the nominal speed; min_time: fastest within a 0.5 mm tube",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--waypoints", default=None,
+        "--waypoints",
+        default=None,
         help="CSV with header x_m,y_m replacing the config's path (at most 10000 waypoints)",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--speed", type=float, default=None,
+        "--speed",
+        type=float,
+        default=None,
         help="nominal path speed, m/s (overrides path.speed_mps); the fixed-time plan has a step per "
         "camera frame and must fit in half the memory available (capsule_mpc.budget)",
-    )  # fmt: skip
+    )
     p.add_argument("--no-arm", action="store_true", help="skip the arm export (Ruckig + IK)")
     p.add_argument(
         "--no-progress", action="store_true", help="no progress bar (IPOPT iterations and elapsed time)"

@@ -89,8 +89,13 @@ def config_reference() -> str:
         top = path.split(".")[0] if "." in path else "(top level)"
         if top != section:
             section = top
-            lines += ["", f"## `{top}`" if top != "(top level)" else "## top level", "",
-                      "| field | type | default | description |", "|---|---|---|---|"]  # fmt: skip
+            lines += [
+                "",
+                f"## `{top}`" if top != "(top level)" else "## top level",
+                "",
+                "| field | type | default | description |",
+                "|---|---|---|---|",
+            ]
         shown = "required" if default == "required" else f"`{default}`"
         cells = [f"`{path}`", type_name, shown, desc]
         lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")

@@ -52,11 +52,12 @@ def register(sub: Any) -> None:
         "--controller", required=True, help="controller name: follow, paper_0.8v, mpc, plan (if available)"
     )
     p.add_argument(
-        "--realtime", action="store_true",
+        "--realtime",
+        action="store_true",
         help="pace the loop to the wall clock at the camera rate; report deadline misses (the run takes "
         "as long as the simulated time; the MPC then treats a late solve as failed and uses its "
         "shifted plan)",
-    )  # fmt: skip
+    )
     arm = p.add_mutually_exclusive_group()
     arm.add_argument(
         "--arm", action="store_true", default=None, help="write the arm outputs (default: only for mpc)"
@@ -88,8 +89,16 @@ def run(args: argparse.Namespace) -> int:
             if tel.live_url:
                 print(f"live view: {tel.live_url} (Foxglove: Open connection)", file=sys.stderr)
         result = runs.simulate_into(
-            scenario, args.controller, path, run_seed, folder.path, meta=meta,
-            progress=not args.no_progress, realtime=args.realtime, arm=want_arm, observers=telemetry,
-        )  # fmt: skip
+            scenario,
+            args.controller,
+            path,
+            run_seed,
+            folder.path,
+            meta=meta,
+            progress=not args.no_progress,
+            realtime=args.realtime,
+            arm=want_arm,
+            observers=telemetry,
+        )
         folder.status = EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
     return folder.status

@@ -160,9 +160,14 @@ def demonstrate_stage(
     ``out/demonstrations``; the logs (absolute paths)."""
     t0 = time.perf_counter()
     runs = run_demonstrations(
-        base, list(speeds_mps), out / "demonstrations", seed=seed, use_cache=use_cache, progress=progress,
+        base,
+        list(speeds_mps),
+        out / "demonstrations",
+        seed=seed,
+        use_cache=use_cache,
+        progress=progress,
         breakaway=BreakawayPlan(),
-    )  # fmt: skip
+    )
     cached = sum(r.cached for r in runs)
     n_break = sum(r.experiment == "breakaway" for r in runs)
     say(
@@ -268,9 +273,14 @@ def run_demo(
     say(f"[4/4] compare: {', '.join(controllers) if controllers else 'every available controller'}")
     with output_folder(compare_dir, "compare") as compared:  # a comparison replaces the previous one
         summary = compare_controllers(
-            scenario, path, compare_dir, seed, controllers=controllers,
-            meta={"config": str(scenario_path), "waypoints_file": None}, progress=progress,
-        )  # fmt: skip
+            scenario,
+            path,
+            compare_dir,
+            seed,
+            controllers=controllers,
+            meta={"config": str(scenario_path), "waypoints_file": None},
+            progress=progress,
+        )
         errors = [n for n, e in summary["controllers"].items() if "error" in e]
         compared.status = 1 if errors else 0
     say(f"  compared in {time.perf_counter() - t0:.1f} s")

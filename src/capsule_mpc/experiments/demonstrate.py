@@ -171,9 +171,16 @@ def record_demonstrations(
     with output_folder(out, "demonstrate", replace_previous=False, inputs=inputs) as folder:
         folder.status = 2  # until the runs are done: a bad value or a write error is exit 2
         runs = run_demonstrations(
-            scenario, speeds_mps, out, repeats=repeats, seed=seed, path_kinds=path_kinds,
-            use_cache=use_cache, progress=True, breakaway=breakaway,
-        )  # fmt: skip
+            scenario,
+            speeds_mps,
+            out,
+            repeats=repeats,
+            seed=seed,
+            path_kinds=path_kinds,
+            use_cache=use_cache,
+            progress=True,
+            breakaway=breakaway,
+        )
         folder.status = 1 if any(r.status in _FAILED for r in runs) else 0
     return runs, folder.status
 

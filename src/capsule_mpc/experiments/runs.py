@@ -183,8 +183,10 @@ def export_run_arm(result: RunResult, out_dir: str | Path) -> dict[str, Path] | 
 def _export_robot_run(result: RunResult, out_dir: str | Path) -> dict[str, Path] | None:
     """Write the joint commands the robot arm actually ran (checked in the run: ``arm_ok``)."""
     if result.flags.arm_failure:
-        print(f"  arm: the joint commands fail their check; arm files skipped: {result.flags.arm_failure}",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"  arm: the joint commands fail their check; arm files skipped: {result.flags.arm_failure}",
+            file=sys.stderr,
+        )
         return None
     assert result.arm_run is not None
     cart, joints = result.arm_run

@@ -178,14 +178,20 @@ def export_run(run_dir: str | Path, out: str | Path | None = None) -> Path:
     t = np.asarray(log["t_s"], dtype=float)
     clock = Clock(float(t[0]))
     pub = RunPublisher(
-        Sinks(target), clock, RigGeometry.of(run.scenario, _path_points(run)), robot,
+        Sinks(target),
+        clock,
+        RigGeometry.of(run.scenario, _path_points(run)),
+        robot,
         predicts=run.predictions is not None,
-    )  # fmt: skip
+    )
     info = {
-        "source": "export", "run_dir": str(run.path), "controller": str(summary["controller"]),
-        "seed": str(summary["seed"]), "actuator": run.scenario.sim.actuator,
+        "source": "export",
+        "run_dir": str(run.path),
+        "controller": str(summary["controller"]),
+        "seed": str(summary["seed"]),
+        "actuator": run.scenario.sim.actuator,
         "plant": run.scenario.plant.preset,
-    }  # fmt: skip
+    }
     pub.start(float(t[0]), info, f"run started: controller {summary['controller']}, seed {summary['seed']}")
     _frames(pub, run)
     _end(pub, summary, float(t[-1]))

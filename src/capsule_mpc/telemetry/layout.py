@@ -44,8 +44,15 @@ def _three_d() -> dict[str, Any]:
 
     config = fl.ThreeDeeConfig(
         camera_state=fl.ThreeDeeCameraState(
-            distance=1.1, perspective=True, phi=55.0, theta_offset=35.0, target=(0.0, -0.15, 0.1),
-            target_offset=(0.0, 0.0, 0.0), target_orientation=(0.0, 0.0, 0.0, 1.0), fovy=45.0, near=0.01,
+            distance=1.1,
+            perspective=True,
+            phi=55.0,
+            theta_offset=35.0,
+            target=(0.0, -0.15, 0.1),
+            target_offset=(0.0, 0.0, 0.0),
+            target_orientation=(0.0, 0.0, 0.0, 1.0),
+            fovy=45.0,
+            near=0.01,
             far=50.0,
         ),
         follow_tf=FRAME_WORLD,
@@ -64,7 +71,7 @@ def _three_d() -> dict[str, Any]:
             EPM_POSE.name: fl.BaseRendererPoseTopicSettings(visible=False),
             ROBOT_DESCRIPTION.name: fl.BaseRendererUrdfTopicSettings(visible=False),  # drawn by /rig/scene
         },
-    )  # fmt: skip
+    )
     return {**_dict(config), "foxglovePanelTitle": "Rig"}
 
 
@@ -74,9 +81,14 @@ def _plot(title: str, series: list[tuple[str, str]], y_label: str) -> dict[str, 
             fl.PlotSeries(value=value, label=label, enabled=True, timestamp_method="receiveTime")
             for value, label in series
         ],
-        show_legend=True, legend_display="floating", show_x_axis_labels=True, show_y_axis_labels=True,
-        is_synced=True, x_axis_val="timestamp", y_axis_label=y_label,
-    )  # fmt: skip
+        show_legend=True,
+        legend_display="floating",
+        show_x_axis_labels=True,
+        show_y_axis_labels=True,
+        is_synced=True,
+        x_axis_val="timestamp",
+        y_axis_label=y_label,
+    )
     return {**_dict(config), "foxglovePanelTitle": title}
 
 

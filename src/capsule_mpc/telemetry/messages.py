@@ -186,9 +186,12 @@ def pose(stamp: Timestamp, xyz: Vec, xyzw: Rot = IDENTITY) -> PoseInFrame:
 def transform(stamp: Timestamp, parent: str, child: str, xyz: Vec, xyzw: Rot = IDENTITY) -> FrameTransform:
     """The transform ``parent -> child`` (the child's origin and orientation in the parent)."""
     return FrameTransform(
-        timestamp=stamp, parent_frame_id=parent, child_frame_id=child, translation=vector3(xyz),
+        timestamp=stamp,
+        parent_frame_id=parent,
+        child_frame_id=child,
+        translation=vector3(xyz),
         rotation=quaternion(xyzw),
-    )  # fmt: skip
+    )
 
 
 def _points(xy: np.ndarray) -> list[Point3]:
@@ -236,9 +239,11 @@ def prediction_update(stamp: Timestamp, predicted_xy: np.ndarray | None) -> Scen
             ]
         )
     line = LinePrimitive(
-        type=LinePrimitiveLineType.LineStrip, thickness=_LINE_M, points=_points(predicted_xy),
+        type=LinePrimitiveLineType.LineStrip,
+        thickness=_LINE_M,
+        points=_points(predicted_xy),
         color=_PREDICTION_COLOR,
-    )  # fmt: skip
+    )
     entity = SceneEntity(timestamp=stamp, frame_id=FRAME_WORLD, id="prediction", lines=[line])
     return SceneUpdate(entities=[entity])
 
@@ -254,20 +259,33 @@ def tracking_json(row: Mapping[str, Any]) -> bytes:
     cx, cy, rx, ry = (float(row[k]) for k in ("capsule_x_m", "capsule_y_m", "ref_x_m", "ref_y_m"))
     msg = {
         "t_s": _num(row["t_s"]),
-        "capsule_x_m": _num(cx), "capsule_y_m": _num(cy),
-        "meas_x_m": _num(row.get("meas_x_m", math.nan)), "meas_y_m": _num(row.get("meas_y_m", math.nan)),
-        "ref_x_m": _num(rx), "ref_y_m": _num(ry),
+        "capsule_x_m": _num(cx),
+        "capsule_y_m": _num(cy),
+        "meas_x_m": _num(row.get("meas_x_m", math.nan)),
+        "meas_y_m": _num(row.get("meas_y_m", math.nan)),
+        "ref_x_m": _num(rx),
+        "ref_y_m": _num(ry),
         "error_mm": _num(math.hypot(cx - rx, cy - ry) * 1e3),
         "progress_m": _num(row.get("progress_m", math.nan)),
         "stuck": bool(int(row.get("stuck", 0))),
-    }  # fmt: skip
+    }
     return json.dumps(msg).encode()
 
 
 _COMMAND_NUMBERS = (
-    "t_s", "cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps", "epm_x_m", "epm_y_m", "epm_z_m", "epm_vx_mps",
-    "epm_vy_mps", "epm_vz_mps", "solve_ms", "controller_ms",
-)  # fmt: skip
+    "t_s",
+    "cmd_vx_mps",
+    "cmd_vy_mps",
+    "cmd_vz_mps",
+    "epm_x_m",
+    "epm_y_m",
+    "epm_z_m",
+    "epm_vx_mps",
+    "epm_vy_mps",
+    "epm_vz_mps",
+    "solve_ms",
+    "controller_ms",
+)
 
 
 def command_json(row: Mapping[str, Any]) -> bytes:

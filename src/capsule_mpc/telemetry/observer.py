@@ -115,14 +115,22 @@ class Telemetry(Observer):
         t0 = loop.k_first * loop.dt
         rig = RigGeometry.of(loop.scenario, loop.path.vertices_m)
         self.publisher = RunPublisher(
-            self.sinks, Clock(t0), rig, self._robot,
-            estimate=isinstance(getattr(ctrl, "estimator", None), CapsuleEstimator), predicts=_predicts(ctrl),
-        )  # fmt: skip
+            self.sinks,
+            Clock(t0),
+            rig,
+            self._robot,
+            estimate=isinstance(getattr(ctrl, "estimator", None), CapsuleEstimator),
+            predicts=_predicts(ctrl),
+        )
         info = {
-            "source": "simulate", "controller": loop.name, "seed": str(loop.seed),
-            "plant_seed": str(loop.rig_seed), "actuator": loop.scenario.sim.actuator,
-            "plant": loop.scenario.plant.preset, **self.run_info,
-        }  # fmt: skip
+            "source": "simulate",
+            "controller": loop.name,
+            "seed": str(loop.seed),
+            "plant_seed": str(loop.rig_seed),
+            "actuator": loop.scenario.sim.actuator,
+            "plant": loop.scenario.plant.preset,
+            **self.run_info,
+        }
         path = loop.path
         text = (
             f"run started: controller {loop.name}, seed {loop.seed}, plant {loop.scenario.plant.preset}, "

@@ -69,13 +69,20 @@ def add_telemetry_arguments(p: argparse.ArgumentParser) -> None:
     """Add ``--mcap PATH``, ``--no-mcap`` and ``--live [HOST:PORT]`` to a command's parser."""
     mcap = p.add_mutually_exclusive_group()
     mcap.add_argument(
-        "--mcap", default=None, metavar="PATH",
+        "--mcap",
+        default=None,
+        metavar="PATH",
         help=f"MCAP log of the run for Foxglove (default: {MCAP_NAME} in the output folder; "
         "docs/telemetry.md)",
-    )  # fmt: skip
+    )
     mcap.add_argument("--no-mcap", action="store_true", help="write no MCAP log")
     p.add_argument(
-        "--live", nargs="?", const=DEFAULT_LIVE, default=None, metavar="HOST:PORT", type=_live_option,
+        "--live",
+        nargs="?",
+        const=DEFAULT_LIVE,
+        default=None,
+        metavar="HOST:PORT",
+        type=_live_option,
         help=f"serve the run live to Foxglove over WebSocket (default address {DEFAULT_LIVE}; port 0: any "
         "free port); best with --realtime",
-    )  # fmt: skip
+    )

@@ -64,13 +64,17 @@ if TYPE_CHECKING:  # the arm's view loads Pinocchio; only for annotations here
 __all__ = ["RunPublisher"]
 
 _PROTOBUF: dict[str, Any] = {
-    "foxglove.SceneUpdate": SceneUpdate, "foxglove.FrameTransforms": FrameTransforms,
-    "foxglove.JointStates": JointStates, "foxglove.PoseInFrame": PoseInFrame, "foxglove.Log": Log,
-}  # fmt: skip
+    "foxglove.SceneUpdate": SceneUpdate,
+    "foxglove.FrameTransforms": FrameTransforms,
+    "foxglove.JointStates": JointStates,
+    "foxglove.PoseInFrame": PoseInFrame,
+    "foxglove.Log": Log,
+}
 _JSON_SCHEMAS = {
-    TRACKING.schema: TRACKING_SCHEMA, COMMAND.schema: COMMAND_SCHEMA,
+    TRACKING.schema: TRACKING_SCHEMA,
+    COMMAND.schema: COMMAND_SCHEMA,
     ROBOT_DESCRIPTION.schema: ROBOT_DESCRIPTION_SCHEMA,
-}  # fmt: skip
+}
 
 
 def _spec(topic: Topic) -> ChannelSpec:

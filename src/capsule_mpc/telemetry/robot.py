@@ -186,10 +186,13 @@ class RobotView:
                 xyz, xyzw = _origin(node)
                 scale = [float(v) for v in mesh.get("scale", "1 1 1").split()]
                 model = ModelPrimitive(
-                    pose=make_pose(xyz, xyzw), scale=Vector3(x=scale[0], y=scale[1], z=scale[2]),
-                    color=_LINK_COLOR, override_color=True, data=data,
+                    pose=make_pose(xyz, xyzw),
+                    scale=Vector3(x=scale[0], y=scale[1], z=scale[2]),
+                    color=_LINK_COLOR,
+                    override_color=True,
+                    data=data,
                     media_type=_MEDIA_TYPES.get(Path(mesh.get("filename", "")).suffix.lower(), ""),
-                )  # fmt: skip
+                )
                 name = self.prefix + link.get("name", "")
                 entities.append(SceneEntity(frame_id=name, id=name, frame_locked=True, models=[model]))
                 break

@@ -80,9 +80,13 @@ class Sinks:
         self.server: foxglove.WebSocketServer | None = None
         if live is not None:
             self.server = foxglove.start_server(
-                name=SERVER_NAME, host=live.host, port=live.port, context=self._live_ctx,
-                server_listener=_Resend(self._resend), asset_handler=asset_handler,
-            )  # fmt: skip
+                name=SERVER_NAME,
+                host=live.host,
+                port=live.port,
+                context=self._live_ctx,
+                server_listener=_Resend(self._resend),
+                asset_handler=asset_handler,
+            )
 
     @property
     def port(self) -> int | None:

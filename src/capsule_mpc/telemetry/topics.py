@@ -64,65 +64,99 @@ class Topic:
 
 
 RIG_SCENE = Topic(
-    "/rig/scene", "foxglove.SceneUpdate", "once, at the start",
+    "/rig/scene",
+    "foxglove.SceneUpdate",
+    "once, at the start",
     "the plate, the path, the capsule and the EPM (drawn in the frames capsule and epm), the arm's "
     "link meshes (drawn in its link frames)",
-)  # fmt: skip
+)
 TF_STATIC = Topic(
-    "/tf_static", "foxglove.FrameTransforms", "once, at the start",
+    "/tf_static",
+    "foxglove.FrameTransforms",
+    "once, at the start",
     "the transforms that never change: world -> the arm's root link, the arm's fixed joints",
-)  # fmt: skip
+)
 TF = Topic(
-    "/tf", "foxglove.FrameTransforms", "every frame",
+    "/tf",
+    "foxglove.FrameTransforms",
+    "every frame",
     "world -> capsule, world -> epm, and each moving joint of the arm (parent link -> child link)",
-)  # fmt: skip
+)
 ROBOT_DESCRIPTION = Topic(
-    "/robot_description", "std_msgs/String", "once, at the start (robot arm)",
+    "/robot_description",
+    "std_msgs/String",
+    "once, at the start (robot arm)",
     "the arm's URDF (JSON ``{data: <URDF XML>}``; its link names carry the frame prefix)",
-)  # fmt: skip
+)
 JOINT_STATES = Topic(
-    "/arm/joint_states", "foxglove.JointStates", "every frame (robot arm)",
+    "/arm/joint_states",
+    "foxglove.JointStates",
+    "every frame (robot arm)",
     "the joint positions (rad) and velocities (rad/s) commanded at the latest arm tick",
-)  # fmt: skip
+)
 TRUE_CAPSULE = Topic("/capsule/true", "foxglove.PoseInFrame", "every frame", "the true capsule position")
 MEASURED = Topic(
-    "/capsule/measured", "foxglove.PoseInFrame", "every frame with a measurement",
+    "/capsule/measured",
+    "foxglove.PoseInFrame",
+    "every frame with a measurement",
     "the camera's measurement delivered at the frame (none while it drops frames)",
-)  # fmt: skip
+)
 ESTIMATE = Topic(
-    "/capsule/estimate", "foxglove.PoseInFrame", "every frame with an estimate (MPC)",
+    "/capsule/estimate",
+    "foxglove.PoseInFrame",
+    "every frame with an estimate (MPC)",
     "the controller's estimate of the capsule position at the frame time (its filter's output)",
-)  # fmt: skip
+)
 EPM_POSE = Topic("/epm/pose", "foxglove.PoseInFrame", "every frame", "the EPM's position and orientation")
 REFERENCE = Topic(
     "/reference/pose", "foxglove.PoseInFrame", "every frame", "the reference point at the frame time"
 )
 PREDICTION = Topic(
-    "/mpc/prediction", "foxglove.SceneUpdate", "every frame (a controller that predicts)",
+    "/mpc/prediction",
+    "foxglove.SceneUpdate",
+    "every frame (a controller that predicts)",
     "the capsule path the controller predicted at the frame (entity 'prediction'; deleted when it "
     "predicts nothing)",
-)  # fmt: skip
+)
 TRACKING = Topic(
-    "/run/tracking", "capsule_mpc.Tracking", "every frame",
+    "/run/tracking",
+    "capsule_mpc.Tracking",
+    "every frame",
     "true, measured and reference positions (m), the tracking error |capsule - reference| (mm), "
     "the progress along the path (m), whether the capsule is stuck",
-)  # fmt: skip
+)
 COMMAND = Topic(
-    "/run/command", "capsule_mpc.Command", "every frame",
+    "/run/command",
+    "capsule_mpc.Command",
+    "every frame",
     "the EPM velocity command applied from the frame (m/s), the EPM's position (m) and velocity "
     "(m/s), the controller's solve and step times (ms), its status",
-)  # fmt: skip
+)
 EVENTS = Topic(
-    "/run/events", "foxglove.Log", "at each event",
+    "/run/events",
+    "foxglove.Log",
+    "at each event",
     "the run's start, the path's start, controller failures and recoveries, injected faults, the "
     "plant's failure, the run's end with its outcome",
-)  # fmt: skip
+)
 
 #: Every channel, in the order of docs/telemetry.md.
 TOPICS: tuple[Topic, ...] = (
-    RIG_SCENE, TF_STATIC, TF, ROBOT_DESCRIPTION, JOINT_STATES, TRUE_CAPSULE, MEASURED, ESTIMATE,
-    EPM_POSE, REFERENCE, PREDICTION, TRACKING, COMMAND, EVENTS,
-)  # fmt: skip
+    RIG_SCENE,
+    TF_STATIC,
+    TF,
+    ROBOT_DESCRIPTION,
+    JOINT_STATES,
+    TRUE_CAPSULE,
+    MEASURED,
+    ESTIMATE,
+    EPM_POSE,
+    REFERENCE,
+    PREDICTION,
+    TRACKING,
+    COMMAND,
+    EVENTS,
+)
 
 
 def _object_schema(title: str, numbers: tuple[str, ...], extra: dict[str, dict]) -> dict:
@@ -135,17 +169,38 @@ def _object_schema(title: str, numbers: tuple[str, ...], extra: dict[str, dict])
 #: JSON schema of :data:`TRACKING` messages.
 TRACKING_SCHEMA = _object_schema(
     TRACKING.schema,
-    ("t_s", "capsule_x_m", "capsule_y_m", "meas_x_m", "meas_y_m", "ref_x_m", "ref_y_m", "error_mm",
-     "progress_m"),
+    (
+        "t_s",
+        "capsule_x_m",
+        "capsule_y_m",
+        "meas_x_m",
+        "meas_y_m",
+        "ref_x_m",
+        "ref_y_m",
+        "error_mm",
+        "progress_m",
+    ),
     {"stuck": {"type": "boolean"}},
-)  # fmt: skip
+)
 #: JSON schema of :data:`COMMAND` messages.
 COMMAND_SCHEMA = _object_schema(
     COMMAND.schema,
-    ("t_s", "cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps", "epm_x_m", "epm_y_m", "epm_z_m", "epm_vx_mps",
-     "epm_vy_mps", "epm_vz_mps", "solve_ms", "controller_ms"),
+    (
+        "t_s",
+        "cmd_vx_mps",
+        "cmd_vy_mps",
+        "cmd_vz_mps",
+        "epm_x_m",
+        "epm_y_m",
+        "epm_z_m",
+        "epm_vx_mps",
+        "epm_vy_mps",
+        "epm_vz_mps",
+        "solve_ms",
+        "controller_ms",
+    ),
     {"solver_status": {"type": "string"}, "solver_failed": {"type": "boolean"}},
-)  # fmt: skip
+)
 #: JSON schema of :data:`ROBOT_DESCRIPTION` messages (the fields of ROS's std_msgs/String, which
 #: Foxglove's 3D panel reads a URDF from).
 ROBOT_DESCRIPTION_SCHEMA = _object_schema(ROBOT_DESCRIPTION.schema, (), {"data": {"type": "string"}})
