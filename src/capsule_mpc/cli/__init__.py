@@ -42,6 +42,8 @@ _COMMANDS = (
     "bench",
     "sweep",
     "log",
+    "rig",
+    "control",
 )
 #: Exit status after Ctrl-C (128 + SIGINT, as a shell reports a command it interrupted); after
 #: SIGTERM or SIGHUP, 128 + that signal's number.

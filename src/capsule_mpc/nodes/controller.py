@@ -1,0 +1,289 @@
+"""The controller node: a registered controller stepped on the rig's camera frames.
+
+The node builds its controller by registry name from its own scenario (in the real-time variant
+the in-process loop gives a controller: ``mpc.enforce_deadline`` on); it never sees the plant. It
+asks the rig's ``run`` queryable (or waits for the rig's run info) for the run: the path, the
+EPM's position, the rig time; checks that the rig's scenario sections that concern the
+controller are its own (:func:`~.rig.config_sections`); resets the controller and declares
+itself ready (a liveliness token). Then, for each camera frame, it pairs the frame with the arm
+state of the same frame, calls :meth:`~capsule_mpc.interfaces.Controller.step` and publishes the
+command that answers the frame's sequence number.
+
+Losing frames: a frame overdue by ``coast_periods`` frame periods is stepped as a dropped camera
+frame (no position) at its expected time and answered under its expected sequence number, so the
+controller coasts and then stops as it does in-process on dropped frames. A restarted node resets
+from the run info (the EPM where it is now) and goes on. The node ends when the rig says the run
+has ended (exit 0), or when no rig has a run for it within ``wait_s`` (exit 1).
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import sys
+import threading
+import time
+from collections import Counter, OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..config import Scenario
+from ..errors import ConfigError
+from ..interfaces import Command, Controller, Measurement, StepOutcome, StepStats, make_controller
+from ..paths import ReferencePath
+from ..sim.runner import realtime_scenario
+from .messages import PLATE_FRAME, ArmState, CameraFrame, EpmCommand, Event, RunInfo
+from .rig import config_hash, config_sections
+from .transport import Transport
+
+__all__ = ["EXIT_ENDED", "EXIT_NO_RIG", "ControlOptions", "ControllerNode", "serve_controller"]
+
+#: Exit status: the rig's run ended / no rig had a run for the node in time.
+EXIT_ENDED, EXIT_NO_RIG = 0, 1
+#: Arm states kept for pairing with frames.
+_ARM_STATES_KEPT = 64
+#: How long a frame waits for its arm state, in frame periods.
+_PAIR_PERIODS = 0.25
+#: Seconds between two asks for the run info.
+_ASK_EVERY_S = 0.25
+
+
+def _stderr(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+@dataclass(frozen=True)
+class ControlOptions:
+    """How the controller node waits.
+
+    Attributes
+    ----------
+    wait_s : float
+        How long to wait for a rig's run (at the start and after losing the rig), s, (0, 3600].
+    coast_periods : float
+        A frame overdue by this many frame periods is stepped as dropped, in [1.1, 10].
+    """
+
+    wait_s: float = 120.0
+    coast_periods: float = 1.5
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.wait_s) and 0 < self.wait_s <= 3600):
+            raise ConfigError(f"wait_s: must be in (0, 3600] s, got {self.wait_s}")
+        if not (math.isfinite(self.coast_periods) and 1.1 <= self.coast_periods <= 10):
+            raise ConfigError(f"coast_periods: must be in [1.1, 10], got {self.coast_periods}")
+
+
+class ControllerNode:
+    """One controller serving the rig's runs (module docstring).
+
+    Parameters
+    ----------
+    transport : Transport
+        The node's session.
+    scenario : Scenario
+        The controller's own scenario (its real-time variant is used).
+    controller : Controller or str
+        The controller or its registry name.
+    options : ControlOptions
+        Waiting and coasting.
+    say : callable
+        Prints the events (default: stderr).
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        scenario: Scenario,
+        controller: Controller | str,
+        options: ControlOptions = ControlOptions(),
+        say: Callable[[str], None] = _stderr,
+    ) -> None:
+        self.transport, self.options, self.say = transport, options, say
+        self.scenario = realtime_scenario(scenario)
+        self.controller = make_controller(controller) if isinstance(controller, str) else controller
+        self.name = controller if isinstance(controller, str) else (self.controller.name or "controller")
+        self.counts: Counter[str] = Counter()
+        self.inbox: queue.Queue[Any] = queue.Queue()
+        self._arm: OrderedDict[int, ArmState] = OrderedDict()
+        self._arm_cond = threading.Condition()
+        self._commands = transport.publisher("cmd")
+        self._events = transport.publisher("events", express=False)
+        self.run_id = ""
+        self.rig_time_s = 0.0
+        self.steps = 0
+        transport.subscribe("frame", self.inbox.put)
+        transport.subscribe("run", self.inbox.put)
+        transport.subscribe("arm_state", self._on_arm)
+        transport.watch("rig", lambda _name, alive: self.inbox.put(("rig", alive)))
+
+    def event(self, kind: str, detail: str) -> None:
+        """Log, count and publish one event."""
+        self.counts[kind] += 1
+        self.say(f"control: t = {self.rig_time_s:.3f} s: {kind}: {detail}")
+        msg = Event(source="controller", kind=kind, detail=detail, count=self.counts[kind])
+        self._events.publish(msg, self.rig_time_s, self.run_id)
+
+    def _on_arm(self, msg: ArmState) -> None:
+        with self._arm_cond:
+            self._arm[msg.frame_index] = msg
+            while len(self._arm) > _ARM_STATES_KEPT:
+                self._arm.popitem(last=False)
+            self._arm_cond.notify_all()
+
+    def _epm_at(self, frame_index: int, timeout_s: float) -> np.ndarray | None:
+        """The EPM position the arm reported with frame ``frame_index`` (waiting up to
+        ``timeout_s`` for it), else the latest one (counted), None if none came."""
+        with self._arm_cond:
+            self._arm_cond.wait_for(lambda: frame_index in self._arm, timeout=timeout_s)
+            state = self._arm.get(frame_index)
+            if state is None:
+                self.counts["arm_state_unpaired"] += 1
+                state = next(reversed(self._arm.values()), None)
+        return None if state is None else state.epm_position_m
+
+    # -- the run ------------------------------------------------------------------------------
+
+    def run(self) -> int:
+        """Serve the rig's runs until one ends (:data:`EXIT_ENDED`) or no rig has one for the node
+        within ``wait_s`` (:data:`EXIT_NO_RIG`).
+
+        Raises
+        ------
+        ConfigError
+            The rig's scenario differs from the node's in a section the controller uses.
+        """
+        info: RunInfo | None = None
+        while True:
+            info = info or self._wait_run_info()
+            if info is None:
+                self.say(f"control: no rig run on {self.transport.key('run')} within {self.options.wait_s:g} s")
+                return EXIT_NO_RIG
+            outcome = self._serve(info)
+            if isinstance(outcome, int):
+                return outcome
+            info = outcome
+
+    def _wait_run_info(self) -> RunInfo | None:
+        """A run that is starting or running, from the rig's messages or its queryable."""
+        end = time.monotonic() + self.options.wait_s
+        while time.monotonic() < end:
+            try:
+                item = self.inbox.get(timeout=_ASK_EVERY_S)
+            except queue.Empty:
+                item = None
+            if isinstance(item, RunInfo) and item.state != "ended":
+                return item
+            for reply in self.transport.query("run", timeout_s=_ASK_EVERY_S):
+                if reply.state != "ended":
+                    return reply
+        return None
+
+    def _reset(self, info: RunInfo) -> None:
+        """Check the rig's scenario against the node's, reset the controller on the run, declare
+        the node ready for it."""
+        mine = config_sections(self.scenario)
+        if info.config_hash != config_hash(mine):
+            theirs = dict(zip(info.config_sections, info.config_section_hashes))
+            differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+            raise ConfigError(
+                f"--config: the rig's scenario {info.config_name!r} differs from the controller's "
+                f"{self.scenario.name!r} in the sections {differ}; use the rig's config"
+            )
+        path = ReferencePath(info.path_waypoints_m.reshape(-1, 2), info.path_closed, info.path_speed_mps)
+        self.run_id, self.rig_time_s = info.header.run_id, info.header.rig_time_s
+        self.period_s = 1.0 / info.camera_rate_hz
+        self.controller.reset(self.scenario, path, info.epm_position_m.copy())
+        self.last: CameraFrame | None = None
+        self.coasted = 0
+        self._token = self.transport.token(f"controller/{self.run_id}/{self.name}")
+        self.event("controller_reset", f"{self.name!r} on run {self.run_id} ({info.state}) at its rig time")
+
+    def _serve(self, info: RunInfo) -> int | RunInfo | None:
+        """Answer the frames of the run ``info`` until it ends (exit status) or another run is
+        found (its info, or None to wait for one)."""
+        self._reset(info)
+        try:
+            while True:
+                timeout = self.options.coast_periods * self.period_s if self.last is not None else _ASK_EVERY_S
+                try:
+                    item = self.inbox.get(timeout=timeout)
+                except queue.Empty:
+                    if self.last is not None:
+                        self._coast()
+                    continue
+                if isinstance(item, CameraFrame):
+                    if item.header.run_id != self.run_id:
+                        self.counts["frames_other_run"] += 1
+                        return None
+                    self._answer(item)
+                elif isinstance(item, RunInfo) and item.header.run_id == self.run_id:
+                    if item.state == "ended":
+                        self.event("run_end", f"the rig ended run {self.run_id}")
+                        return EXIT_ENDED
+                elif isinstance(item, RunInfo) and item.state != "ended":
+                    return item
+                elif item == ("rig", False):
+                    self.event("rig_lost", "the rig node is gone: waiting for a rig's run")
+                    return None
+        finally:
+            self._token.undeclare()
+
+    def _answer(self, frame: CameraFrame) -> None:
+        """Step the controller on ``frame`` and publish its command."""
+        if self.last is not None and frame.header.seq > self.last.header.seq + 1 + self.coasted:
+            missed = frame.header.seq - self.last.header.seq - 1 - self.coasted
+            self.event("frames_lost", f"{missed} frame(s) before frame {frame.frame_index} never came")
+        self.last, self.coasted = frame, 0
+        pos = frame.position_m.copy() if frame.valid else None
+        meas = Measurement(frame.header.rig_time_s, frame.capture_time_s, pos)
+        self._step(meas, frame.header.seq, frame.frame_index)
+
+    def _coast(self) -> None:
+        """The next frame is overdue: step it as a dropped frame at its expected time."""
+        last = self.last
+        assert last is not None
+        self.coasted += 1
+        if self.coasted == 1:
+            self.event("coasting", f"no frame after frame {last.frame_index}: stepping without measurements")
+        t = last.header.rig_time_s + self.coasted * self.period_s
+        capture = t - (last.header.rig_time_s - last.capture_time_s)
+        self._step(Measurement(t, capture, None), last.header.seq + self.coasted, last.frame_index + self.coasted)
+
+    def _step(self, meas: Measurement, frame_seq: int, frame_index: int) -> None:
+        epm = self._epm_at(frame_index, _PAIR_PERIODS * self.period_s)
+        if epm is None:
+            self.counts["frames_without_arm_state"] += 1
+            return
+        self.rig_time_s = meas.t_s
+        ctrl = self.controller
+        c0 = time.perf_counter()
+        cmd = ctrl.step(meas.t_s, meas, epm)
+        step_ms = (time.perf_counter() - c0) * 1e3
+        vel = np.asarray(getattr(cmd, "epm_velocity_mps", np.nan), dtype=float).ravel()
+        stats = cmd.stats if isinstance(cmd, Command) else StepStats(status="invalid", failed=True)
+        if vel.shape != (3,):  # the rig takes a non-finite command as invalid and stops the EPM
+            vel, stats = np.full(3, math.nan), StepStats(status="invalid", failed=True, outcome=StepOutcome.INVALID)
+        names = tuple(stats.extra)
+        prediction = ctrl.predicted_capsule_path()
+        msg = EpmCommand(
+            frame_seq=frame_seq, frame_index=frame_index,
+            velocity_mps=vel,
+            outcome=stats.outcome.value, status=stats.status, solve_ms=float(stats.solve_ms),
+            iterations=int(stats.iterations), failed=bool(stats.failed), finished=bool(ctrl.finished),
+            step_ms=step_ms, extra_names=names, extra_values=np.array([stats.extra[k] for k in names]),
+            predicted_path_m=np.zeros(0) if prediction is None else np.asarray(prediction, dtype=float),
+        )  # fmt: skip
+        self._commands.publish(msg, meas.t_s, self.run_id, PLATE_FRAME)
+        self.steps += 1
+
+
+def serve_controller(
+    transport: Transport, scenario: Scenario, controller: Controller | str, options: ControlOptions = ControlOptions()
+) -> int:
+    """Run a :class:`ControllerNode` until the rig's run ends; returns its exit status."""
+    return ControllerNode(transport, scenario, controller, options).run()
+

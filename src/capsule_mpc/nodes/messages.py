@@ -1,0 +1,354 @@
+"""The wire messages of the rig and controller nodes: ROS 2 message types, serialised as CDR.
+
+Each message is a ROS 2 ``.msg`` definition of the package ``capsule_mpc_msgs``, shipped in
+``capsule_mpc/nodes/msg/`` (:data:`MSG_DIR`), and a dataclass here with the same fields:
+
+================  =========================  =================================================
+dataclass         type                       key (under the prefix, :mod:`.transport`)
+================  =========================  =================================================
+:class:`CameraFrame`  ``capsule_mpc_msgs/msg/CameraFrame``  ``frame``
+:class:`ArmState`     ``capsule_mpc_msgs/msg/ArmState``     ``arm_state``
+:class:`EpmCommand`   ``capsule_mpc_msgs/msg/EpmCommand``   ``cmd``
+:class:`RunInfo`      ``capsule_mpc_msgs/msg/RunInfo``      ``run``
+:class:`Event`        ``capsule_mpc_msgs/msg/Event``        ``events``
+================  =========================  =================================================
+
+Every message starts with a :class:`Header` (schema version, publisher id, sequence number, rig
+time, wall-clock stamp, coordinate frame, run id). Units are SI; positions are in the ``plate``
+frame (x, y on the plate; for the EPM the third coordinate is its height above the capsule plane).
+
+The payload is what a ROS 2 node publishes for these types: the 4-byte CDR encapsulation header
+(little-endian CDR) and the CDR body, made and read by ``mcap_ros2``'s dynamic encoders built from
+the ``.msg`` text. That encoder fills a field it is not given with its default and reads a dict
+key named like a dict method as the method, so every message is converted here from its dataclass
+with every field present (:func:`encode` checks the fixed array sizes), and the field names avoid
+dict method names. The schema version is the first byte of the CDR body: :func:`decode` reads it
+before the rest and refuses another version (:class:`VersionError`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
+
+__all__ = [
+    "MSG_DIR",
+    "PACKAGE",
+    "PLATE_FRAME",
+    "SCHEMA_VERSION",
+    "ArmState",
+    "CameraFrame",
+    "EpmCommand",
+    "Event",
+    "Header",
+    "MessageError",
+    "RunInfo",
+    "VersionError",
+    "decode",
+    "encode",
+    "message_types",
+    "peek_version",
+    "schema_text",
+    "wall_ns",
+]
+
+#: Version of the message schemas; a node drops messages of another version.
+SCHEMA_VERSION = 1
+#: The ROS 2 package of the message types.
+PACKAGE = "capsule_mpc_msgs"
+#: Name of the coordinate frame of every position: x, y on the plate, m (the EPM: and its height).
+PLATE_FRAME = "plate"
+#: The folder of the ``.msg`` definitions.
+MSG_DIR = Path(__file__).parent / "msg"
+#: Bytes of the CDR encapsulation header before the body.
+_ENCAPSULATION = 4
+#: Separator between the definitions of a concatenated ROS 2 schema.
+_SEPARATOR = "=" * 80
+#: One field line of a ``.msg`` file: type, optional array size, name (constants have an ``=``).
+_FIELD = re.compile(r"^\s*([\w/]+)(\[(\d*)\])?\s+(\w+)\s*(#.*)?$")
+
+M = TypeVar("M")
+
+
+class MessageError(ValueError):
+    """A payload that is not a valid message of the expected type."""
+
+
+class VersionError(MessageError):
+    """A message of another schema version (:data:`SCHEMA_VERSION`)."""
+
+    def __init__(self, version: int) -> None:
+        super().__init__(f"schema_version: expected {SCHEMA_VERSION}, got {version}")
+        self.version = version
+
+
+def wall_ns() -> int:
+    """The wall-clock time now, ns since the UNIX epoch (the headers' ``stamp``)."""
+    return time.time_ns()
+
+
+@dataclass
+class Header:
+    """The first field of every message (``Header.msg``).
+
+    Attributes
+    ----------
+    schema_version : int
+        :data:`SCHEMA_VERSION` of the publisher.
+    publisher_id : int
+        Random id of the publisher, [0, 2**64); sequence numbers count per publisher.
+    seq : int
+        Sequence number of the message from its publisher, from 0.
+    rig_time_s : float
+        Rig time, s (0 is the start of the path).
+    stamp_ns : int
+        Wall-clock time of publication, ns since the UNIX epoch (``stamp`` on the wire).
+    frame_id : str
+        Coordinate frame of the message's positions (:data:`PLATE_FRAME`), "" if none.
+    run_id : str
+        The rig's run.
+    """
+
+    schema_version: int = SCHEMA_VERSION
+    publisher_id: int = 0
+    seq: int = 0
+    rig_time_s: float = 0.0
+    stamp_ns: int = 0
+    frame_id: str = ""
+    run_id: str = ""
+
+
+def _vec(n: int) -> Any:
+    return field(default_factory=lambda: np.full(n, math.nan))
+
+
+def _empty() -> Any:
+    return field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass
+class CameraFrame:
+    """One camera frame (``CameraFrame.msg``); ``header.rig_time_s`` is the delivery time."""
+
+    TYPE: ClassVar[str] = "CameraFrame"
+    header: Header = field(default_factory=Header)
+    frame_index: int = 0
+    capture_time_s: float = math.nan
+    valid: bool = False
+    position_m: np.ndarray = _vec(2)
+
+
+@dataclass
+class ArmState:
+    """The arm at a camera frame (``ArmState.msg``): EPM pose, velocity, command, joints."""
+
+    TYPE: ClassVar[str] = "ArmState"
+    header: Header = field(default_factory=Header)
+    frame_index: int = 0
+    epm_position_m: np.ndarray = _vec(3)
+    epm_velocity_mps: np.ndarray = _vec(3)
+    epm_velocity_command_mps: np.ndarray = _vec(3)
+    watchdog_active: bool = False
+    joint_names: tuple[str, ...] = ()
+    joint_positions_rad: np.ndarray = _empty()
+
+
+@dataclass
+class EpmCommand:
+    """The controller's answer to one camera frame (``EpmCommand.msg``)."""
+
+    TYPE: ClassVar[str] = "EpmCommand"
+    header: Header = field(default_factory=Header)
+    frame_seq: int = 0
+    frame_index: int = 0
+    velocity_mps: np.ndarray = _vec(3)
+    outcome: str = "ok"
+    status: str = ""
+    solve_ms: float = math.nan
+    iterations: int = 0
+    failed: bool = False
+    finished: bool = True
+    step_ms: float = math.nan
+    extra_names: tuple[str, ...] = ()
+    extra_values: np.ndarray = _empty()
+    predicted_path_m: np.ndarray = _empty()
+
+
+@dataclass
+class RunInfo:
+    """What a controller node needs to (re)start on the rig's run (``RunInfo.msg``)."""
+
+    TYPE: ClassVar[str] = "RunInfo"
+    header: Header = field(default_factory=Header)
+    state: str = "starting"
+    config_name: str = ""
+    config_hash: str = ""
+    config_sections: tuple[str, ...] = ()
+    config_section_hashes: tuple[str, ...] = ()
+    seed: int = 0
+    plant_seed: int = 0
+    camera_rate_hz: float = math.nan
+    first_frame_index: int = 0
+    path_waypoints_m: np.ndarray = _empty()
+    path_closed: bool = False
+    path_speed_mps: float = math.nan
+    start_epm_position_m: np.ndarray = _vec(3)
+    epm_position_m: np.ndarray = _vec(3)
+
+
+@dataclass
+class Event:
+    """Something a node logged and counted (``Event.msg``)."""
+
+    TYPE: ClassVar[str] = "Event"
+    header: Header = field(default_factory=Header)
+    source: str = ""
+    kind: str = ""
+    detail: str = ""
+    count: int = 0
+
+
+_TYPES: tuple[type, ...] = (CameraFrame, ArmState, EpmCommand, RunInfo, Event)
+
+
+def message_types() -> tuple[type, ...]:
+    """The message dataclasses (one per ``.msg`` file but the header)."""
+    return _TYPES
+
+
+def _msg_text(name: str) -> str:
+    return (MSG_DIR / f"{name}.msg").read_text(encoding="utf-8")
+
+
+def schema_text(name: str) -> str:
+    """The concatenated ROS 2 definition of message ``name`` (e.g. ``"CameraFrame"``), with its
+    header's, as a ROS 2 bag or an MCAP file stores it."""
+    return f"{_msg_text(name)}\n{_SEPARATOR}\nMSG: {PACKAGE}/Header\n{_msg_text('Header')}"
+
+
+def _fields(name: str) -> dict[str, int | None]:
+    """The fields of ``name``'s ``.msg`` file: name -> fixed array size (-1: unbounded; None: scalar)."""
+    out: dict[str, int | None] = {}
+    for line in _msg_text(name).splitlines():
+        match = _FIELD.match(line)
+        if match is None or "=" in line.split("#", 1)[0]:
+            continue
+        out[match.group(4)] = None if match.group(2) is None else int(match.group(3) or -1)
+    return out
+
+
+class _Codec:
+    """The CDR encoder and decoder of one message type."""
+
+    def __init__(self, cls: type) -> None:
+        name = cls.TYPE  # type: ignore[attr-defined]
+        full = f"{PACKAGE}/msg/{name}"
+        text = schema_text(name)
+        self.cls = cls
+        self.encoder: Callable[[Any], bytes] = serialize_dynamic(full, text)[full]
+        self.decoder: Callable[[bytes], Any] = generate_dynamic(full, text)[full]
+        self.fields = _fields(name)
+        mine = [f.name for f in dataclasses.fields(cls)]
+        if mine != list(self.fields):
+            raise TypeError(f"{cls.__name__}: fields {mine} differ from {name}.msg's {list(self.fields)}")
+
+    def to_wire(self, msg: Any) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for name, size in self.fields.items():
+            value = getattr(msg, name)
+            if isinstance(value, Header):
+                out[name] = _header_to_wire(value)
+            elif size is not None:
+                items = list(np.asarray(value).ravel().tolist())
+                if size >= 0 and len(items) != size:
+                    raise MessageError(f"{self.cls.__name__}.{name}: must have {size} values, got {len(items)}")
+                out[name] = items
+            else:
+                out[name] = value
+        return out
+
+    def from_wire(self, wire: Any) -> Any:
+        values: dict[str, Any] = {}
+        for f in dataclasses.fields(self.cls):
+            value = getattr(wire, f.name)
+            if f.name == "header":
+                value = _header_from_wire(value)
+            elif self.fields[f.name] is not None:
+                value = np.asarray(value, dtype=float) if "ndarray" in str(f.type) else tuple(value)
+            values[f.name] = value
+        return self.cls(**values)
+
+
+def _header_to_wire(h: Header) -> dict[str, Any]:
+    sec, nanosec = divmod(int(h.stamp_ns), 1_000_000_000)
+    return {
+        "schema_version": h.schema_version, "publisher_id": h.publisher_id, "seq": h.seq,
+        "rig_time_s": float(h.rig_time_s), "stamp": {"sec": sec, "nanosec": nanosec},
+        "frame_id": h.frame_id, "run_id": h.run_id,
+    }  # fmt: skip
+
+
+def _header_from_wire(w: Any) -> Header:
+    stamp_ns = int(w.stamp.sec) * 1_000_000_000 + int(w.stamp.nanosec)
+    return Header(w.schema_version, w.publisher_id, w.seq, w.rig_time_s, stamp_ns, w.frame_id, w.run_id)
+
+
+_CODECS: dict[type, _Codec] = {cls: _Codec(cls) for cls in _TYPES}
+
+
+def encode(msg: Any) -> bytes:
+    """The CDR payload of ``msg`` (one of :func:`message_types`).
+
+    Raises
+    ------
+    MessageError
+        A fixed-size array field of the wrong length.
+    """
+    codec = _CODECS[type(msg)]
+    return codec.encoder(codec.to_wire(msg))
+
+
+def peek_version(payload: bytes) -> int:
+    """The schema version of a payload (the first byte of its CDR body).
+
+    Raises
+    ------
+    MessageError
+        A payload too short to hold one.
+    """
+    if len(payload) <= _ENCAPSULATION:
+        raise MessageError(f"payload: {len(payload)} bytes, too short for a message")
+    return payload[_ENCAPSULATION]
+
+
+def decode(payload: bytes, cls: type[M]) -> M:
+    """The message of type ``cls`` in ``payload``.
+
+    Raises
+    ------
+    VersionError
+        The payload is of another schema version.
+    MessageError
+        The payload is not a valid ``cls`` message (truncated, garbled).
+    """
+    version = peek_version(payload)
+    if version != SCHEMA_VERSION:
+        raise VersionError(version)
+    codec = _CODECS[cls]
+    try:
+        wire = codec.decoder(bytes(payload))
+        msg: M = codec.from_wire(wire)
+    except MessageError:
+        raise
+    except Exception as exc:  # the CDR reader raises struct.error, ValueError, UnicodeDecodeError, ...
+        raise MessageError(f"{cls.__name__}: cannot decode {len(payload)} bytes: {exc}") from exc
+    return msg
