@@ -56,7 +56,10 @@ def run(args: argparse.Namespace) -> int:
 
     known = available_controllers()
     if args.controller not in known:
-        print(f"capsule-mpc control: --controller: unknown {args.controller!r}; available: {known}", file=sys.stderr)
+        print(
+            f"capsule-mpc control: --controller: unknown {args.controller!r}; available: {known}",
+            file=sys.stderr,
+        )
         return 2
     scenario = load_config(args.config)
     connect, listen = transport_endpoints(args, listens=False)

@@ -36,7 +36,9 @@ def seconds(most: float) -> Callable[[str], float]:
         try:
             value = float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"must be a number of seconds in (0, {most:g}], got {text!r}") from None
+            raise argparse.ArgumentTypeError(
+                f"must be a number of seconds in (0, {most:g}], got {text!r}"
+            ) from None
         if not (math.isfinite(value) and 0 < value <= most):
             raise argparse.ArgumentTypeError(f"must be a number of seconds in (0, {most:g}], got {value}")
         return value
@@ -45,7 +47,8 @@ def seconds(most: float) -> Callable[[str], float]:
 
 
 def add_transport_arguments(p: argparse.ArgumentParser, listens: bool) -> None:
-    """``--connect``, ``--listen`` and ``--prefix`` (the rig ``listens`` by default, a controller connects)."""
+    """``--connect``, ``--listen`` and ``--prefix`` (by default the rig ``listens``, a controller
+    connects)."""
     default = "listens on" if listens else "connects to"
     p.add_argument(
         "--connect", action="append", default=None, metavar="ENDPOINT",
@@ -58,7 +61,8 @@ def add_transport_arguments(p: argparse.ArgumentParser, listens: bool) -> None:
     )  # fmt: skip
     p.add_argument(
         "--prefix", default=DEFAULT_PREFIX,
-        help=f"key prefix of the rig's topics (default {DEFAULT_PREFIX}); the rig and its controller must share it",
+        help=f"key prefix of the rig's topics (default {DEFAULT_PREFIX}); the rig and its controller "
+        "must share it",
     )  # fmt: skip
 
 
@@ -89,7 +93,12 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
     p.add_argument("--waypoints", default=None, help="CSV with header x_m,y_m replacing the config's path")
-    p.add_argument("--plant", choices=("ideal", "lab", "hard"), default=None, help="plant preset (overrides plant.preset)")
+    p.add_argument(
+        "--plant",
+        choices=("ideal", "lab", "hard"),
+        default=None,
+        help="plant preset (overrides plant.preset)",
+    )
     p.add_argument("--seed", type=seed, default=None, help="random seed, an integer >= 0 (default: sim.seed)")
     p.add_argument(
         "--backend", choices=("sim", "ur5"), default="sim",
@@ -102,7 +111,8 @@ def register(sub: Any) -> None:
     )  # fmt: skip
     p.add_argument(
         "--wait-controller", type=seconds(3600.0), default=120.0, metavar="S",
-        help="how long the run waits for a controller node before its first frame, s, in (0, 3600] (default 120)",
+        help="how long the run waits for a controller node before its first frame, s, in (0, 3600] "
+        "(default 120)",
     )  # fmt: skip
     p.add_argument("--out", default=None, help="output folder (created); default: write nothing")
     p.set_defaults(func=run)

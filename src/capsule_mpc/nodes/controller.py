@@ -4,7 +4,7 @@ The node builds its controller by registry name from its own scenario (in the re
 the in-process loop gives a controller: ``mpc.enforce_deadline`` on); it never sees the plant. It
 asks the rig's ``run`` queryable (or waits for the rig's run info) for the run: the path, the
 EPM's position, the rig time; checks that the rig's scenario sections that concern the
-controller are its own (:func:`~.rig.config_sections`); resets the controller and declares
+controller are its own (:func:`~.config_check.check_config`); resets the controller and declares
 itself ready (a liveliness token). Then, for each camera frame, it pairs the frame with the arm
 state of the same frame, calls :meth:`~capsule_mpc.interfaces.Controller.step` and publishes the
 command that answers the frame's sequence number.
@@ -35,8 +35,8 @@ from ..errors import ConfigError
 from ..interfaces import Command, Controller, Measurement, StepOutcome, StepStats, make_controller
 from ..paths import ReferencePath
 from ..sim.runner import realtime_scenario
+from .config_check import check_config
 from .messages import PLATE_FRAME, ArmState, CameraFrame, EpmCommand, Event, RunInfo
-from .rig import config_hash, config_sections
 from .transport import Transport
 
 __all__ = ["EXIT_ENDED", "EXIT_NO_RIG", "ControlOptions", "ControllerNode", "serve_controller"]
@@ -64,11 +64,11 @@ class ControlOptions:
     wait_s : float
         How long to wait for a rig's run (at the start and after losing the rig), s, (0, 3600].
     coast_periods : float
-        A frame overdue by this many frame periods is stepped as dropped, in [1.1, 10].
+        A frame overdue by this many frame periods is stepped as dropped, in [1.1, 10] (default 2).
     """
 
     wait_s: float = 120.0
-    coast_periods: float = 1.5
+    coast_periods: float = 2.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.wait_s) and 0 < self.wait_s <= 3600):
@@ -160,7 +160,9 @@ class ControllerNode:
         while True:
             info = info or self._wait_run_info()
             if info is None:
-                self.say(f"control: no rig run on {self.transport.key('run')} within {self.options.wait_s:g} s")
+                self.say(
+                    f"control: no rig run on {self.transport.key('run')} within {self.options.wait_s:g} s"
+                )
                 return EXIT_NO_RIG
             outcome = self._serve(info)
             if isinstance(outcome, int):
@@ -169,6 +171,7 @@ class ControllerNode:
 
     def _wait_run_info(self) -> RunInfo | None:
         """A run that is starting or running, from the rig's messages or its queryable."""
+        self.say(f"control: {self.name!r} waiting for a rig's run on {self.transport.key('run')}")
         end = time.monotonic() + self.options.wait_s
         while time.monotonic() < end:
             try:
@@ -185,14 +188,7 @@ class ControllerNode:
     def _reset(self, info: RunInfo) -> None:
         """Check the rig's scenario against the node's, reset the controller on the run, declare
         the node ready for it."""
-        mine = config_sections(self.scenario)
-        if info.config_hash != config_hash(mine):
-            theirs = dict(zip(info.config_sections, info.config_section_hashes))
-            differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
-            raise ConfigError(
-                f"--config: the rig's scenario {info.config_name!r} differs from the controller's "
-                f"{self.scenario.name!r} in the sections {differ}; use the rig's config"
-            )
+        check_config(self.scenario, info)
         path = ReferencePath(info.path_waypoints_m.reshape(-1, 2), info.path_closed, info.path_speed_mps)
         self.run_id, self.rig_time_s = info.header.run_id, info.header.rig_time_s
         self.period_s = 1.0 / info.camera_rate_hz
@@ -200,7 +196,7 @@ class ControllerNode:
         self.last: CameraFrame | None = None
         self.coasted = 0
         self._token = self.transport.token(f"controller/{self.run_id}/{self.name}")
-        self.event("controller_reset", f"{self.name!r} on run {self.run_id} ({info.state}) at its rig time")
+        self.event("controller_reset", f"{self.name!r} on run {self.run_id} ({info.state})")
 
     def _serve(self, info: RunInfo) -> int | RunInfo | None:
         """Answer the frames of the run ``info`` until it ends (exit status) or another run is
@@ -208,7 +204,9 @@ class ControllerNode:
         self._reset(info)
         try:
             while True:
-                timeout = self.options.coast_periods * self.period_s if self.last is not None else _ASK_EVERY_S
+                timeout = (
+                    self.options.coast_periods * self.period_s if self.last is not None else _ASK_EVERY_S
+                )
                 try:
                     item = self.inbox.get(timeout=timeout)
                 except queue.Empty:
@@ -233,7 +231,11 @@ class ControllerNode:
             self._token.undeclare()
 
     def _answer(self, frame: CameraFrame) -> None:
-        """Step the controller on ``frame`` and publish its command."""
+        """Step the controller on ``frame`` and publish its command (a frame already stepped as
+        dropped while it was overdue is not stepped again: one step per frame)."""
+        if self.last is not None and frame.header.seq <= self.last.header.seq + self.coasted:
+            self.counts["frames_after_coasting"] += 1
+            return
         if self.last is not None and frame.header.seq > self.last.header.seq + 1 + self.coasted:
             missed = frame.header.seq - self.last.header.seq - 1 - self.coasted
             self.event("frames_lost", f"{missed} frame(s) before frame {frame.frame_index} never came")
@@ -251,7 +253,9 @@ class ControllerNode:
             self.event("coasting", f"no frame after frame {last.frame_index}: stepping without measurements")
         t = last.header.rig_time_s + self.coasted * self.period_s
         capture = t - (last.header.rig_time_s - last.capture_time_s)
-        self._step(Measurement(t, capture, None), last.header.seq + self.coasted, last.frame_index + self.coasted)
+        self._step(
+            Measurement(t, capture, None), last.header.seq + self.coasted, last.frame_index + self.coasted
+        )
 
     def _step(self, meas: Measurement, frame_seq: int, frame_index: int) -> None:
         epm = self._epm_at(frame_index, _PAIR_PERIODS * self.period_s)
@@ -266,7 +270,10 @@ class ControllerNode:
         vel = np.asarray(getattr(cmd, "epm_velocity_mps", np.nan), dtype=float).ravel()
         stats = cmd.stats if isinstance(cmd, Command) else StepStats(status="invalid", failed=True)
         if vel.shape != (3,):  # the rig takes a non-finite command as invalid and stops the EPM
-            vel, stats = np.full(3, math.nan), StepStats(status="invalid", failed=True, outcome=StepOutcome.INVALID)
+            vel, stats = (
+                np.full(3, math.nan),
+                StepStats(status="invalid", failed=True, outcome=StepOutcome.INVALID),
+            )
         names = tuple(stats.extra)
         prediction = ctrl.predicted_capsule_path()
         msg = EpmCommand(
@@ -282,8 +289,10 @@ class ControllerNode:
 
 
 def serve_controller(
-    transport: Transport, scenario: Scenario, controller: Controller | str, options: ControlOptions = ControlOptions()
+    transport: Transport,
+    scenario: Scenario,
+    controller: Controller | str,
+    options: ControlOptions = ControlOptions(),
 ) -> int:
     """Run a :class:`ControllerNode` until the rig's run ends; returns its exit status."""
     return ControllerNode(transport, scenario, controller, options).run()
-

@@ -127,12 +127,16 @@ class Header:
     run_id: str = ""
 
 
-def _vec(n: int) -> Any:
-    return field(default_factory=lambda: np.full(n, math.nan))
+def _nan2() -> np.ndarray:
+    return np.full(2, math.nan)
 
 
-def _empty() -> Any:
-    return field(default_factory=lambda: np.zeros(0))
+def _nan3() -> np.ndarray:
+    return np.full(3, math.nan)
+
+
+def _none() -> np.ndarray:
+    return np.zeros(0)
 
 
 @dataclass
@@ -144,7 +148,7 @@ class CameraFrame:
     frame_index: int = 0
     capture_time_s: float = math.nan
     valid: bool = False
-    position_m: np.ndarray = _vec(2)
+    position_m: np.ndarray = field(default_factory=_nan2)
 
 
 @dataclass
@@ -154,12 +158,12 @@ class ArmState:
     TYPE: ClassVar[str] = "ArmState"
     header: Header = field(default_factory=Header)
     frame_index: int = 0
-    epm_position_m: np.ndarray = _vec(3)
-    epm_velocity_mps: np.ndarray = _vec(3)
-    epm_velocity_command_mps: np.ndarray = _vec(3)
+    epm_position_m: np.ndarray = field(default_factory=_nan3)
+    epm_velocity_mps: np.ndarray = field(default_factory=_nan3)
+    epm_velocity_command_mps: np.ndarray = field(default_factory=_nan3)
     watchdog_active: bool = False
     joint_names: tuple[str, ...] = ()
-    joint_positions_rad: np.ndarray = _empty()
+    joint_positions_rad: np.ndarray = field(default_factory=_none)
 
 
 @dataclass
@@ -170,7 +174,7 @@ class EpmCommand:
     header: Header = field(default_factory=Header)
     frame_seq: int = 0
     frame_index: int = 0
-    velocity_mps: np.ndarray = _vec(3)
+    velocity_mps: np.ndarray = field(default_factory=_nan3)
     outcome: str = "ok"
     status: str = ""
     solve_ms: float = math.nan
@@ -179,8 +183,8 @@ class EpmCommand:
     finished: bool = True
     step_ms: float = math.nan
     extra_names: tuple[str, ...] = ()
-    extra_values: np.ndarray = _empty()
-    predicted_path_m: np.ndarray = _empty()
+    extra_values: np.ndarray = field(default_factory=_none)
+    predicted_path_m: np.ndarray = field(default_factory=_none)
 
 
 @dataclass
@@ -198,11 +202,11 @@ class RunInfo:
     plant_seed: int = 0
     camera_rate_hz: float = math.nan
     first_frame_index: int = 0
-    path_waypoints_m: np.ndarray = _empty()
+    path_waypoints_m: np.ndarray = field(default_factory=_none)
     path_closed: bool = False
     path_speed_mps: float = math.nan
-    start_epm_position_m: np.ndarray = _vec(3)
-    epm_position_m: np.ndarray = _vec(3)
+    start_epm_position_m: np.ndarray = field(default_factory=_nan3)
+    epm_position_m: np.ndarray = field(default_factory=_nan3)
 
 
 @dataclass
@@ -270,7 +274,9 @@ class _Codec:
             elif size is not None:
                 items = list(np.asarray(value).ravel().tolist())
                 if size >= 0 and len(items) != size:
-                    raise MessageError(f"{self.cls.__name__}.{name}: must have {size} values, got {len(items)}")
+                    raise MessageError(
+                        f"{self.cls.__name__}.{name}: must have {size} values, got {len(items)}"
+                    )
                 out[name] = items
             else:
                 out[name] = value

@@ -25,7 +25,6 @@ counted in the run's metrics (``node_*``, :meth:`RigLink.metrics`).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import secrets
@@ -43,12 +42,13 @@ import numpy as np
 from ..atomic import write_text_atomic
 from ..config import Scenario
 from ..errors import ConfigError
+from ..experiments.runs import PREDICTION_FIGURE, write_prediction_figure
 from ..interfaces import Actuator, Command, Controller, Measurement, StepOutcome, StepStats
 from ..paths import ReferencePath
 from ..plots import plot_errors, plot_trajectories
 from ..sim import RunResult, write_run
 from ..sim.loop import ClosedLoop, Frame, Observer
-from ..experiments.runs import PREDICTION_FIGURE, write_prediction_figure
+from .config_check import config_hash, config_sections
 from .messages import PLATE_FRAME, ArmState, CameraFrame, EpmCommand, Event, RunInfo
 from .transport import Transport
 
@@ -58,17 +58,12 @@ __all__ = [
     "RemoteController",
     "RigLink",
     "RigOptions",
-    "config_hash",
-    "config_sections",
     "serve_rig",
     "write_rig_outputs",
 ]
 
 #: File of the rig's events beside ``log.csv``.
 EVENTS_FILE = "events.json"
-#: Sections of a scenario that do not concern the controller: the plant's truth, the path (sent
-#: in the run info) and the rig's fault injection.
-_RIG_ONLY = ("plant", "path", "faults", "source_path")
 #: The step outcomes by their value (an unknown one is taken as invalid).
 _OUTCOMES = {o.value: o for o in StepOutcome}
 #: Seconds the rig lingers after the run's end so its last messages reach the controller.
@@ -103,21 +98,6 @@ class RigOptions:
     def __post_init__(self) -> None:
         _positive("watchdog_timeout_s", self.watchdog_timeout_s, 60.0)
         _positive("wait_controller_s", self.wait_controller_s, 3600.0)
-
-
-def config_sections(scenario: Scenario) -> dict[str, str]:
-    """The sha256 of each scenario section the controller uses (all but the plant's truth, the
-    path and the faults), by section name."""
-    data = scenario.model_dump(mode="json", exclude=set(_RIG_ONLY))
-    return {
-        name: hashlib.sha256(json.dumps(value, sort_keys=True).encode()).hexdigest()
-        for name, value in sorted(data.items())
-    }
-
-
-def config_hash(sections: dict[str, str]) -> str:
-    """One sha256 of the section hashes of :func:`config_sections`."""
-    return hashlib.sha256(json.dumps(sections, sort_keys=True).encode()).hexdigest()
 
 
 def _stderr(text: str) -> None:

@@ -189,7 +189,9 @@ class Transport:
         try:
             self.session = zenoh.open(conf)
         except zenoh.ZError as exc:
-            raise ConfigError(f"zenoh session (listen {list(listen)}, connect {list(connect)}): {exc}") from exc
+            raise ConfigError(
+                f"zenoh session (listen {list(listen)}, connect {list(connect)}): {exc}"
+            ) from exc
         self.counts: Counter[str] = Counter()
         self._filters: dict[str, SequenceFilter] = {}
         self._keep: list[Any] = []
@@ -285,5 +287,7 @@ class Transport:
         def on_sample(sample: Any) -> None:
             on_change(str(sample.key_expr)[base:], sample.kind == zenoh.SampleKind.PUT)
 
-        sub = self.session.liveliness().declare_subscriber(self.key(f"alive/{pattern}"), on_sample, history=True)
+        sub = self.session.liveliness().declare_subscriber(
+            self.key(f"alive/{pattern}"), on_sample, history=True
+        )
         self._keep.append(sub)
