@@ -3,6 +3,7 @@ when the commands come in time; a controller node refusing another scenario; bad
 
 from __future__ import annotations
 
+import os
 import threading
 import uuid
 
@@ -19,11 +20,33 @@ from capsule_mpc.sim.runner import realtime_scenario
 from nodes_support import QUICK, free_endpoint, same_physics, waypoints
 
 
-def run_in_process(scenario, path, seed, controller, *, watchdog_s=0.5):
-    """The rig and a controller node as two sessions of this process (the node in a thread)."""
+class LossyTransport(Transport):
+    """A controller's transport that loses the camera frames of the indices in ``lost``."""
+
+    def __init__(self, *args, lost: range, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.lost = lost
+
+    def subscribe(self, topic, callback, *, ordered=True):
+        if topic == "frame":
+            inner = callback
+
+            def callback(msg):
+                if msg.frame_index not in self.lost:
+                    inner(msg)
+
+        super().subscribe(topic, callback, ordered=ordered)
+
+
+def run_in_process(scenario, path, seed, controller, *, watchdog_s=0.5, lost=range(0)):
+    """The rig and a controller node as two sessions of this process (the node in a thread); the
+    node's transport loses the frames of the indices in ``lost``."""
     endpoint, prefix = free_endpoint(), f"test/{uuid.uuid4().hex}"
     status: dict[str, int] = {}
-    with Transport(prefix, listen=[endpoint]) as rig_t, Transport(prefix, connect=[endpoint]) as ctl_t:
+    with (
+        Transport(prefix, listen=[endpoint]) as rig_t,
+        LossyTransport(prefix, connect=[endpoint], lost=lost) as ctl_t,
+    ):
         node = ControllerNode(ctl_t, scenario, controller, ControlOptions(wait_s=60), say=lambda _t: None)
         thread = threading.Thread(target=lambda: status.setdefault("rc", node.run()), daemon=True)
         thread.start()
@@ -35,28 +58,54 @@ def run_in_process(scenario, path, seed, controller, *, watchdog_s=0.5):
     return result, events, status.get("rc"), node
 
 
+#: Runs over nodes a test tries before it gives up on every command arriving in time (on a loaded
+#: machine a process may be descheduled for longer than a frame).
+ATTEMPTS = 3
+
+
 @pytest.mark.parametrize(
-    "controller, plant", [("follow", "ideal"), pytest.param("mpc", "lab", marks=pytest.mark.slow)]
+    "controller, plant, rate_hz",
+    [("follow", "ideal", 10.0), pytest.param("mpc", "lab", 30.0, marks=pytest.mark.slow)],
 )
-def test_nodes_in_time_give_the_in_process_run(tmp_path, controller, plant):
+def test_nodes_in_time_give_the_in_process_run(tmp_path, controller, plant, rate_hz):
     wp = waypoints(tmp_path, [(-0.05, -0.03), (-0.035, -0.03)])
     scenario, path, _meta = prepare_run(QUICK, wp, None, plant)
+    update = {"camera": scenario.camera.model_copy(update={"rate_hz": rate_hz})}
     if controller == "mpc":  # uncompiled NLP functions: built in well under a second
-        scenario = scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"compile_c": False})})
-    result, events, rc, node = run_in_process(scenario, path, 2, controller)
-    assert rc == 0 and not node.counts["frames_lost"]
+        update["mpc"] = scenario.mpc.model_copy(update={"compile_c": False})
+    scenario = scenario.model_copy(update=update)
     ref = simulate(realtime_scenario(scenario), controller, path, 2)
-    misses = (
-        result.metrics["node_deadline_misses_motion"]
-        if "node_deadline_misses_motion" in result.metrics
-        else 0
-    )
-    assert [e["kind"] for e in events][:2] == ["controller_ready", "run_start"]
-    assert result.controller == controller
-    if misses == 0 and result.metrics.get("node_deadline_misses", 0) == 0:
-        assert same_physics(result.log, ref.log) == []
-    else:  # a loaded machine made commands late: the same run within the timing they add
-        assert result.metrics["tracking_rms_mm"] == pytest.approx(ref.metrics["tracking_rms_mm"], rel=0.05)
+    misses = []
+    for _attempt in range(ATTEMPTS):
+        result, events, rc, node = run_in_process(scenario, path, 2, controller, watchdog_s=5.0)
+        assert rc == 0 and not node.counts["frames_lost"]
+        assert [e["kind"] for e in events][:2] == ["controller_ready", "run_start"]
+        assert result.controller == controller
+        misses.append(result.metrics.get("node_deadline_misses", 0))
+        if misses[-1] == 0:
+            break
+    else:
+        pytest.fail(f"commands missed their deadlines in every run ({misses}; load {os.getloadavg()})")
+    # the commands in time: the in-process run, but for the wall-clock columns
+    assert same_physics(result.log, ref.log) == []
+    assert result.metrics["tracking_rms_mm"] == ref.metrics["tracking_rms_mm"]
+
+
+def test_a_controller_node_coasts_through_lost_frames_one_step_per_frame(tmp_path):
+    wp = waypoints(tmp_path, [(-0.05, -0.03), (-0.035, -0.03)])
+    scenario, path, _meta = prepare_run(QUICK, wp, None, "ideal")
+    lost = range(12, 30)  # 0.6 s of frames at 30 Hz, during the path
+    result, events, rc, node = run_in_process(scenario, path, 2, "follow", watchdog_s=5.0, lost=lost)
+    assert rc == 0
+    assert node.counts["coasting"] == 1
+    # every frame was stepped once: as it came, or (lost) as a dropped frame at its expected time
+    frames = result.realtime.frames
+    assert frames - 2 <= node.steps <= frames
+    # the first lost frames went unanswered (the rig held the previous command); the coasted
+    # answers that came in time were applied
+    held = result.metrics["node_deadline_misses_motion"]
+    assert 1 <= held <= len(lost) + 1
+    assert [e["kind"] for e in events].count("command_late") >= 1
 
 
 def test_a_controller_node_refuses_a_rig_with_another_controller_config():

@@ -49,15 +49,16 @@ def seconds(most: float) -> Callable[[str], float]:
 def add_transport_arguments(p: argparse.ArgumentParser, listens: bool) -> None:
     """``--connect``, ``--listen`` and ``--prefix`` (by default the rig ``listens``, a controller
     connects)."""
-    default = "listens on" if listens else "connects to"
+    unless = f"; without --connect and --listen: {DEFAULT_ENDPOINT}"
     p.add_argument(
         "--connect", action="append", default=None, metavar="ENDPOINT",
-        help=f"Zenoh endpoint to connect to, e.g. {DEFAULT_ENDPOINT} (repeatable; default: this node "
-        f"{default} {DEFAULT_ENDPOINT})",
+        help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable"
+        + ("" if listens else unless) + ")",
     )  # fmt: skip
     p.add_argument(
         "--listen", action="append", default=None, metavar="ENDPOINT",
-        help=f"Zenoh endpoint to listen on, e.g. {DEFAULT_ENDPOINT} (repeatable)",
+        help="Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable"
+        + (unless if listens else "") + ")",
     )  # fmt: skip
     p.add_argument(
         "--prefix", default=DEFAULT_PREFIX,
@@ -77,7 +78,9 @@ def transport_endpoints(args: argparse.Namespace, listens: bool) -> tuple[list[s
 def register(sub: Any) -> None:
     """Add the ``rig`` command (``rig serve``)."""
     rig = sub.add_parser("rig", help="the rig as a node (its controller runs in `capsule-mpc control`)")
-    rig_sub = rig.add_subparsers(dest="rig_command", required=True, metavar="SUBCOMMAND")
+    rig_sub = rig.add_subparsers(
+        dest="rig_command", required=True, metavar="SUBCOMMAND", help="serve: run the rig node"
+    )
     p = rig_sub.add_parser(
         "serve",
         help="run the rig node: camera frames and arm state out, EPM commands in (docs/nodes.md)",

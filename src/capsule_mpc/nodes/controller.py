@@ -47,6 +47,8 @@ EXIT_ENDED, EXIT_NO_RIG = 0, 1
 _ARM_STATES_KEPT = 64
 #: How long a frame waits for its arm state, in frame periods.
 _PAIR_PERIODS = 0.25
+#: What :meth:`ControllerNode._handle` returns to go on serving the run.
+_GO_ON = object()
 #: Seconds between two asks for the run info.
 _ASK_EVERY_S = 0.25
 
@@ -64,17 +66,18 @@ class ControlOptions:
     wait_s : float
         How long to wait for a rig's run (at the start and after losing the rig), s, (0, 3600].
     coast_periods : float
-        A frame overdue by this many frame periods is stepped as dropped, in [1.1, 10] (default 2).
+        A frame overdue by this many frame periods is stepped as dropped, in [1.1, 50] (default 5:
+        frames that come late are answered as they come; only a gap is coasted through).
     """
 
     wait_s: float = 120.0
-    coast_periods: float = 2.0
+    coast_periods: float = 5.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.wait_s) and 0 < self.wait_s <= 3600):
             raise ConfigError(f"wait_s: must be in (0, 3600] s, got {self.wait_s}")
-        if not (math.isfinite(self.coast_periods) and 1.1 <= self.coast_periods <= 10):
-            raise ConfigError(f"coast_periods: must be in [1.1, 10], got {self.coast_periods}")
+        if not (math.isfinite(self.coast_periods) and 1.1 <= self.coast_periods <= 50):
+            raise ConfigError(f"coast_periods: must be in [1.1, 50], got {self.coast_periods}")
 
 
 class ControllerNode:
@@ -111,7 +114,7 @@ class ControllerNode:
         self._arm: OrderedDict[int, ArmState] = OrderedDict()
         self._arm_cond = threading.Condition()
         self._commands = transport.publisher("cmd")
-        self._events = transport.publisher("events", express=False)
+        self._events = transport.publisher("events", realtime=False)
         self.run_id = ""
         self.rig_time_s = 0.0
         self.steps = 0
@@ -195,6 +198,7 @@ class ControllerNode:
         self.controller.reset(self.scenario, path, info.epm_position_m.copy())
         self.last: CameraFrame | None = None
         self.coasted = 0
+        self.last_arrival = math.nan
         self._token = self.transport.token(f"controller/{self.run_id}/{self.name}")
         self.event("controller_reset", f"{self.name!r} on run {self.run_id} ({info.state})")
 
@@ -204,61 +208,104 @@ class ControllerNode:
         self._reset(info)
         try:
             while True:
-                timeout = (
-                    self.options.coast_periods * self.period_s if self.last is not None else _ASK_EVERY_S
-                )
                 try:
-                    item = self.inbox.get(timeout=timeout)
+                    items = [self.inbox.get(timeout=self._until_coasting())]
                 except queue.Empty:
                     if self.last is not None:
                         self._coast()
                     continue
-                if isinstance(item, CameraFrame):
-                    if item.header.run_id != self.run_id:
-                        self.counts["frames_other_run"] += 1
-                        return None
-                    self._answer(item)
-                elif isinstance(item, RunInfo) and item.header.run_id == self.run_id:
-                    if item.state == "ended":
-                        self.event("run_end", f"the rig ended run {self.run_id}")
-                        return EXIT_ENDED
-                elif isinstance(item, RunInfo) and item.state != "ended":
-                    return item
-                elif item == ("rig", False):
-                    self.event("rig_lost", "the rig node is gone: waiting for a rig's run")
-                    return None
+                items += self._drain()
+                outcome = self._handle(items)
+                if outcome is not _GO_ON:
+                    return outcome  # type: ignore[return-value]
         finally:
             self._token.undeclare()
 
-    def _answer(self, frame: CameraFrame) -> None:
-        """Step the controller on ``frame`` and publish its command (a frame already stepped as
-        dropped while it was overdue is not stepped again: one step per frame)."""
-        if self.last is not None and frame.header.seq <= self.last.header.seq + self.coasted:
-            self.counts["frames_after_coasting"] += 1
-            return
-        if self.last is not None and frame.header.seq > self.last.header.seq + 1 + self.coasted:
-            missed = frame.header.seq - self.last.header.seq - 1 - self.coasted
-            self.event("frames_lost", f"{missed} frame(s) before frame {frame.frame_index} never came")
-        self.last, self.coasted = frame, 0
+    def _drain(self) -> list[Any]:
+        """What else is waiting in the inbox."""
+        out = []
+        while True:
+            try:
+                out.append(self.inbox.get_nowait())
+            except queue.Empty:
+                return out
+
+    def _handle(self, items: list[Any]) -> object:
+        """Answer the newest of the frames among ``items`` and act on the rest; returns what
+        :meth:`_serve` returns, or :data:`_GO_ON`."""
+        frames = [item for item in items if isinstance(item, CameraFrame)]
+        if any(f.header.run_id != self.run_id for f in frames):
+            self.counts["frames_other_run"] += 1
+            return None
+        if frames:
+            self._answer(frames)
+        for item in items:
+            if isinstance(item, RunInfo) and item.header.run_id == self.run_id and item.state == "ended":
+                self.event("run_end", f"the rig ended run {self.run_id}")
+                return EXIT_ENDED
+            if isinstance(item, RunInfo) and item.header.run_id != self.run_id and item.state != "ended":
+                return item
+            if item == ("rig", False):
+                self.event("rig_lost", "the rig node is gone: waiting for a rig's run")
+                return None
+        return _GO_ON
+
+    def _until_coasting(self) -> float:
+        """Seconds until the next frame is overdue (``coast_periods`` after the last, then one
+        frame period after each frame coasted through)."""
+        if self.last is None:
+            return _ASK_EVERY_S
+        periods = max(self.options.coast_periods, self.coasted + 1)
+        return max(0.0, self.last_arrival + periods * self.period_s - time.monotonic())
+
+    def _answer(self, frames: list[CameraFrame]) -> None:
+        """Step the controller on the newest of ``frames`` (in order of arrival) and publish its
+        command. A controller behind the frames skips the older ones (counted): it answers the
+        frame the rig waits for. A frame already stepped as dropped while it was overdue is not
+        stepped again (one step per frame)."""
+        last = self.last
+        if last is not None:
+            stepped = last.header.seq + self.coasted  # the last frame stepped, come or coasted
+            if frames[-1].header.seq <= stepped:  # coasted through already: resynchronise the coasting
+                self.counts["frames_after_coasting"] += len(frames)
+                self.last, self.last_arrival = frames[-1], time.monotonic()
+                self.coasted = stepped - frames[-1].header.seq
+                return
+            frames = [f for f in frames if f.header.seq > stepped]
+            missed = frames[0].header.seq - last.header.seq - 1 - self.coasted
+            if missed > 0:
+                self.event(
+                    "frames_lost", f"{missed} frame(s) before frame {frames[0].frame_index} never came"
+                )
+        skipped = len(frames) - 1
+        if skipped and not self.counts["frames_skipped"]:
+            self.event("behind", "the controller is behind the frames: it answers the newest, skips the rest")
+        self.counts["frames_skipped"] += skipped
+        frame = frames[-1]
+        self.last, self.coasted, self.last_arrival = frame, 0, time.monotonic()
         pos = frame.position_m.copy() if frame.valid else None
         meas = Measurement(frame.header.rig_time_s, frame.capture_time_s, pos)
         self._step(meas, frame.header.seq, frame.frame_index)
 
     def _coast(self) -> None:
-        """The next frame is overdue: step it as a dropped frame at its expected time."""
+        """Frames are overdue: step each of them, in order, as a dropped frame at its expected
+        time (one step per frame, as in process)."""
         last = self.last
         assert last is not None
-        self.coasted += 1
-        if self.coasted == 1:
+        due = math.floor((time.monotonic() - self.last_arrival) / self.period_s)
+        if self.coasted == 0:
             self.event("coasting", f"no frame after frame {last.frame_index}: stepping without measurements")
-        t = last.header.rig_time_s + self.coasted * self.period_s
-        capture = t - (last.header.rig_time_s - last.capture_time_s)
-        self._step(
-            Measurement(t, capture, None), last.header.seq + self.coasted, last.frame_index + self.coasted
-        )
+        while self.coasted < due:
+            self.coasted += 1
+            t = last.header.rig_time_s + self.coasted * self.period_s
+            capture = t - (last.header.rig_time_s - last.capture_time_s)
+            meas = Measurement(t, capture, None)
+            self._step(meas, last.header.seq + self.coasted, last.frame_index + self.coasted, wait_arm=False)
 
-    def _step(self, meas: Measurement, frame_seq: int, frame_index: int) -> None:
-        epm = self._epm_at(frame_index, _PAIR_PERIODS * self.period_s)
+    def _step(self, meas: Measurement, frame_seq: int, frame_index: int, wait_arm: bool = True) -> None:
+        """Step the controller on ``meas`` with the arm state of ``frame_index`` (waited for if
+        ``wait_arm``) and publish the command answering ``frame_seq``."""
+        epm = self._epm_at(frame_index, _PAIR_PERIODS * self.period_s if wait_arm else 0.0)
         if epm is None:
             self.counts["frames_without_arm_state"] += 1
             return

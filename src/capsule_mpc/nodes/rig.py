@@ -2,14 +2,17 @@
 
 The rig runs :class:`~capsule_mpc.sim.loop.ClosedLoop` in real-time mode (paced to the wall clock
 at the camera rate) with a :class:`RemoteController`: at each frame it publishes the arm state
-and the camera frame, and waits, until the end of the frame's slot, for the command that answers
-that frame's sequence number. The plant, the camera, the arm and the timeline are those of the
-in-process loop, so with the commands in time a run is the in-process run of the same seed (only
-the wall-clock timings differ).
+and the camera frame, and waits, until the frame's deadline, for the command that answers that
+frame's sequence number. The deadline is the end of the frame's slot, or one frame period after
+the frame was published if the loop runs behind its schedule while commands come (a controller
+node has a frame period to answer, as an in-process controller always runs to its end; once
+commands stop, the loop keeps its schedule). The plant, the
+camera, the arm and the timeline are those of the in-process loop, so with the commands in time
+a run is the in-process run of the same seed (only the wall-clock timings differ).
 
 Failure as a rig has it:
 
-* a command that has not arrived by the end of its slot is a deadline miss (counted, and an
+* a command that has not arrived by the frame's deadline is a deadline miss (counted, and a
   ``command_late`` event when commands stop arriving in time): the previous command is held, as
   the in-process loop holds the previous plan on a late solve; the late command is dropped when
   it comes;
@@ -123,7 +126,7 @@ class RigLink:
         self.frames = transport.publisher("frame")
         self.arm = transport.publisher("arm_state")
         self.run = transport.publisher("run")
-        self._events = transport.publisher("events", express=False)
+        self._events = transport.publisher("events", realtime=False)
         self.counts: Counter[str] = Counter()
         self.events: list[dict[str, Any]] = []
         self.controllers: set[str] = set()
@@ -170,15 +173,19 @@ class RigLink:
             self._cond.wait_for(lambda: bool(self.controllers), timeout=timeout_s)
             return next(iter(sorted(self.controllers)), None)
 
-    def ask(self, frame: CameraFrame, rig_time_s: float, deadline: float) -> tuple[EpmCommand | None, float]:
-        """Publish ``frame`` and wait until ``deadline`` (``time.perf_counter``) for its command;
-        returns the command (None if none came in time) and the round trip, s."""
+    def ask(
+        self, frame: CameraFrame, rig_time_s: float, deadline: float, window_s: float
+    ) -> tuple[EpmCommand | None, float]:
+        """Publish ``frame`` and wait for its command until ``deadline`` (``time.perf_counter``),
+        or ``window_s`` after publishing if that is later; returns the command (None if none
+        came in time) and the round trip, s."""
         with self._cond:
             self._waiting_seq, self._answer = self.frames.seq, None
         sent = time.perf_counter()
         self.frames.publish(frame, rig_time_s, self.run_id, PLATE_FRAME)
+        wait_s = max(deadline, sent + window_s) - sent
         with self._cond:
-            self._cond.wait_for(lambda: self._answer is not None, timeout=max(0.0, deadline - sent))
+            self._cond.wait_for(lambda: self._answer is not None, timeout=wait_s)
             answer, arrived = self._answer, self._answer_wall
             self._waiting_seq = self.frames.seq  # anything older arriving now is late
         return answer, (arrived - sent if answer is not None else math.nan)
@@ -213,6 +220,7 @@ class RemoteController(Controller):
         self.round_trips_s: list[float] = []
         self.transport_s: list[float] = []
         self.watchdog_active = False
+        self.late_streak = 0
 
     def run_info(self) -> RunInfo:
         """Where the run stands, for a controller node (re)starting on it."""
@@ -278,7 +286,10 @@ class RemoteController(Controller):
             frame_index=self.frame_index, capture_time_s=measurement.capture_t_s, valid=pos is not None,
             position_m=np.full(2, math.nan) if pos is None else np.asarray(pos, dtype=float),
         )  # fmt: skip
-        answer, round_trip = self.link.ask(frame, t_s, self.deadline)
+        # a frame period to answer while commands come; none beyond the slot once they stop, so
+        # the loop keeps its schedule without a controller
+        window_s = 1.0 / self.scenario.camera.rate_hz if self.late_streak == 0 else 0.0
+        answer, round_trip = self.link.ask(frame, t_s, self.deadline, window_s)
         if answer is not None:
             return self._accept(answer, round_trip)
         return self._without_answer(t_s)

@@ -212,10 +212,19 @@ class Transport:
         """The key expression of ``topic`` (e.g. ``<prefix>/frame``)."""
         return f"{self.prefix}/{topic}"
 
-    def publisher(self, topic: str, *, express: bool = True) -> Publisher:
-        """A publisher of ``topic`` (``express``: sent at once, not batched)."""
+    def publisher(self, topic: str, *, realtime: bool = True) -> Publisher:
+        """A publisher of ``topic``; ``realtime``: sent at once (not batched) at Zenoh's real-time
+        priority, and never dropped for a full queue (the publisher waits); else Zenoh's defaults."""
         key = self.key(topic)
-        return Publisher(self.session.declare_publisher(key, express=express), key)
+        if not realtime:
+            return Publisher(self.session.declare_publisher(key), key)
+        pub = self.session.declare_publisher(
+            key,
+            express=True,
+            priority=zenoh.Priority.REAL_TIME,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+        )
+        return Publisher(pub, key)
 
     def _count(self, what: str, n: int = 1) -> None:
         with self._lock:
