@@ -3,7 +3,8 @@
 Both nodes run on this machine: the rig node in this process (:func:`capsule_mpc.nodes.rig.serve_rig`)
 and the controller node as a ``capsule-mpc control`` subprocess, over Zenoh on the loopback.
 
-1. Latency: the ``follow`` baseline (a step of tens of microseconds) on the ``ideal`` rectangle; per
+1. Latency: a bare Zenoh ping to an echoing process (paced at 30 Hz) for reference; then the
+   ``follow`` baseline (a step of tens of microseconds) on the ``ideal`` rectangle; per
    frame the rig times the round trip from publishing the frame to receiving its command, and the
    transport's share of it (the round trip less the controller's own step, which the command
    reports).
@@ -27,6 +28,7 @@ import platform
 import socket
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -55,6 +57,58 @@ def _endpoint() -> str:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+#: A Zenoh peer that echoes ``<prefix>/ping`` on ``<prefix>/pong`` from its subscriber's callback.
+ECHO = """
+import json, sys, time, zenoh
+conf = zenoh.Config()
+conf.insert_json5("mode", '"peer"')
+conf.insert_json5("scouting/multicast/enabled", "false")
+conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+conf.insert_json5("listen/endpoints", "[]")
+with zenoh.open(conf) as s:
+    pub = s.declare_publisher(sys.argv[2] + "/pong", express=True)
+    s.declare_subscriber(sys.argv[2] + "/ping", lambda smp: pub.put(smp.payload.to_bytes()))
+    time.sleep(float(sys.argv[3]))
+"""
+
+
+def zenoh_baseline(samples: int = 300, period_s: float = 1 / 30) -> dict[str, float]:
+    """Round trips of a bare Zenoh ping to an echoing process, paced like camera frames: what the
+    transport costs without the nodes' Python (messages, sequence numbers, the loop), ms."""
+    endpoint, prefix = _endpoint(), f"bench/{uuid.uuid4().hex}"
+    with Transport(prefix, listen=[endpoint]) as transport:
+        cond, arrived = threading.Condition(), []
+
+        def on_pong(_sample: Any) -> None:
+            with cond:
+                arrived.append(time.perf_counter())
+                cond.notify()
+
+        transport.session.declare_subscriber(f"{prefix}/pong", on_pong)
+        pub = transport.session.declare_publisher(f"{prefix}/ping", express=True)
+        echo = subprocess.Popen([sys.executable, "-c", ECHO, endpoint, prefix, str(samples * period_s + 30)])
+        try:
+            time.sleep(3.0)  # the echo process starts and connects
+            trips = []
+            for _ in range(samples):
+                with cond:
+                    arrived.clear()
+                sent = time.perf_counter()
+                pub.put(b"x" * 128)
+                with cond:
+                    if cond.wait_for(lambda: arrived, timeout=1.0):
+                        trips.append((arrived[0] - sent) * 1e3)
+                time.sleep(period_s)
+        finally:
+            echo.kill()
+            echo.wait()
+    trips.sort()
+    return {
+        "samples": len(trips), "round_trip_ms_median": trips[len(trips) // 2],
+        "round_trip_ms_p99": trips[min(len(trips) - 1, int(0.99 * len(trips)))],
+    }  # fmt: skip
 
 
 def over_nodes(config: Path, plant: str, controller: str, seed: int) -> dict[str, Any]:
@@ -132,6 +186,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     load_start, started = os.getloadavg(), time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
     rect = packaged_config_path("rectangle")
+    baseline = zenoh_baseline()
+    print(
+        f"bare Zenoh round trip: median {baseline['round_trip_ms_median']:.3f} ms, p99 "
+        f"{baseline['round_trip_ms_p99']:.3f} ms",
+        flush=True,
+    )
     latency = over_nodes(rect, "ideal", "follow", 0)
     print(
         f"latency (follow, ideal): transport median {latency['node_transport_ms_median']:.3f} ms, p99 "
@@ -143,6 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         "command": "python benchmarks/nodes_latency.py "
         + " ".join(argv if argv is not None else sys.argv[1:]),
         "started": started,
+        "zenoh_round_trip": baseline,
         "latency_follow_ideal": latency,
         "mpc_30hz_lab": compare(rect, args.draws),
         "mpc_100hz_lab": compare(packaged_config_path("rectangle_100hz"), args.draws_100hz),

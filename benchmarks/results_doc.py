@@ -582,6 +582,55 @@ def render_hpipm(data: dict[str, Any]) -> list[str]:
     ]
 
 
+def _node_rows(rows: Sequence[dict[str, Any]]) -> list[list[str]]:
+    out = []
+    for r in rows:
+        nodes, local = r["nodes"], r["in_process"]
+        out.append([
+            str(r["seed"]),
+            str(nodes["node_deadline_misses_motion"]),
+            _num(nodes["tracking_rms_mm"], 3),
+            str(local["deadline_misses_motion"]),
+            _num(local["tracking_rms_mm"], 3),
+            f"{100 * r['tracking_rms_rel_diff']:.1f} %",
+        ])  # fmt: skip
+    return out
+
+
+def _zenoh_alone(base: dict[str, Any] | None) -> str:
+    if not base:
+        return ""
+    return (
+        f" For reference, a bare Zenoh ping to an echoing process, paced the same way, at the same "
+        f"time: median {base['round_trip_ms_median']:.2f} ms, p99 {base['round_trip_ms_p99']:.2f} ms."
+    )
+
+
+def render_nodes(data: dict[str, Any]) -> list[str]:
+    """The loop over nodes (``benchmarks/nodes_latency.py``)."""
+    lat = data["latency_follow_ideal"]
+    header = ["seed", "nodes: misses in motion", "nodes: tracking RMS (mm)", "in process: misses in motion",
+              "in process: tracking RMS (mm)", "RMS difference"]  # fmt: skip
+    lines = [
+        f"Transport latency from frame to command (`follow` on the `ideal` rectangle, {lat['frames']} "
+        f"frames; the round trip less the controller's step): median "
+        f"{lat['node_transport_ms_median']:.2f} ms, p99 {lat['node_transport_ms_p99']:.2f} ms, max "
+        f"{lat['node_transport_ms_max']:.2f} ms. The whole round trip, the step included: median "
+        f"{lat['node_round_trip_ms_median']:.2f} ms, p99 {lat['node_round_trip_ms_p99']:.2f} ms."
+        + _zenoh_alone(data.get("zenoh_round_trip")),
+        "",
+        "The MPC on `lab` draws of the rectangle at 30 Hz, over nodes and in process (real time, same "
+        "seed). A miss over nodes is a frame whose command had not come by its deadline (the rig held "
+        "the previous command); in process, a command ready after its slot (applied all the same).",
+        "",
+        *_table(header, _node_rows(data["mpc_30hz_lab"])),
+    ]
+    if data.get("mpc_100hz_lab"):
+        lines += ["", "The same at 100 Hz (`configs/rectangle_100hz.yaml`):", "",
+                  *_table(header, _node_rows(data["mpc_100hz_lab"]))]  # fmt: skip
+    return lines
+
+
 # ---------------------------------------------------------------------------------------- layout
 #: Sections in the order they appear: (key in sources.json, title, renderer, what it measures).
 SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...] = (
@@ -689,6 +738,14 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         render_sim_speed,
         "How many times faster than real time a closed-loop run is: the 1 kHz plant with the UR5 in the "
         "loop (the default actuator), the `follow` baseline as the controller.",
+    ),
+    (
+        "nodes_latency",
+        "The loop over nodes",
+        render_nodes,
+        "The rig node and the controller node as two processes on this machine over Zenoh on the "
+        "loopback ([nodes.md](nodes.md)): the transport's latency, and the MPC over nodes against the "
+        "in-process loop on the same seeds. Wall-clock figures: they depend on the machine's load.",
     ),
     (
         "planner_bench",

@@ -132,6 +132,7 @@ class RigLink:
         self.controllers: set[str] = set()
         self.rig_time_s = math.nan
         self._cond = threading.Condition()
+        self._event_lock = threading.Lock()
         self._waiting_seq = -1
         self._answer: EpmCommand | None = None
         self._answer_wall = math.nan
@@ -140,10 +141,11 @@ class RigLink:
         transport.token("rig")
 
     def event(self, kind: str, detail: str) -> None:
-        """Log, count and publish one event."""
-        self.counts[kind] += 1
+        """Log, count and publish one event (from the loop's thread or a Zenoh callback)."""
         t = self.rig_time_s
-        self.events.append({"t_s": t, "wall_ns": time.time_ns(), "kind": kind, "detail": detail})
+        with self._event_lock:
+            self.counts[kind] += 1
+            self.events.append({"t_s": t, "wall_ns": time.time_ns(), "kind": kind, "detail": detail})
         self.say(f"rig: t = {t:.3f} s: {kind}: {detail}")
         msg = Event(source="rig", kind=kind, detail=detail, count=self.counts[kind])
         self._events.publish(msg, t if math.isfinite(t) else 0.0, self.run_id)
