@@ -14,8 +14,9 @@ from capsule_mpc.sim.log import LOG_COLUMNS
 
 DATA = Path(__file__).parent / "data"
 QUICK = DATA / "rectangle_quick.yaml"
-#: Columns that hold wall-clock timings (they differ between any two real-time runs).
-TIMING_COLUMNS = ("solve_ms", "controller_ms")
+#: Columns of the controller's report of its step (wall-clock timings, status): on a frame whose
+#: command did not come in time the rig reports its own.
+REPORT_COLUMNS = ("solve_ms", "controller_ms", "solver_status", "solver_failed")
 #: The command line as a subprocess.
 CLI = [sys.executable, "-c", "import sys; from capsule_mpc.cli import main; sys.exit(main())"]
 
@@ -33,12 +34,20 @@ def waypoints(tmp_path: Path, points, name="path.csv") -> Path:
 
 
 def same_physics(log: dict, ref: dict) -> list[str]:
-    """The columns (but the wall-clock timings) in which two logs differ."""
-    return [
+    """The columns in which two logs differ: every column but the wall-clock timings, and the
+    controller's status on the frames the rig had its command for."""
+    differ = [
         c for c in LOG_COLUMNS
-        if c not in TIMING_COLUMNS and not np.array_equal(log[c], ref[c], equal_nan=log[c].dtype.kind == "f")
+        if c not in REPORT_COLUMNS and not np.array_equal(log[c], ref[c], equal_nan=log[c].dtype.kind == "f")
     ]  # fmt: skip
+    if len(log["t_s"]) == len(ref["t_s"]):
+        answered = ~np.char.startswith(log["solver_status"].astype(str), "late:")
+        for c in ("solver_status", "solver_failed"):
+            if not np.array_equal(log[c][answered], ref[c][answered]):
+                differ.append(c)
+    return differ
 
 
 def start(args, **kw) -> subprocess.Popen:
+    """``capsule-mpc ARGS`` as a subprocess, its output in pipes (text)."""
     return subprocess.Popen([*CLI, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)

@@ -71,8 +71,11 @@ def test_nodes_in_time_give_the_in_process_run(tmp_path, controller, plant, rate
     wp = waypoints(tmp_path, [(-0.05, -0.03), (-0.035, -0.03)])
     scenario, path, _meta = prepare_run(QUICK, wp, None, plant)
     update = {"camera": scenario.camera.model_copy(update={"rate_hz": rate_hz})}
-    if controller == "mpc":  # uncompiled NLP functions: built in well under a second
-        update["mpc"] = scenario.mpc.model_copy(update={"compile_c": False})
+    if controller == "mpc":
+        # uncompiled NLP functions (built in well under a second); a solve deadline no solve on a
+        # loaded machine reaches, so the MPC's late-solve fallback, which depends on the wall
+        # clock, acts in neither run
+        update["mpc"] = scenario.mpc.model_copy(update={"compile_c": False, "deadline_ms": 5000.0})
     scenario = scenario.model_copy(update=update)
     ref = simulate(realtime_scenario(scenario), controller, path, 2)
     misses = []
@@ -81,11 +84,14 @@ def test_nodes_in_time_give_the_in_process_run(tmp_path, controller, plant, rate
         assert rc == 0 and not node.counts["frames_lost"]
         assert [e["kind"] for e in events][:2] == ["controller_ready", "run_start"]
         assert result.controller == controller
-        misses.append(result.metrics.get("node_deadline_misses", 0))
+        # a command missed in the settle phase changes nothing: the arm is held still then
+        misses.append(result.metrics.get("node_deadline_misses_motion", 0))
         if misses[-1] == 0:
             break
     else:
-        pytest.fail(f"commands missed their deadlines in every run ({misses}; load {os.getloadavg()})")
+        pytest.fail(
+            f"commands missed their deadlines in motion in every run ({misses}; load {os.getloadavg()})"
+        )
     # the commands in time: the in-process run, but for the wall-clock columns
     assert same_physics(result.log, ref.log) == []
     assert result.metrics["tracking_rms_mm"] == ref.metrics["tracking_rms_mm"]

