@@ -34,7 +34,8 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from capsule_mpc.cli.arguments import int_at_least
+from _args import int_at_least
+
 from capsule_mpc.config import packaged_config_path
 from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.nodes.rig import RigOptions, serve_rig
@@ -46,11 +47,18 @@ from capsule_mpc.sim import simulate
 CLI = [sys.executable, "-c", "import sys; from capsule_mpc.cli import main; sys.exit(main())"]
 #: Metrics of a node run kept in the report.
 NODE_KEYS = (
-    "node_round_trip_ms_median", "node_round_trip_ms_p99", "node_round_trip_ms_max",
-    "node_transport_ms_median", "node_transport_ms_p99", "node_transport_ms_max",
-    "node_deadline_misses", "node_deadline_misses_motion", "node_commands_late", "node_watchdog_stop",
+    "node_round_trip_ms_median",
+    "node_round_trip_ms_p99",
+    "node_round_trip_ms_max",
+    "node_transport_ms_median",
+    "node_transport_ms_p99",
+    "node_transport_ms_max",
+    "node_deadline_misses",
+    "node_deadline_misses_motion",
+    "node_commands_late",
+    "node_watchdog_stop",
     "deadline_misses",
-)  # fmt: skip
+)
 
 
 def _endpoint() -> str:
@@ -106,9 +114,10 @@ def zenoh_baseline(samples: int = 300, period_s: float = 1 / 30) -> dict[str, fl
             echo.wait()
     trips.sort()
     return {
-        "samples": len(trips), "round_trip_ms_median": trips[len(trips) // 2],
+        "samples": len(trips),
+        "round_trip_ms_median": trips[len(trips) // 2],
         "round_trip_ms_p99": trips[min(len(trips) - 1, int(0.99 * len(trips)))],
-    }  # fmt: skip
+    }
 
 
 def over_nodes(config: Path, plant: str, controller: str, seed: int) -> dict[str, Any]:
@@ -116,14 +125,30 @@ def over_nodes(config: Path, plant: str, controller: str, seed: int) -> dict[str
     scenario, path, meta = prepare_run(config, None, None, plant)
     endpoint, prefix = _endpoint(), f"bench/{uuid.uuid4().hex}"
     with Transport(prefix, listen=[endpoint]) as transport:
-        args = ["control", "--config", str(config), "--controller", controller, "--connect", endpoint,
-                "--prefix", prefix, "--wait", "600"]  # fmt: skip
+        args = [
+            "control",
+            "--config",
+            str(config),
+            "--controller",
+            controller,
+            "--connect",
+            endpoint,
+            "--prefix",
+            prefix,
+            "--wait",
+            "600",
+        ]
         proc = subprocess.Popen([*CLI, *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
             result, _events = serve_rig(
-                scenario, path, seed, transport, options=RigOptions(wait_controller_s=600), meta=meta,
+                scenario,
+                path,
+                seed,
+                transport,
+                options=RigOptions(wait_controller_s=600),
+                meta=meta,
                 say=lambda _t: None,
-            )  # fmt: skip
+            )
             _out, err = proc.communicate(timeout=60)
         finally:
             if proc.poll() is None:
@@ -134,9 +159,10 @@ def over_nodes(config: Path, plant: str, controller: str, seed: int) -> dict[str
     m = result.metrics
     out = {k: m.get(k, 0) for k in NODE_KEYS}
     out.update(
-        frames=result.realtime.frames if result.realtime else 0, tracking_rms_mm=m["tracking_rms_mm"],
+        frames=result.realtime.frames if result.realtime else 0,
+        tracking_rms_mm=m["tracking_rms_mm"],
         outcome=result.flags.outcome.value,
-    )  # fmt: skip
+    )
     return out
 
 
@@ -147,9 +173,11 @@ def in_process(config: Path, plant: str, controller: str, seed: int) -> dict[str
     rt = result.realtime
     assert rt is not None
     return {
-        "deadline_misses": rt.deadline_misses, "deadline_misses_motion": rt.deadline_misses_motion,
-        "tracking_rms_mm": result.metrics["tracking_rms_mm"], "outcome": result.flags.outcome.value,
-    }  # fmt: skip
+        "deadline_misses": rt.deadline_misses,
+        "deadline_misses_motion": rt.deadline_misses_motion,
+        "tracking_rms_mm": result.metrics["tracking_rms_mm"],
+        "outcome": result.flags.outcome.value,
+    }
 
 
 def compare(config: Path, draws: int) -> list[dict[str, Any]]:
@@ -159,8 +187,14 @@ def compare(config: Path, draws: int) -> list[dict[str, Any]]:
         nodes = over_nodes(config, "lab", "mpc", seed)
         local = in_process(config, "lab", "mpc", seed)
         rms_n, rms_l = nodes["tracking_rms_mm"], local["tracking_rms_mm"]
-        rows.append({"seed": seed, "nodes": nodes, "in_process": local,
-                     "tracking_rms_rel_diff": abs(rms_n - rms_l) / rms_l})  # fmt: skip
+        rows.append(
+            {
+                "seed": seed,
+                "nodes": nodes,
+                "in_process": local,
+                "tracking_rms_rel_diff": abs(rms_n - rms_l) / rms_l,
+            }
+        )
         print(
             f"{config.stem} seed {seed}: nodes RMS {rms_n:.3f} mm, misses in motion "
             f"{nodes['node_deadline_misses_motion']}; in process RMS {rms_l:.3f} mm, misses in motion "

@@ -586,14 +586,16 @@ def _node_rows(rows: Sequence[dict[str, Any]]) -> list[list[str]]:
     out = []
     for r in rows:
         nodes, local = r["nodes"], r["in_process"]
-        out.append([
-            str(r["seed"]),
-            str(nodes["node_deadline_misses_motion"]),
-            _num(nodes["tracking_rms_mm"], 3),
-            str(local["deadline_misses_motion"]),
-            _num(local["tracking_rms_mm"], 3),
-            f"{100 * r['tracking_rms_rel_diff']:.1f} %",
-        ])  # fmt: skip
+        out.append(
+            [
+                str(r["seed"]),
+                str(nodes["node_deadline_misses_motion"]),
+                _num(nodes["tracking_rms_mm"], 3),
+                str(local["deadline_misses_motion"]),
+                _num(local["tracking_rms_mm"], 3),
+                f"{100 * r['tracking_rms_rel_diff']:.1f} %",
+            ]
+        )
     return out
 
 
@@ -609,8 +611,14 @@ def _zenoh_alone(base: dict[str, Any] | None) -> str:
 def render_nodes(data: dict[str, Any]) -> list[str]:
     """The loop over nodes (``benchmarks/nodes_latency.py``)."""
     lat = data["latency_follow_ideal"]
-    header = ["seed", "nodes: misses in motion", "nodes: tracking RMS (mm)", "in process: misses in motion",
-              "in process: tracking RMS (mm)", "RMS difference"]  # fmt: skip
+    header = [
+        "seed",
+        "nodes: misses in motion",
+        "nodes: tracking RMS (mm)",
+        "in process: misses in motion",
+        "in process: tracking RMS (mm)",
+        "RMS difference",
+    ]
     lines = [
         f"Transport latency from frame to command (`follow` on the `ideal` rectangle, {lat['frames']} "
         f"frames; the round trip less the controller's step): median "
@@ -626,8 +634,12 @@ def render_nodes(data: dict[str, Any]) -> list[str]:
         *_table(header, _node_rows(data["mpc_30hz_lab"])),
     ]
     if data.get("mpc_100hz_lab"):
-        lines += ["", "The same at 100 Hz (`configs/rectangle_100hz.yaml`):", "",
-                  *_table(header, _node_rows(data["mpc_100hz_lab"]))]  # fmt: skip
+        lines += [
+            "",
+            "The same at 100 Hz (`configs/rectangle_100hz.yaml`):",
+            "",
+            *_table(header, _node_rows(data["mpc_100hz_lab"])),
+        ]
     return lines
 
 

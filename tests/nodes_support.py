@@ -37,9 +37,10 @@ def same_physics(log: dict, ref: dict) -> list[str]:
     """The columns in which two logs differ: every column but the wall-clock timings, and the
     controller's status on the frames the rig had its command for."""
     differ = [
-        c for c in LOG_COLUMNS
+        c
+        for c in LOG_COLUMNS
         if c not in REPORT_COLUMNS and not np.array_equal(log[c], ref[c], equal_nan=log[c].dtype.kind == "f")
-    ]  # fmt: skip
+    ]
     if len(log["t_s"]) == len(ref["t_s"]):
         answered = ~np.char.startswith(log["solver_status"].astype(str), "late:")
         for c in ("solver_status", "solver_failed"):

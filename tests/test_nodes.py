@@ -51,9 +51,13 @@ def run_in_process(scenario, path, seed, controller, *, watchdog_s=0.5, lost=ran
         thread = threading.Thread(target=lambda: status.setdefault("rc", node.run()), daemon=True)
         thread.start()
         result, events = serve_rig(
-            scenario, path, seed, rig_t, say=lambda _t: None,
+            scenario,
+            path,
+            seed,
+            rig_t,
+            say=lambda _t: None,
             options=RigOptions(watchdog_timeout_s=watchdog_s, wait_controller_s=60),
-        )  # fmt: skip
+        )
         thread.join(10)
     return result, events, status.get("rc"), node
 
@@ -133,7 +137,7 @@ def test_a_controller_node_refuses_a_rig_with_another_controller_config():
             "--watchdog-timeout: must be a number of seconds in (0, 60], got 0",
         ),
         (["rig", "serve", "--wait-controller", "nan"], "--wait-controller: must be a number of seconds"),
-        (["rig", "serve", "--backend", "ur5"], "--backend: ur5 is not installed"),
+        (["rig", "serve", "--backend", "ur5"], "--backend: ur5 is not available in the rig node"),
         (["rig", "serve", "--seed", "-1"], "--seed: must be an integer >= 0"),
         (["rig", "serve", "--prefix", "a/*"], "prefix: must be chunks"),
         (["rig", "serve", "--listen", "bogus"], "endpoint: must be <protocol>/<address>"),

@@ -29,27 +29,73 @@ def floats(max_size=12):
 
 
 headers = st.builds(
-    m.Header, schema_version=st.just(m.SCHEMA_VERSION), publisher_id=u64, seq=u64, rig_time_s=any_float,
-    stamp_ns=st.integers(0, 2**32 * 10**9 - 1), frame_id=text, run_id=text,
-)  # fmt: skip
+    m.Header,
+    schema_version=st.just(m.SCHEMA_VERSION),
+    publisher_id=u64,
+    seq=u64,
+    rig_time_s=any_float,
+    stamp_ns=st.integers(0, 2**32 * 10**9 - 1),
+    frame_id=text,
+    run_id=text,
+)
 names = st.lists(text, max_size=4).map(tuple)
 MESSAGES = st.one_of(
-    st.builds(m.CameraFrame, header=headers, frame_index=i64, capture_time_s=any_float, valid=st.booleans(),
-              position_m=vec(2)),
-    st.builds(m.ArmState, header=headers, frame_index=i64, epm_position_m=vec(3), epm_velocity_mps=vec(3),
-              epm_velocity_command_mps=vec(3), watchdog_active=st.booleans(), joint_names=names,
-              joint_positions_rad=floats(6)),
-    st.builds(m.EpmCommand, header=headers, frame_seq=u64, frame_index=i64, velocity_mps=vec(3), outcome=text,
-              status=text, solve_ms=any_float, iterations=st.integers(-(2**31), 2**31 - 1),
-              failed=st.booleans(), finished=st.booleans(), step_ms=any_float, extra_names=names,
-              extra_values=floats(4), predicted_path_m=floats(40)),
-    st.builds(m.RunInfo, header=headers, state=text, config_name=text, config_hash=text,
-              config_sections=names, config_section_hashes=names, seed=i64, plant_seed=i64,
-              camera_rate_hz=any_float,
-              first_frame_index=i64, path_waypoints_m=floats(20), path_closed=st.booleans(),
-              path_speed_mps=any_float, start_epm_position_m=vec(3), epm_position_m=vec(3)),
+    st.builds(
+        m.CameraFrame,
+        header=headers,
+        frame_index=i64,
+        capture_time_s=any_float,
+        valid=st.booleans(),
+        position_m=vec(2),
+    ),
+    st.builds(
+        m.ArmState,
+        header=headers,
+        frame_index=i64,
+        epm_position_m=vec(3),
+        epm_velocity_mps=vec(3),
+        epm_velocity_command_mps=vec(3),
+        watchdog_active=st.booleans(),
+        joint_names=names,
+        joint_positions_rad=floats(6),
+    ),
+    st.builds(
+        m.EpmCommand,
+        header=headers,
+        frame_seq=u64,
+        frame_index=i64,
+        velocity_mps=vec(3),
+        outcome=text,
+        status=text,
+        solve_ms=any_float,
+        iterations=st.integers(-(2**31), 2**31 - 1),
+        failed=st.booleans(),
+        finished=st.booleans(),
+        step_ms=any_float,
+        extra_names=names,
+        extra_values=floats(4),
+        predicted_path_m=floats(40),
+    ),
+    st.builds(
+        m.RunInfo,
+        header=headers,
+        state=text,
+        config_name=text,
+        config_hash=text,
+        config_sections=names,
+        config_section_hashes=names,
+        seed=i64,
+        plant_seed=i64,
+        camera_rate_hz=any_float,
+        first_frame_index=i64,
+        path_waypoints_m=floats(20),
+        path_closed=st.booleans(),
+        path_speed_mps=any_float,
+        start_epm_position_m=vec(3),
+        epm_position_m=vec(3),
+    ),
     st.builds(m.Event, header=headers, source=text, kind=text, detail=text, count=u64),
-)  # fmt: skip
+)
 
 
 def _same(a, b) -> bool:
@@ -77,13 +123,30 @@ def test_a_known_frame_has_the_expected_bytes():
     # A byte-level check of the CDR layout (and of the encoder library the codec is built on).
     frame = m.CameraFrame(
         m.Header(publisher_id=7, seq=2, rig_time_s=0.5, stamp_ns=3_000_000_004, frame_id="plate", run_id="r"),
-        frame_index=-1, capture_time_s=0.25, valid=True, position_m=np.array([1.0, -2.0]),
-    )  # fmt: skip
-    expected = b"".join([
-        b"\x00\x01\x00\x00", b"\x01", b"\x00" * 7, struct.pack("<QQd", 7, 2, 0.5), struct.pack("<II", 3, 4),
-        struct.pack("<I", 6), b"plate\x00", b"\x00\x00", struct.pack("<I", 2), b"r\x00", b"\x00" * 6,
-        struct.pack("<qd", -1, 0.25), b"\x01", b"\x00" * 7, struct.pack("<dd", 1.0, -2.0),
-    ])  # fmt: skip
+        frame_index=-1,
+        capture_time_s=0.25,
+        valid=True,
+        position_m=np.array([1.0, -2.0]),
+    )
+    expected = b"".join(
+        [
+            b"\x00\x01\x00\x00",
+            b"\x01",
+            b"\x00" * 7,
+            struct.pack("<QQd", 7, 2, 0.5),
+            struct.pack("<II", 3, 4),
+            struct.pack("<I", 6),
+            b"plate\x00",
+            b"\x00\x00",
+            struct.pack("<I", 2),
+            b"r\x00",
+            b"\x00" * 6,
+            struct.pack("<qd", -1, 0.25),
+            b"\x01",
+            b"\x00" * 7,
+            struct.pack("<dd", 1.0, -2.0),
+        ]
+    )
     assert m.encode(frame) == expected
 
 

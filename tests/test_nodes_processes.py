@@ -15,6 +15,7 @@ import uuid
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.nodes.rig import EVENTS_FILE, RigOptions, serve_rig
@@ -43,8 +44,27 @@ def test_two_node_processes_run_and_end_cleanly(tmp_path, procs):
     endpoint, prefix = free_endpoint(), f"test/{uuid.uuid4().hex}"
     common = ["--config", str(config), "--prefix", prefix]
     out = tmp_path / "rig"
-    procs.append(start(["rig", "serve", *common, "--waypoints", str(wp), "--plant", "ideal", "--seed", "5",
-                        "--listen", endpoint, "--out", str(out), "--wait-controller", "60"]))  # fmt: skip
+    procs.append(
+        start(
+            [
+                "rig",
+                "serve",
+                *common,
+                "--waypoints",
+                str(wp),
+                "--plant",
+                "ideal",
+                "--seed",
+                "5",
+                "--listen",
+                endpoint,
+                "--out",
+                str(out),
+                "--wait-controller",
+                "60",
+            ]
+        )
+    )
     procs.append(start(["control", *common, "--controller", "follow", "--connect", endpoint, "--wait", "60"]))
     rig, ctl = procs
     rig_out, rig_err = rig.communicate(timeout=120)
@@ -61,6 +81,9 @@ def test_two_node_processes_run_and_end_cleanly(tmp_path, procs):
         rms = run["metrics"]["tracking_rms_mm"]
         assert rms == pytest.approx(ref.metrics["tracking_rms_mm"], rel=0.05)
     assert run["controller"] == "follow" and run["metrics"]["node_controller_ready"] == 1
+    with (out / "run.mcap").open("rb") as f:  # the run's MCAP log, as simulate writes it
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count > 0
     kinds = [e["kind"] for e in json.loads((out / EVENTS_FILE).read_text())]
     assert kinds[:2] == ["controller_ready", "run_start"] and "run_end" in kinds
     assert "run_end: the rig ended run" in ctl_err
@@ -77,8 +100,19 @@ def test_killing_the_controller_node_brakes_the_epm_and_a_restarted_one_goes_on(
     wp = waypoints(tmp_path, [(-0.05, -0.03), (0.05, -0.03), (0.05, 0.03), (-0.05, 0.03)])
     scenario, path, _meta = prepare_run(QUICK, wp, None, "ideal")
     endpoint, prefix = free_endpoint(), f"test/{uuid.uuid4().hex}"
-    control = ["control", "--config", str(QUICK), "--prefix", prefix, "--controller", "follow",
-               "--connect", endpoint, "--wait", "60"]  # fmt: skip
+    control = [
+        "control",
+        "--config",
+        str(QUICK),
+        "--prefix",
+        prefix,
+        "--controller",
+        "follow",
+        "--connect",
+        endpoint,
+        "--wait",
+        "60",
+    ]
     lines: queue.Queue[str] = queue.Queue()
     timeout_s = 0.5
 
@@ -94,9 +128,13 @@ def test_killing_the_controller_node_brakes_the_epm_and_a_restarted_one_goes_on(
         thread = threading.Thread(target=operator, daemon=True)
         thread.start()
         result, events = serve_rig(
-            scenario, path, 1, rig_t, options=RigOptions(watchdog_timeout_s=timeout_s, wait_controller_s=60),
+            scenario,
+            path,
+            1,
+            rig_t,
+            options=RigOptions(watchdog_timeout_s=timeout_s, wait_controller_s=60),
             say=lines.put,
-        )  # fmt: skip
+        )
         thread.join(30)
     assert procs[1].wait(timeout=30) == 0  # the restarted node ends with the run
     assert procs[0].wait(timeout=10) == -signal.SIGKILL
@@ -145,8 +183,19 @@ def wait_line(lines: queue.Queue, word: str, timeout_s: float = 60.0) -> str:
 
 
 def test_a_controller_node_without_a_rig_gives_up_after_its_wait(procs):
-    proc = start(["control", "--controller", "follow", "--connect", free_endpoint(), "--prefix",
-                  f"test/{uuid.uuid4().hex}", "--wait", "1"])  # fmt: skip
+    proc = start(
+        [
+            "control",
+            "--controller",
+            "follow",
+            "--connect",
+            free_endpoint(),
+            "--prefix",
+            f"test/{uuid.uuid4().hex}",
+            "--wait",
+            "1",
+        ]
+    )
     procs.append(proc)
     _out, err = proc.communicate(timeout=60)
     assert proc.returncode == 1 and "no rig run on" in err

@@ -60,8 +60,17 @@ def test_stale_out_of_order_garbled_and_other_versions_are_dropped_and_counted(p
     wrong_version = bytearray(_cmd(10))
     wrong_version[4] = 99
     wait_for(lambda: False, 0.3)  # the subscription reaches the other session
-    for payload in [_cmd(0), _cmd(1), _cmd(1), _cmd(0), _cmd(4), _cmd(3), bytes(wrong_version), b"\x00\x01",
-                    _cmd(5)]:  # fmt: skip
+    for payload in [
+        _cmd(0),
+        _cmd(1),
+        _cmd(1),
+        _cmd(0),
+        _cmd(4),
+        _cmd(3),
+        bytes(wrong_version),
+        b"\x00\x01",
+        _cmd(5),
+    ]:
         a.session.put(a.key("cmd"), payload)
     assert wait_for(lambda: got == [0, 1, 4, 5]), got
     assert b.counts == {"cmd.stale": 3, "cmd.lost": 2, "cmd.version_mismatch": 1, "cmd.malformed": 1}

@@ -39,10 +39,13 @@ def register(sub: Any) -> None:
     )
     add_transport_arguments(p, listens=False)
     p.add_argument(
-        "--wait", type=seconds(3600.0), default=120.0, metavar="S",
+        "--wait",
+        type=seconds(3600.0),
+        default=120.0,
+        metavar="S",
         help="how long to wait for a rig's run (at the start and after losing the rig), s, in (0, 3600] "
         "(default 120)",
-    )  # fmt: skip
+    )
     p.set_defaults(func=run)
 
 

@@ -324,13 +324,20 @@ class ControllerNode:
         names = tuple(stats.extra)
         prediction = ctrl.predicted_capsule_path()
         msg = EpmCommand(
-            frame_seq=frame_seq, frame_index=frame_index,
+            frame_seq=frame_seq,
+            frame_index=frame_index,
             velocity_mps=vel,
-            outcome=stats.outcome.value, status=stats.status, solve_ms=float(stats.solve_ms),
-            iterations=int(stats.iterations), failed=bool(stats.failed), finished=bool(ctrl.finished),
-            step_ms=step_ms, extra_names=names, extra_values=np.array([stats.extra[k] for k in names]),
+            outcome=stats.outcome.value,
+            status=stats.status,
+            solve_ms=float(stats.solve_ms),
+            iterations=int(stats.iterations),
+            failed=bool(stats.failed),
+            finished=bool(ctrl.finished),
+            step_ms=step_ms,
+            extra_names=names,
+            extra_values=np.array([stats.extra[k] for k in names]),
             predicted_path_m=np.zeros(0) if prediction is None else np.asarray(prediction, dtype=float),
-        )  # fmt: skip
+        )
         self._commands.publish(msg, meas.t_s, self.run_id, PLATE_FRAME)
         self.steps += 1
 

@@ -297,10 +297,14 @@ class _Codec:
 def _header_to_wire(h: Header) -> dict[str, Any]:
     sec, nanosec = divmod(int(h.stamp_ns), 1_000_000_000)
     return {
-        "schema_version": h.schema_version, "publisher_id": h.publisher_id, "seq": h.seq,
-        "rig_time_s": float(h.rig_time_s), "stamp": {"sec": sec, "nanosec": nanosec},
-        "frame_id": h.frame_id, "run_id": h.run_id,
-    }  # fmt: skip
+        "schema_version": h.schema_version,
+        "publisher_id": h.publisher_id,
+        "seq": h.seq,
+        "rig_time_s": float(h.rig_time_s),
+        "stamp": {"sec": sec, "nanosec": nanosec},
+        "frame_id": h.frame_id,
+        "run_id": h.run_id,
+    }
 
 
 def _header_from_wire(w: Any) -> Header:

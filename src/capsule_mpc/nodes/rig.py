@@ -35,7 +35,7 @@ import sys
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -166,8 +166,11 @@ class RigLink:
                 self._answer, self._answer_wall = msg, time.perf_counter()
                 self._cond.notify_all()
                 return
-        self.counts["commands_late" if msg.frame_seq < self._waiting_seq or self._waiting_seq < 0 else
-                    "commands_unexpected"] += 1  # fmt: skip
+        self.counts[
+            "commands_late"
+            if msg.frame_seq < self._waiting_seq or self._waiting_seq < 0
+            else "commands_unexpected"
+        ] += 1
 
     def wait_controller(self, timeout_s: float) -> str | None:
         """The name of a controller node ready for this run, waiting up to ``timeout_s``."""
@@ -229,13 +232,21 @@ class RemoteController(Controller):
         sections = config_sections(self.scenario)
         path = self.path
         return RunInfo(
-            state=self.state, config_name=self.scenario.name, config_hash=config_hash(sections),
-            config_sections=tuple(sections), config_section_hashes=tuple(sections.values()),
-            seed=self.seed, plant_seed=self.plant_seed, camera_rate_hz=float(self.scenario.camera.rate_hz),
-            first_frame_index=self.first_frame_index, path_waypoints_m=path.waypoints_m.copy(),
-            path_closed=path.closed, path_speed_mps=path.speed_mps,
-            start_epm_position_m=self.start_epm_m.copy(), epm_position_m=self.epm_m.copy(),
-        )  # fmt: skip
+            state=self.state,
+            config_name=self.scenario.name,
+            config_hash=config_hash(sections),
+            config_sections=tuple(sections),
+            config_section_hashes=tuple(sections.values()),
+            seed=self.seed,
+            plant_seed=self.plant_seed,
+            camera_rate_hz=float(self.scenario.camera.rate_hz),
+            first_frame_index=self.first_frame_index,
+            path_waypoints_m=path.waypoints_m.copy(),
+            path_closed=path.closed,
+            path_speed_mps=path.speed_mps,
+            start_epm_position_m=self.start_epm_m.copy(),
+            epm_position_m=self.epm_m.copy(),
+        )
 
     def _rig_time(self) -> float:
         t = self.link.rig_time_s
@@ -285,9 +296,11 @@ class RemoteController(Controller):
         """Publish the frame, wait for its command until the deadline; hold or stop without one."""
         pos = measurement.position_m
         frame = CameraFrame(
-            frame_index=self.frame_index, capture_time_s=measurement.capture_t_s, valid=pos is not None,
+            frame_index=self.frame_index,
+            capture_time_s=measurement.capture_t_s,
+            valid=pos is not None,
             position_m=np.full(2, math.nan) if pos is None else np.asarray(pos, dtype=float),
-        )  # fmt: skip
+        )
         # a frame period to answer while commands come; none beyond the slot once they stop, so
         # the loop keeps its schedule without a controller
         window_s = 1.0 / self.scenario.camera.rate_hz if self.late_streak == 0 else 0.0
@@ -306,10 +319,13 @@ class RemoteController(Controller):
             self.link.event("watchdog_clear", "commands arrive again: the controller node has the EPM")
         self.late_streak = 0
         stats = StepStats(
-            solve_ms=answer.solve_ms, status=answer.status, iterations=answer.iterations,
-            failed=answer.failed, outcome=_OUTCOMES.get(answer.outcome, StepOutcome.INVALID),
+            solve_ms=answer.solve_ms,
+            status=answer.status,
+            iterations=answer.iterations,
+            failed=answer.failed,
+            outcome=_OUTCOMES.get(answer.outcome, StepOutcome.INVALID),
             extra=dict(zip(answer.extra_names, answer.extra_values.tolist())),
-        )  # fmt: skip
+        )
         self.last_command = Command(answer.velocity_mps.copy(), stats)
         path = answer.predicted_path_m
         self.last_prediction = path.reshape(-1, 2).copy() if path.size else None
@@ -368,12 +384,14 @@ class RigObserver(Observer):
         q = getattr(act, "q_rad", None)
         names = getattr(getattr(act, "kin", None), "joint_names", ())
         state = ArmState(
-            frame_index=frame.index, epm_position_m=remote.epm_m, epm_velocity_mps=act.velocity_mps,
+            frame_index=frame.index,
+            epm_position_m=remote.epm_m,
+            epm_velocity_mps=act.velocity_mps,
             epm_velocity_command_mps=np.asarray(loop.arm_cmd, dtype=float),
             watchdog_active=remote.watchdog_active,
             joint_names=tuple(names) if q is not None else (),
             joint_positions_rad=np.zeros(0) if q is None else np.asarray(q, dtype=float),
-        )  # fmt: skip
+        )
         remote.link.arm.publish(state, frame.t_s, remote.link.run_id, PLATE_FRAME)
 
     def on_end(self, loop: ClosedLoop, metrics: dict[str, Any]) -> None:
@@ -409,6 +427,7 @@ def serve_rig(
     plant_seed: int | None = None,
     meta: dict[str, Any] | None = None,
     say: Callable[[str], None] = _stderr,
+    observers: Sequence[Observer] = (),
 ) -> tuple[RunResult, list[dict[str, Any]]]:
     """Run one real-time run with the controller on a controller node (module docstring).
 
@@ -423,6 +442,9 @@ def serve_rig(
         The watchdog and how long to wait for a controller node.
     say : callable
         Prints the events (default: stderr).
+    observers : sequence of Observer
+        Called in every frame of the run too (e.g. the MCAP log and live view of
+        :mod:`capsule_mpc.telemetry`).
 
     Returns
     -------
@@ -439,7 +461,7 @@ def serve_rig(
     loop = ClosedLoop(
         scenario, remote, path, seed, actuator=actuator, plant_seed=plant_seed, realtime=True, meta=meta
     )
-    result = loop.run([RigObserver(remote)])
+    result = loop.run([RigObserver(remote), *observers])
     time.sleep(_LINGER_S)
     return result, link.events
 

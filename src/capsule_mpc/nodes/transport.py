@@ -62,8 +62,12 @@ __all__ = [
 
 #: The message type of each topic.
 TOPICS: dict[str, type] = {
-    "frame": CameraFrame, "arm_state": ArmState, "cmd": EpmCommand, "run": RunInfo, "events": Event,
-}  # fmt: skip
+    "frame": CameraFrame,
+    "arm_state": ArmState,
+    "cmd": EpmCommand,
+    "run": RunInfo,
+    "events": Event,
+}
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
 _CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
@@ -142,9 +146,13 @@ class Publisher:
         """Set ``msg.header`` to this publisher's (its id and its current sequence number, which
         only :meth:`publish` advances), the times, frame and run; returns ``msg``."""
         msg.header = Header(
-            publisher_id=self.publisher_id, seq=self.seq, rig_time_s=float(rig_time_s),
-            stamp_ns=wall_ns(), frame_id=frame_id, run_id=run_id,
-        )  # fmt: skip
+            publisher_id=self.publisher_id,
+            seq=self.seq,
+            rig_time_s=float(rig_time_s),
+            stamp_ns=wall_ns(),
+            frame_id=frame_id,
+            run_id=run_id,
+        )
         return msg
 
     def publish(self, msg: Any, rig_time_s: float, run_id: str, frame_id: str = "") -> Header:
