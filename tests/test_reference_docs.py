@@ -41,3 +41,20 @@ def test_committed_reference_is_current(tmp_path, monkeypatch):
         assert committed.read_text() == fresh.read_text(), (
             f"docs/{fresh.name} is stale: run `capsule-mpc docs`"
         )
+
+
+def _commands(parser: argparse.ArgumentParser, prefix: str = "capsule-mpc") -> list[str]:
+    """Every command and sub-command of ``parser``, as typed (``capsule-mpc rig serve``)."""
+    found = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                found += [f"{prefix} {name}", *_commands(sub, f"{prefix} {name}")]
+    return found
+
+
+def test_the_reference_has_a_section_for_every_command_and_sub_command():
+    text = (DOCS / "cli.md").read_text(encoding="utf-8")
+    commands = _commands(build_parser())
+    assert {"capsule-mpc rig serve", "capsule-mpc log export", "capsule-mpc simulate"} <= set(commands)
+    assert [c for c in commands if f"## `{c}`" not in text] == []
