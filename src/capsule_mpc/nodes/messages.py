@@ -40,6 +40,8 @@ from typing import Any, ClassVar, TypeVar
 import numpy as np
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
+from ..errors import CapsuleMPCError
+
 __all__ = [
     "MSG_DIR",
     "PACKAGE",
@@ -79,7 +81,7 @@ _FIELD = re.compile(r"^\s*([\w/]+)(\[(\d*)\])?\s+(\w+)\s*(#.*)?$")
 M = TypeVar("M")
 
 
-class MessageError(ValueError):
+class MessageError(CapsuleMPCError, ValueError):
     """A payload that is not a valid message of the expected type."""
 
 

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..atomic import write_text_atomic
 from ..config import Scenario
-from ..errors import ConfigError
+from ..errors import CapsuleMPCError, ConfigError
 from ..experiments.runs import PREDICTION_FIGURE, write_prediction_figure
 from ..interfaces import Actuator, Command, Controller, Measurement, StepOutcome, StepStats
 from ..paths import ReferencePath
@@ -73,7 +73,7 @@ _OUTCOMES = {o.value: o for o in StepOutcome}
 _LINGER_S = 0.2
 
 
-class NodeError(RuntimeError):
+class NodeError(CapsuleMPCError, RuntimeError):
     """A node cannot go on (no controller node came, or the run info is unusable)."""
 
 
