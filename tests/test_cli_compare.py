@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from capsule_mpc.cli import main
 from capsule_mpc.config import load_config
@@ -15,6 +17,17 @@ from capsule_mpc.metrics import run_metrics
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.planner import PlannerOptions
 from capsule_mpc.sim import read_log
+
+
+def _mcap_frames(path: Path) -> int:
+    """Messages on the MCAP log's tracking channel (one per logged frame)."""
+    with path.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    topics = {c.id: c.topic for c in summary.channels.values()}
+    counts = {topics[i]: n for i, n in summary.statistics.channel_message_counts.items()}
+    return counts["/run/tracking"]
+
 
 #: Three seeds' runs of two controllers: "a" always finishes, "b" raises on the second seed.
 PER_SEED = [
@@ -190,6 +203,9 @@ def test_several_seeds_are_scored_on_a_common_window(tmp_path, table, rectangle_
             run_json = json.loads((dirs[name] / "run.json").read_text())
             assert run_json["metrics"]["window_end_s"] == pytest.approx(window)
             assert "decoupled" in entries[name]  # the runner's flags are kept
+            assert _mcap_frames(dirs[name] / "run.mcap") == len(log["t_s"])  # its MCAP log, a message a frame
+    failed = out / RUNS_FOLDER / "seed_4" / "paper_0.8v"
+    assert not failed.exists()  # the run that raised leaves no folder (nor a partial MCAP log)
     assert "RuntimeError: boom" in summary["runs"][1]["controllers"]["paper_0.8v"]["error"]
     follow, paper = summary["controllers"]["follow"], summary["controllers"]["paper_0.8v"]
     rms = [summary["runs"][k]["controllers"]["follow"]["tracking_rms_mm"] for k in range(2)]

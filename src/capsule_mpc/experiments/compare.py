@@ -43,6 +43,7 @@ the MPC accepts late solves here and the runs are deterministic.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import traceback
@@ -63,6 +64,8 @@ from ..paths import ReferencePath
 from ..planner import cached_plan
 from ..plots import plot_errors, plot_metrics, plot_trajectories
 from ..sim import CapsulePlant, RunResult, draw_plant_truth, simulate, write_run
+from ..telemetry.observer import Telemetry
+from ..telemetry.options import MCAP_NAME
 from .inputs import refuse_repeats
 from .runs import PREDICTION_FIGURE, write_prediction_figure
 
@@ -316,6 +319,7 @@ def run_seed_controllers(
     progress: bool = False,
     bar: Any = None,
     plant_scenario: Scenario | None = None,
+    run_dirs: Callable[[str], Path] | None = None,
 ) -> tuple[dict[str, RunResult], dict[str, dict[str, Any]], float]:
     """Run controllers on one seed and re-score their runs on the seed's common window.
 
@@ -336,6 +340,10 @@ def run_seed_controllers(
     plant_scenario : Scenario, optional
         The scenario the plant's truth is drawn from with ``seed`` (default ``scenario``), e.g.
         with plant fields overridden by ``sweep --vary``; the controllers are given ``scenario``.
+    run_dirs : callable, optional
+        The folder of each controller's run (by name): its MCAP log (:data:`MCAP_NAME`,
+        :class:`~capsule_mpc.telemetry.observer.Telemetry`) is written there while it runs; None:
+        no MCAP log.
 
     Returns
     -------
@@ -353,17 +361,37 @@ def run_seed_controllers(
         try:
             if name == PLANNING_CONTROLLER:  # the planner stage, with its own progress bar
                 cached_plan(scenario, path, progress=progress)
-            if plant_scenario is None:
-                results[name] = simulate(scenario, name, path, seed, progress=False, meta=meta)
-            else:
-                plant = CapsulePlant(plant_scenario, truth=truth)
-                results[name] = simulate(scenario, name, path, seed, progress=False, meta=meta, plant=plant)
+            plant = None if plant_scenario is None else CapsulePlant(plant_scenario, truth=truth)
+            with contextlib.ExitStack() as stack:
+                observers = [] if run_dirs is None else [stack.enter_context(_mcap_log(run_dirs(name)))]
+                results[name] = simulate(
+                    scenario, name, path, seed, progress=False, meta=meta, plant=plant, observers=observers
+                )
         except Exception as exc:  # one broken controller must not hide the others' results
             raise_if_interrupted()  # ... but Ctrl-C (which CasADi may turn into any error) stops all
             entries[name] = {"error": failure_line(name, exc), "traceback": traceback.format_exc()}
+            if run_dirs is not None:  # the run's folder, made for its MCAP log, stays empty
+                _remove_if_empty(run_dirs(name))
         if bar is not None:
             bar.update(1)
     return results, entries, rescore_on_common_window(results, path, scenario)
+
+
+def _mcap_log(folder: Path) -> Telemetry:
+    """The MCAP log of a run to be written into ``folder`` (created)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    return Telemetry(folder / MCAP_NAME)
+
+
+def _remove_if_empty(folder: Path) -> None:
+    """Remove ``folder`` if it exists and holds nothing."""
+    with contextlib.suppress(OSError):
+        folder.rmdir()  # refused (OSError) unless empty
+
+
+def run_folder(base: Path, name: str) -> Path:
+    """The folder of controller ``name``'s run under ``base``."""
+    return base / name.replace("/", "_")
 
 
 #: Longest reason kept in a failure line, characters.
@@ -477,12 +505,19 @@ def compare_controllers(
     prediction_figure = None
     with tqdm(total=runs * len(names), desc="compare", unit="run", disable=not progress) as bar:
         for k, s in enumerate(seeds):
-            results, entries, window_end = run_seed_controllers(
-                scenario, path, s, names, meta=meta, progress=progress, bar=bar
-            )
             base = out if runs == 1 else out / RUNS_FOLDER / f"seed_{s}"
+            results, entries, window_end = run_seed_controllers(
+                scenario,
+                path,
+                s,
+                names,
+                meta=meta,
+                progress=progress,
+                bar=bar,
+                run_dirs=lambda name, base=base: run_folder(base, name),
+            )
             for name, result in results.items():
-                run_dir = write_run(result, base / name.replace("/", "_"))
+                run_dir = write_run(result, run_folder(base, name))
                 entries[name] = {
                     **result.metrics,
                     "failure": result.flags.failure,
