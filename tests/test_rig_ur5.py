@@ -73,10 +73,17 @@ class InjectMismatch(Observer):
 def _serve(scenario, path, actuator, observers=()):
     """The rig node with ``actuator`` and a ``follow`` controller node in a thread of this process."""
     endpoint, prefix = free_endpoint(), f"test/{uuid.uuid4().hex}"
-    status: dict[str, int] = {}
+    status: dict[str, object] = {}
+
+    def run_node() -> None:
+        try:
+            status["rc"] = node.run()
+        except Exception as exc:  # its session closed under it: the rig's run was interrupted
+            status["rc"] = exc
+
     with Transport(prefix, listen=[endpoint]) as rig_t, Transport(prefix, connect=[endpoint]) as ctl_t:
         node = ControllerNode(ctl_t, scenario, "follow", ControlOptions(wait_s=60), say=lambda _t: None)
-        thread = threading.Thread(target=lambda: status.setdefault("rc", node.run()), daemon=True)
+        thread = threading.Thread(target=run_node, daemon=True)
         thread.start()
         result, events = serve_rig(
             scenario,
@@ -187,6 +194,31 @@ def test_a_pose_mismatch_mid_run_ends_the_run_with_the_stop_and_its_reason(rig):
     names = robot.names()
     assert names.count("servoStop") == 1 and "servoJ" not in names[names.index("servoStop") :]
     assert names[-3:] == ["stopScript", "disconnect", "disconnect"]
+
+
+class Interrupt(Observer):
+    """Ctrl-C at rig time ``t_s``: the loop's thread gets ``KeyboardInterrupt``, as the command's
+    signal handler raises it."""
+
+    def __init__(self, t_s: float) -> None:
+        self.t_s = t_s
+
+    def frame_end(self, loop: ClosedLoop, frame) -> None:
+        if frame.t_s >= self.t_s:
+            raise KeyboardInterrupt
+
+
+def test_ctrl_c_mid_run_brakes_joins_the_stream_and_closes_the_robot(rig):
+    scenario, path = rig
+    robot, arm = _robot_and_arm(scenario)
+    act = StreamingActuator(arm)
+    with pytest.raises(KeyboardInterrupt), act:
+        _serve(scenario, path, act, observers=[Interrupt(0.2)])
+    assert not _stream_threads()
+    # braked to rest by the arm stack, then servoStop, the script stopped, both interfaces closed
+    np.testing.assert_allclose(arm.cartesian_trajectory().velocity_mps[-1], 0.0, atol=1e-9)
+    assert robot.names()[-4:] == ["servoStop", "stopScript", "disconnect", "disconnect"]
+    assert act.stop is None and not [e for e in arm.events if e.kind in STOP_KINDS]
 
 
 def test_the_stream_never_waits_on_the_loop_and_the_plant_reads_it_in_real_time(rig):

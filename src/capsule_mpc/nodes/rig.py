@@ -24,6 +24,10 @@ Failure as a rig has it:
 
 Every event is published on ``<prefix>/events``, printed, kept in :attr:`RigLink.events` and
 counted in the run's metrics (``node_*``, :meth:`RigLink.metrics`).
+
+The EPM carrier is the scenario's simulated arm, or a real UR5 streaming from its own thread
+(:class:`~.streaming.StreamingActuator`: the simulated capsule follows the EPM the robot measures;
+a stop of the arm ends the run with an ``arm_stopped`` event).
 """
 
 from __future__ import annotations

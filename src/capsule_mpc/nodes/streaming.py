@@ -96,7 +96,7 @@ class StreamingActuator(Actuator, Observer):
     brake_timeout_s : float
         At the end, the longest the stream brakes to rest before it ends anyway, s, > 0.
     join_timeout_s : float
-        How long :meth:`close` waits for the thread, s, > 0.
+        How long to wait for the thread: its first measurement, its end (:meth:`stop_stream`), s, > 0.
     clock, sleep : callable
         Wall clock (s) and sleep, default ``time.perf_counter`` and ``time.sleep`` (the loop's).
     """
