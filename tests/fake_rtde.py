@@ -60,7 +60,8 @@ class FakeRobot:
     protective_speed_radps : float
         A servoJ target implying a faster joint speed than this trips a protective stop, rad/s.
     realtime : bool
-        ``waitPeriod`` sleeps until the period's end on the wall clock (else it returns at once).
+        ``waitPeriod`` sleeps until the period's end on the wall clock, the GIL released (else it
+        returns at once).
     """
 
     q0: Any
@@ -219,8 +220,11 @@ class FakeControl:
         robot = self.robot
         robot.advance(robot.period_s)
         if robot.realtime:
-            while time.perf_counter() < t_start + robot.period_s:
-                pass  # ur-rtde's waitPeriod also spins out the end of the period
+            # ur-rtde's waitPeriod waits out the period with the GIL released: a thread streaming
+            # with it leaves the interpreter to the others meanwhile
+            remaining = t_start + robot.period_s - time.perf_counter()
+            if remaining > 0:
+                time.sleep(remaining)
 
     def servoJ(
         self, q: list[float], speed: float, acceleration: float, t: float, lookahead: float, gain: float

@@ -137,7 +137,7 @@ def test_a_controller_node_refuses_a_rig_with_another_controller_config():
             "--watchdog-timeout: must be a number of seconds in (0, 60], got 0",
         ),
         (["rig", "serve", "--wait-controller", "nan"], "--wait-controller: must be a number of seconds"),
-        (["rig", "serve", "--backend", "ur5"], "--backend: ur5 is not available in the rig node"),
+        (["rig", "serve", "--backend", "ur5"], "--ur-host: required with --backend ur5"),
         (["rig", "serve", "--seed", "-1"], "--seed: must be an integer >= 0"),
         (["rig", "serve", "--prefix", "a/*"], "prefix: must be chunks"),
         (["rig", "serve", "--listen", "bogus"], "endpoint: must be <protocol>/<address>"),

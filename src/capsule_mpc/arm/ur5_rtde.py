@@ -735,6 +735,11 @@ class UR5RtdeActuator(Actuator):
         return np.array(self._q_meas)
 
     @property
+    def dq_measured_radps(self) -> np.ndarray:
+        """The robot's joint speeds at the latest period, rad/s."""
+        return np.array(self._qd_meas)
+
+    @property
     def q_commanded_rad(self) -> np.ndarray:
         """The latest joint setpoint sent with servoJ (the start's after a reset), rad."""
         return np.array(self._q_sent[-1])

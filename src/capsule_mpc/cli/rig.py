@@ -7,8 +7,15 @@ writes what ``simulate`` writes (``log.csv``, ``config.yaml``, ``run.json``, fig
 and its events (``events.json``); ``--live`` serves the Foxglove view. Keys, messages and timing:
 docs/nodes.md.
 
-Exit status: 0 the run completed; 1 the run failed (stalled, timed out, decoupled, dropped) or no
-controller node became ready in time; 2 a bad config, waypoint file or option (nothing is run).
+``--backend ur5 --ur-host HOST`` carries the EPM on a real UR5 over ur-rtde (``pip install
+'capsule_mpc[ur]'``) as a hardware-in-the-loop dry run: the arm streams servoJ from its own thread
+(:class:`capsule_mpc.nodes.streaming.StreamingActuator`) and the simulated capsule and camera are
+driven by the EPM pose the robot measures. docs/ur5.md.
+
+Exit status: 0 the run completed; 1 the run failed (stalled, timed out, decoupled, dropped, the
+arm stopped), no controller node became ready in time, or the UR5 refused (connection, rate,
+pre-flight); 2 a bad config, waypoint file, calibration file or option, or ur-rtde missing
+(nothing is run).
 """
 
 from __future__ import annotations
@@ -119,8 +126,10 @@ def register(sub: Any) -> None:
         "--backend",
         choices=("sim", "ur5"),
         default="sim",
-        help="the arm: sim (the simulated arm of the config); ur5 is refused (docs/nodes.md)",
+        help="the arm: sim (the simulated arm of the config) or ur5 (a real UR5 over ur-rtde moves the "
+        "EPM; the simulated capsule follows the pose it measures: docs/ur5.md)",
     )
+    _add_ur5_arguments(p)
     add_transport_arguments(p, listens=True)
     p.add_argument(
         "--watchdog-timeout",
@@ -142,28 +151,87 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
+def _host(text: str) -> str:
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must not be empty")
+    return text.strip()
+
+
+def _add_ur5_arguments(p: argparse.ArgumentParser) -> None:
+    """``--ur-host``, ``--ur-calibration`` and ``--ur-rate`` (with ``--backend ur5`` only)."""
+    p.add_argument(
+        "--ur-host",
+        type=_host,
+        default=None,
+        metavar="HOST",
+        help="with --backend ur5 (required): IP address or host name of the UR controller",
+    )
+    p.add_argument(
+        "--ur-calibration",
+        default=None,
+        metavar="FILE",
+        help="with --backend ur5: calibration YAML (the robot's base in the plate frame, the EPM on "
+        "the flange; docs/ur5.md); default the config's arm placement",
+    )
+    p.add_argument(
+        "--ur-rate",
+        type=int,
+        choices=(500, 125),
+        default=None,
+        help="with --backend ur5: the RTDE rate the robot must have, Hz (500 e-Series, 125 CB3); "
+        "default: the controller's own, detected at connect",
+    )
+
+
+def _ur5_inputs(args: argparse.Namespace) -> tuple[Any, str | None]:
+    """Check the UR5 options and what they need before anything runs: (the calibration or None,
+    None) or (None, the message of a bad option, exit 2)."""
+    given = [
+        o
+        for o in ("--ur-host", "--ur-calibration", "--ur-rate")
+        if getattr(args, o[2:].replace("-", "_")) is not None
+    ]
+    if args.backend != "ur5":
+        return None, (f"{given[0]}: only with --backend ur5" if given else None)
+    if args.ur_host is None:
+        return None, "--ur-host: required with --backend ur5 (the UR controller's address)"
+    # lazy: Pinocchio (the arm) loads only for a UR5
+    from ..arm.calibration import load_calibration
+    from ..arm.ur5_rtde import UR5DependencyError, rtde_factories
+    from ..errors import ConfigError
+
+    try:
+        rtde_factories()
+    except UR5DependencyError as exc:
+        return None, f"--backend ur5: {exc}"
+    if args.ur_calibration is None:
+        return None, None
+    try:
+        return load_calibration(args.ur_calibration), None
+    except ConfigError as exc:
+        return None, f"--ur-calibration: {exc}"
+
+
 def run(args: argparse.Namespace) -> int:
     """Serve one run; write it to ``--out`` if given; the exit status (module docstring)."""
-    if args.backend == "ur5":
-        print(
-            "capsule-mpc rig serve: --backend: ur5 is not available in the rig node: the UR5 backend "
-            "streams servoJ continuously from its own loop, the rig node steps its actuator between "
-            "frames; see docs/nodes.md",
-            file=sys.stderr,
-        )
+    calibration, bad = _ur5_inputs(args)
+    if bad is not None:
+        print(f"capsule-mpc rig serve: {bad}", file=sys.stderr)
         return 2
     if args.out is None:
-        return _serve(args, None)
-    inputs = input_files(args, "--config", "--waypoints", "--mcap")
+        return _serve(args, None, calibration)
+    inputs = input_files(args, "--config", "--waypoints", "--mcap", "--ur-calibration")
     with output_folder(args.out, "rig serve", inputs=inputs) as folder:
-        folder.status = _serve(args, folder.path)
+        folder.status = _serve(args, folder.path, calibration)
     return folder.status
 
 
-def _serve(args: argparse.Namespace, out: Path | None) -> int:
-    """Run the rig node (with the telemetry asked for) and print (and write to ``out``) its run;
-    the exit status."""
+def _serve(args: argparse.Namespace, out: Path | None, calibration: Any = None) -> int:
+    """Run the rig node (with the telemetry asked for, on the arm of ``--backend``) and print (and
+    write to ``out``) its run; the exit status."""
     # lazy: the library (CasADi, Pinocchio, Zenoh, foxglove) loads when a run starts, not for ``--help``
+    from ..arm.errors import ArmError
+    from ..arm.ur5_rtde import UR5Error
     from ..budget import Workload
     from ..experiments.runs import prepare_run
     from ..nodes.rig import NodeError, RigOptions, serve_rig, write_rig_outputs
@@ -182,10 +250,24 @@ def _serve(args: argparse.Namespace, out: Path | None) -> int:
                 print(f"live view: {tel.live_url} (Foxglove: Open connection)", file=sys.stderr)
         transport = stack.enter_context(Transport(args.prefix, connect=connect, listen=listen))
         try:
-            result, events = serve_rig(
-                scenario, path, run_seed, transport, options=options, meta=meta, observers=telemetry
+            # entered last, so closed first: the robot stops before anything else is torn down
+            actuator = (
+                None if args.backend != "ur5" else stack.enter_context(_ur5(args, scenario, calibration))
             )
-        except NodeError as exc:
+            result, events = serve_rig(
+                scenario,
+                path,
+                run_seed,
+                transport,
+                options=options,
+                actuator=actuator,
+                meta=meta,
+                observers=telemetry,
+            )
+        except ArmError as exc:  # the config's workspace or start is out of the UR5's reach
+            print(f"capsule-mpc rig serve: --backend ur5: {exc}", file=sys.stderr)
+            return 2
+        except (NodeError, UR5Error) as exc:  # no controller node; the UR5 refused (connection, pre-flight)
             print(f"capsule-mpc rig serve: {exc}", file=sys.stderr)
             return EXIT_RUN_FAILED
     _print_run(result)
@@ -193,6 +275,24 @@ def _serve(args: argparse.Namespace, out: Path | None) -> int:
         write_rig_outputs(result, events, out)
         print(f"  results in {out}")
     return EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
+
+
+def _ur5(args: argparse.Namespace, scenario: Any, calibration: Any) -> Any:
+    """The UR5 at ``--ur-host``, connected and streaming from its own thread (a
+    :class:`~capsule_mpc.nodes.streaming.StreamingActuator`)."""
+    # lazy: Pinocchio (the arm) and ur-rtde load only for a UR5
+    from ..arm.ur5_rtde import UR5Error, UR5RtdeActuator, UR5Settings
+    from ..nodes.streaming import StreamingActuator
+
+    settings = UR5Settings(host=args.ur_host, rtde_rate_hz=args.ur_rate)
+    print(f"rig: connecting to the UR5 at {args.ur_host}", file=sys.stderr)
+    try:
+        arm = UR5RtdeActuator(scenario, settings, calibration=calibration)
+    except UR5Error:
+        raise
+    except RuntimeError as exc:  # ur-rtde's own: the robot cannot be reached
+        raise UR5Error(f"cannot connect to the UR5 at {args.ur_host}: {exc}") from exc
+    return StreamingActuator(arm)
 
 
 def _print_run(result: Any) -> None:

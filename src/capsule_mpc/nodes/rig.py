@@ -24,6 +24,10 @@ Failure as a rig has it:
 
 Every event is published on ``<prefix>/events``, printed, kept in :attr:`RigLink.events` and
 counted in the run's metrics (``node_*``, :meth:`RigLink.metrics`).
+
+The EPM carrier is the scenario's simulated arm, or a real UR5 streaming from its own thread
+(:class:`~.streaming.StreamingActuator`: the simulated capsule follows the EPM the robot measures;
+a stop of the arm ends the run with an ``arm_stopped`` event).
 """
 
 from __future__ import annotations
@@ -53,6 +57,7 @@ from ..sim import RunResult, write_run
 from ..sim.loop import ClosedLoop, Frame, Observer
 from .config_check import config_hash, config_sections
 from .messages import PLATE_FRAME, ArmState, CameraFrame, EpmCommand, Event, RunInfo
+from .streaming import StreamingActuator
 from .transport import Transport
 
 __all__ = [
@@ -400,6 +405,8 @@ class RigObserver(Observer):
         metrics.update(_latency_metrics("node_round_trip", remote.round_trips_s))
         metrics.update(_latency_metrics("node_transport", remote.transport_s))
         remote.state = "ended"
+        if loop.flags.arm_failure:
+            remote.link.event("arm_stopped", loop.flags.arm_failure)
         remote.link.event("run_end", f"after {len(remote.round_trips_s)} commands in time")
         remote.publish_run_info()
 
@@ -435,7 +442,9 @@ def serve_rig(
     ----------
     scenario, path, seed, actuator, plant_seed, meta
         As for :class:`~capsule_mpc.sim.loop.ClosedLoop` (``actuator``: the EPM carrier; default
-        the scenario's simulated one).
+        the scenario's simulated one; a real UR5 as a
+        :class:`~capsule_mpc.nodes.streaming.StreamingActuator`, which is also made an observer of
+        the run and whose stream ends with the run).
     transport : Transport
         The rig's session.
     options : RigOptions
@@ -461,7 +470,14 @@ def serve_rig(
     loop = ClosedLoop(
         scenario, remote, path, seed, actuator=actuator, plant_seed=plant_seed, realtime=True, meta=meta
     )
-    result = loop.run([RigObserver(remote), *observers])
+    # an actuator that is also an observer (the streaming UR5) takes the loop's clock and ends the
+    # run on a stop; it comes first, so the rig's own observers see how the run ended
+    own: list[Observer] = [actuator] if isinstance(actuator, Observer) else []
+    try:
+        result = loop.run([*own, RigObserver(remote), *observers])
+    finally:
+        if isinstance(actuator, StreamingActuator):
+            actuator.stop_stream()  # the run did not end (an error, Ctrl-C): brake and join all the same
     time.sleep(_LINGER_S)
     return result, link.events
 
