@@ -44,6 +44,7 @@ the MPC accepts late solves here and the runs are deterministic.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import math
 import traceback
@@ -514,7 +515,7 @@ def compare_controllers(
                 meta=meta,
                 progress=progress,
                 bar=bar,
-                run_dirs=lambda name, base=base: run_folder(base, name),
+                run_dirs=functools.partial(run_folder, base),
             )
             for name, result in results.items():
                 run_dir = write_run(result, run_folder(base, name))
