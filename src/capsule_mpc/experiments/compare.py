@@ -44,7 +44,6 @@ the MPC accepts late solves here and the runs are deterministic.
 from __future__ import annotations
 
 import contextlib
-import functools
 import json
 import math
 import traceback
@@ -64,7 +63,7 @@ from ..metrics import START_WINDOW_S, run_metrics, stack_predictions
 from ..paths import ReferencePath
 from ..planner import cached_plan
 from ..plots import plot_errors, plot_metrics, plot_trajectories
-from ..sim import CapsulePlant, RunResult, draw_plant_truth, simulate, write_run
+from ..sim import CapsulePlant, Observer, RunResult, draw_plant_truth, simulate, write_run
 from ..telemetry.observer import Telemetry
 from ..telemetry.options import MCAP_NAME
 from .inputs import refuse_repeats
@@ -320,7 +319,7 @@ def run_seed_controllers(
     progress: bool = False,
     bar: Any = None,
     plant_scenario: Scenario | None = None,
-    run_dirs: Callable[[str], Path] | None = None,
+    observers: Callable[[str], Sequence[Observer]] | None = None,
 ) -> tuple[dict[str, RunResult], dict[str, dict[str, Any]], float]:
     """Run controllers on one seed and re-score their runs on the seed's common window.
 
@@ -341,10 +340,8 @@ def run_seed_controllers(
     plant_scenario : Scenario, optional
         The scenario the plant's truth is drawn from with ``seed`` (default ``scenario``), e.g.
         with plant fields overridden by ``sweep --vary``; the controllers are given ``scenario``.
-    run_dirs : callable, optional
-        The folder of each controller's run (by name): its MCAP log (:data:`MCAP_NAME`,
-        :class:`~capsule_mpc.telemetry.observer.Telemetry`) is written there while it runs; None:
-        no MCAP log.
+    observers : callable, optional
+        The observers of each controller's run, by name (e.g. its MCAP log, :class:`RunLogs`).
 
     Returns
     -------
@@ -363,31 +360,49 @@ def run_seed_controllers(
             if name == PLANNING_CONTROLLER:  # the planner stage, with its own progress bar
                 cached_plan(scenario, path, progress=progress)
             plant = None if plant_scenario is None else CapsulePlant(plant_scenario, truth=truth)
-            with contextlib.ExitStack() as stack:
-                observers = [] if run_dirs is None else [stack.enter_context(_mcap_log(run_dirs(name)))]
-                results[name] = simulate(
-                    scenario, name, path, seed, progress=False, meta=meta, plant=plant, observers=observers
-                )
+            watching = () if observers is None else observers(name)
+            results[name] = simulate(
+                scenario, name, path, seed, progress=False, meta=meta, plant=plant, observers=watching
+            )
         except Exception as exc:  # one broken controller must not hide the others' results
             raise_if_interrupted()  # ... but Ctrl-C (which CasADi may turn into any error) stops all
             entries[name] = {"error": failure_line(name, exc), "traceback": traceback.format_exc()}
-            if run_dirs is not None:  # the run's folder, made for its MCAP log, stays empty
-                _remove_if_empty(run_dirs(name))
         if bar is not None:
             bar.update(1)
     return results, entries, rescore_on_common_window(results, path, scenario)
 
 
-def _mcap_log(folder: Path) -> Telemetry:
-    """The MCAP log of a run to be written into ``folder`` (created)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    return Telemetry(folder / MCAP_NAME)
+class RunLogs:
+    """The MCAP logs of one seed's runs, each in its run's folder under ``base``
+    (:func:`run_folder`, :data:`MCAP_NAME`).
 
+    A log is kept when :meth:`keep` is called once its run's files are written; the others (a run
+    that raised, or all of them when the seed is interrupted) are removed on exit with the folders
+    made for them, so an unrecorded run leaves nothing behind.
+    """
 
-def _remove_if_empty(folder: Path) -> None:
-    """Remove ``folder`` if it exists and holds nothing."""
-    with contextlib.suppress(OSError):
-        folder.rmdir()  # refused (OSError) unless empty
+    def __init__(self, base: Path) -> None:
+        self.base = base
+        self.logs: dict[str, Telemetry] = {}
+
+    def observers(self, name: str) -> list[Observer]:
+        """The observers of controller ``name``'s run: its MCAP log."""
+        log = self.logs[name] = Telemetry(run_folder(self.base, name) / MCAP_NAME, hold=True)
+        return [log]
+
+    def keep(self, name: str) -> None:
+        """Close ``name``'s log into its run folder."""
+        self.logs.pop(name).close(complete=True)
+
+    def __enter__(self) -> RunLogs:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for name, log in self.logs.items():
+            log.close(complete=False)
+            with contextlib.suppress(OSError):  # refused unless empty: the folder only held the log
+                run_folder(self.base, name).rmdir()
+        self.logs.clear()
 
 
 def run_folder(base: Path, name: str) -> Path:
@@ -507,18 +522,15 @@ def compare_controllers(
     with tqdm(total=runs * len(names), desc="compare", unit="run", disable=not progress) as bar:
         for k, s in enumerate(seeds):
             base = out if runs == 1 else out / RUNS_FOLDER / f"seed_{s}"
-            results, entries, window_end = run_seed_controllers(
-                scenario,
-                path,
-                s,
-                names,
-                meta=meta,
-                progress=progress,
-                bar=bar,
-                run_dirs=functools.partial(run_folder, base),
-            )
+            with RunLogs(base) as logs:
+                results, entries, window_end = run_seed_controllers(
+                    scenario, path, s, names, meta=meta, progress=progress, bar=bar, observers=logs.observers
+                )
+                run_dirs = {name: write_run(run, run_folder(base, name)) for name, run in results.items()}
+                for name in results:
+                    logs.keep(name)
             for name, result in results.items():
-                run_dir = write_run(result, run_folder(base, name))
+                run_dir = run_dirs[name]
                 entries[name] = {
                     **result.metrics,
                     "failure": result.flags.failure,

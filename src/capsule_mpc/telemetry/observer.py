@@ -50,8 +50,9 @@ class Telemetry(Observer):
 
     Add it to :meth:`ClosedLoop.run`'s observers. Every message is stamped with the rig's clock
     (:class:`~.messages.Clock`: 0 is the run's first frame). The file is written to a temporary
-    name beside ``mcap_path`` and renamed into place when the run ends; a run that raises leaves
-    no file (use the telemetry as a context manager, or call :meth:`close`, to clean up then).
+    name beside ``mcap_path`` and renamed into place when the run ends (with ``hold``: at
+    :meth:`close`); a run that raises leaves no file (use the telemetry as a context manager, or
+    call :meth:`close`, to clean up then).
 
     Parameters
     ----------
@@ -62,6 +63,10 @@ class Telemetry(Observer):
         so a viewer can connect before the run, and stops at :meth:`close`).
     host, port : str, int
         The live server's address (port 0: any free port; :attr:`port` tells which).
+    hold : bool
+        Keep the MCAP file under its temporary name after the run's end, until :meth:`close`
+        (``complete=True``: renamed into place; False: removed), e.g. until the run's other files
+        are written, so a run that is not recorded leaves no log.
     run_info : dict, optional
         Provenance written into the MCAP's ``capsule_mpc.run`` metadata record (e.g. the config).
 
@@ -81,9 +86,11 @@ class Telemetry(Observer):
         host: str = "127.0.0.1",
         port: int = 8765,
         run_info: dict[str, str] | None = None,
+        hold: bool = False,
     ) -> None:
         self.mcap_path = None if mcap_path is None else Path(mcap_path)
         self.run_info = dict(run_info or {})
+        self.hold = hold
         self._robot: Any = None
         self.sinks = Sinks(mcap_path, LiveAddress(host, port) if live else None, asset_handler=self._asset)
         self.host = host
@@ -170,7 +177,7 @@ class Telemetry(Observer):
             return
         rms = metrics.get("tracking_rms_mm", math.nan)
         text = f"run ended: {metrics.get('outcome', '')}; tracking RMS {rms:.2f} mm"
-        pub.end(loop.k * loop.dt, end_level(loop.flags.outcome), text)
+        pub.end(loop.k * loop.dt, end_level(loop.flags.outcome), text, finish=not self.hold)
 
     def close(self, complete: bool = True) -> None:
         """Close the MCAP file (kept if the run ended and ``complete``, else removed) and stop the

@@ -227,7 +227,10 @@ class RunPublisher:
             self.event(t, LogLevel.Info, f"controller recovered: {row.get('solver_status', '')}")
         self._failing = failed
 
-    def end(self, t_s: float, level: LogLevel, message: str, complete: bool = True) -> None:
-        """The end event, then the MCAP file closed (kept if ``complete``)."""
+    def end(
+        self, t_s: float, level: LogLevel, message: str, complete: bool = True, finish: bool = True
+    ) -> None:
+        """The end event, then (with ``finish``) the MCAP file closed (kept if ``complete``)."""
         self.event(t_s, level, message)
-        self.sinks.finish(complete)
+        if finish:
+            self.sinks.finish(complete)
