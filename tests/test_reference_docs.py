@@ -18,9 +18,15 @@ def test_every_config_field_has_a_description(path, desc):
     assert len(desc) > 10, f"config field {path} has no description"
 
 
-def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
-    actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    return dict(actions[0].choices)
+def _subparsers(parser: argparse.ArgumentParser, prefix: str = "") -> dict[str, argparse.ArgumentParser]:
+    """Every command and sub-command's parser, by its words (``rig serve``)."""
+    found = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                found[f"{prefix}{name}"] = sub
+                found.update(_subparsers(sub, f"{prefix}{name} "))
+    return found
 
 
 @pytest.mark.parametrize(("command", "sub"), list(_subparsers(build_parser()).items()))
