@@ -36,7 +36,7 @@ from foxglove.messages import (
 )
 
 from ..config import Scenario
-from .topics import FRAME_CAPSULE, FRAME_EPM, FRAME_WORLD
+from .topics import COMMAND_NUMBERS, FRAME_CAPSULE, FRAME_EPM, FRAME_WORLD
 
 __all__ = [
     "IDENTITY",
@@ -272,25 +272,9 @@ def tracking_json(row: Mapping[str, Any]) -> bytes:
     return json.dumps(msg).encode()
 
 
-_COMMAND_NUMBERS = (
-    "t_s",
-    "cmd_vx_mps",
-    "cmd_vy_mps",
-    "cmd_vz_mps",
-    "epm_x_m",
-    "epm_y_m",
-    "epm_z_m",
-    "epm_vx_mps",
-    "epm_vy_mps",
-    "epm_vz_mps",
-    "solve_ms",
-    "controller_ms",
-)
-
-
 def command_json(row: Mapping[str, Any]) -> bytes:
     """The ``/run/command`` message of a log row."""
-    msg: dict[str, Any] = {name: _num(row.get(name, math.nan)) for name in _COMMAND_NUMBERS}
+    msg: dict[str, Any] = {name: _num(row.get(name, math.nan)) for name in COMMAND_NUMBERS}
     msg["solver_status"] = str(row.get("solver_status", ""))
     msg["solver_failed"] = bool(int(row.get("solver_failed", 0)))
     return json.dumps(msg).encode()

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 __all__ = [
     "COMMAND",
+    "COMMAND_NUMBERS",
     "COMMAND_SCHEMA",
     "EPM_POSE",
     "ESTIMATE",
@@ -182,23 +183,25 @@ TRACKING_SCHEMA = _object_schema(
     ),
     {"stuck": {"type": "boolean"}},
 )
+#: The number fields of :data:`COMMAND` messages (log columns of the same names).
+COMMAND_NUMBERS = (
+    "t_s",
+    "cmd_vx_mps",
+    "cmd_vy_mps",
+    "cmd_vz_mps",
+    "epm_x_m",
+    "epm_y_m",
+    "epm_z_m",
+    "epm_vx_mps",
+    "epm_vy_mps",
+    "epm_vz_mps",
+    "solve_ms",
+    "controller_ms",
+)
 #: JSON schema of :data:`COMMAND` messages.
 COMMAND_SCHEMA = _object_schema(
     COMMAND.schema,
-    (
-        "t_s",
-        "cmd_vx_mps",
-        "cmd_vy_mps",
-        "cmd_vz_mps",
-        "epm_x_m",
-        "epm_y_m",
-        "epm_z_m",
-        "epm_vx_mps",
-        "epm_vy_mps",
-        "epm_vz_mps",
-        "solve_ms",
-        "controller_ms",
-    ),
+    COMMAND_NUMBERS,
     {"solver_status": {"type": "string"}, "solver_failed": {"type": "boolean"}},
 )
 #: JSON schema of :data:`ROBOT_DESCRIPTION` messages (the fields of ROS's std_msgs/String, which
