@@ -28,15 +28,13 @@ from capsule_mpc.experiments.bench import (
     DEFAULT_QP_SOLVERS,
     DEFAULT_SCHEMES,
     check_bench,
-    run_benchmark,
 )
 from capsule_mpc.experiments.bench_report import (
     DEFAULT_OUT,
     REPORT_NAME,
-    format_report,
+    benchmark_into,
     out_problem,
     report_file,
-    save_report,
 )
 from capsule_mpc.mpc.solver import QP_SOLVERS
 from capsule_mpc.outputs import output_file_problem
@@ -106,18 +104,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"mpc_bench: {exc}", file=sys.stderr)
         return 2
     say = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
-    report = run_benchmark(
+    text, written, figure = benchmark_into(
+        args.out,
         args.config,
         args.horizons,
         args.schemes,
         args.frames or None,
         args.seed,
-        progress=say,
         qp_solvers=args.qp_solvers,
         repeats=args.repeats,
+        progress=say,
     )
-    written, figure = save_report(report, args.out)
-    print(format_report(report))
+    print(text)
     print(f"wrote {written}, {figure}")
     return 0
 

@@ -110,17 +110,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc bench: {exc}", file=sys.stderr)
         return 2
     say = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
-    report = bench.run_benchmark(
+    text, out, figure = bench_report.benchmark_into(
+        args.out,
         args.config,
         args.horizons,
         args.schemes,
         args.frames or None,
         args.seed,
-        progress=say,
         qp_solvers=args.qp_solvers,
         repeats=args.repeats,
+        progress=say,
     )
-    out, figure = bench_report.save_report(report, args.out)
-    print(bench_report.format_report(report))
+    print(text)
     print(f"wrote {out}, {figure}")
     return 0

@@ -5,13 +5,14 @@ and print of :func:`capsule_mpc.experiments.bench.run_benchmark`'s report)."""
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..atomic import write_text_atomic
-from .bench import TARGETS
+from .bench import TARGETS, run_benchmark
 
 __all__ = [
     "DEFAULT_OUT",
@@ -206,3 +207,25 @@ def format_report(report: dict[str, Any]) -> str:
     end = " ".join(f"{x:.2f}" for x in mach.get("load_average_end") or [])
     lines += ["", f"load average at end {end}; total {report['total_s']:.0f} s"]
     return "\n".join(lines)
+
+
+def benchmark_into(
+    out: str | Path,
+    config: str | Path | None,
+    horizons: Sequence[int],
+    schemes: Sequence[str],
+    frames: int | None,
+    seed: int | None,
+    *,
+    qp_solvers: Sequence[str],
+    repeats: int,
+    progress: Callable[[str], None] | None,
+) -> tuple[str, Path, Path]:
+    """Run the benchmark (:func:`~.bench.run_benchmark`, the options checked beforehand with
+    :func:`~.bench.check_bench`) and write its report and figure at ``out``
+    (:func:`save_report`); returns (the tables as text, the report's path, the figure's path)."""
+    report = run_benchmark(
+        config, horizons, schemes, frames, seed, progress=progress, qp_solvers=qp_solvers, repeats=repeats
+    )
+    written, figure = save_report(report, out)
+    return format_report(report), written, figure
