@@ -526,17 +526,15 @@ def compare_controllers(
                 results, entries, window_end = run_seed_controllers(
                     scenario, path, s, names, meta=meta, progress=progress, bar=bar, observers=logs.observers
                 )
-                run_dirs = {name: write_run(run, run_folder(base, name)) for name, run in results.items()}
-                for name in results:
+                for name, result in results.items():
+                    run_dir = write_run(result, run_folder(base, name))
                     logs.keep(name)
-            for name, result in results.items():
-                run_dir = run_dirs[name]
-                entries[name] = {
-                    **result.metrics,
-                    "failure": result.flags.failure,
-                    "run_dir": str(run_dir),
-                    "realtime_factor": result.realtime_factor,
-                }
+                    entries[name] = {
+                        **result.metrics,
+                        "failure": result.flags.failure,
+                        "run_dir": str(run_dir),
+                        "realtime_factor": result.realtime_factor,
+                    }
             per_seed.append(
                 {"seed": s, "window_end_s": window_end, "controllers": {n: entries[n] for n in names}}
             )
