@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 import pinocchio as pin
@@ -75,9 +75,27 @@ def _within(values: Vec3, names: tuple[str, ...], bound: float, unit: str) -> Ve
     return values
 
 
-class BasePose(StrictModel):
+class _Pose(StrictModel):
+    """A frame's position (each coordinate within :attr:`xyz_range_m`) and roll-pitch-yaw angles
+    (each within :data:`ANGLE_RANGE_RAD`); the subclasses say in which frame."""
+
+    xyz_range_m: ClassVar[float]
+
+    @field_validator("xyz_m", check_fields=False)
+    @classmethod
+    def _xyz_range(cls, v: Vec3) -> Vec3:
+        return _within(v, _AXES, cls.xyz_range_m, "m")
+
+    @field_validator("rpy_rad", check_fields=False)
+    @classmethod
+    def _rpy_range(cls, v: Vec3) -> Vec3:
+        return _within(v, _ANGLES, ANGLE_RANGE_RAD, "rad")
+
+
+class BasePose(_Pose):
     """The controller's base frame in the plate frame."""
 
+    xyz_range_m: ClassVar[float] = BASE_RANGE_M
     xyz_m: Vec3 = Field(
         description="Position of the controller's base frame in the plate frame, m, each in [-2, 2]."
     )
@@ -86,35 +104,16 @@ class BasePose(StrictModel):
         "each in [-2 pi, 2 pi]."
     )
 
-    @field_validator("xyz_m")
-    @classmethod
-    def _xyz_range(cls, v: Vec3) -> Vec3:
-        return _within(v, _AXES, BASE_RANGE_M, "m")
 
-    @field_validator("rpy_rad")
-    @classmethod
-    def _rpy_range(cls, v: Vec3) -> Vec3:
-        return _within(v, _ANGLES, ANGLE_RANGE_RAD, "rad")
-
-
-class ToolPose(StrictModel):
+class ToolPose(_Pose):
     """The EPM centre frame in the flange (tool0) frame: the TCP offset."""
 
+    xyz_range_m: ClassVar[float] = TOOL_RANGE_M
     xyz_m: Vec3 = Field(description="Position of the EPM centre in the flange frame, m, each in [-0.3, 0.3].")
     rpy_rad: Vec3 = Field(
         description="Orientation (roll, pitch, yaw) of the EPM frame in the flange frame, rad, "
         "each in [-2 pi, 2 pi]."
     )
-
-    @field_validator("xyz_m")
-    @classmethod
-    def _xyz_range(cls, v: Vec3) -> Vec3:
-        return _within(v, _AXES, TOOL_RANGE_M, "m")
-
-    @field_validator("rpy_rad")
-    @classmethod
-    def _rpy_range(cls, v: Vec3) -> Vec3:
-        return _within(v, _ANGLES, ANGLE_RANGE_RAD, "rad")
 
 
 class UR5Calibration(StrictModel):
