@@ -18,6 +18,12 @@ robot``), once per friction model it is given:
 ``oracle``
     the plant's own friction: its steady rate-and-state law as c(v) with its mu0, its tether drag
     and drag growth, its breakaway after rest -- what no real rig gives a controller, the bound.
+``<variant>+stick``
+    the variant with ``mpc.stick_prediction`` (the prediction holds a resting capsule by the
+    model's breakaway force, :mod:`capsule_mpc.mpc.contact`).
+
+A draw's learned model is kept in ``--work``; with ``--reuse`` a model already there is used
+instead of demonstrating and learning again.
 
 The ``paper_0.8v`` heuristic runs on the same draw, and every run of a draw is scored on one
 window: t = 0 to the latest end among them (:func:`capsule_mpc.experiments.compare.rescore_on_common_window`).
@@ -55,7 +61,10 @@ from capsule_mpc.paths import path_from_scenario
 from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
 from capsule_mpc.sim.oracle import oracle_friction_model
 
-VARIANTS = ("none", "paper", "learned", "online", "oracle")
+BASE_VARIANTS = ("none", "paper", "learned", "online", "oracle")
+VARIANTS = (*BASE_VARIANTS, *(f"{v}+stick" for v in BASE_VARIANTS))
+#: Variants run unless --variants says otherwise.
+DEFAULT_VARIANTS = BASE_VARIANTS
 METRICS = ("tracking_rms_mm", "cross_track_rms_mm", "start_tracking_rms_mm", "final_error_mm")
 #: Rest time at which the learned breakaway is checked against the plant's, s.
 CHECK_REST_S = 2.0
@@ -101,6 +110,11 @@ def variant_scenario(
 ) -> Scenario:
     """The controller's scenario of one variant (the plant is drawn from the base scenario)."""
     fr, mpc = base.friction, base.mpc
+    if variant.endswith("+stick"):
+        scenario = variant_scenario(
+            base, variant.removesuffix("+stick"), learned_on_draw, oracle, gain, cap, time_s
+        )
+        return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"stick_prediction": True})})
     if variant == "paper":
         return base
     if variant == "none":
@@ -124,16 +138,15 @@ def variant_scenario(
     return scenario
 
 
-def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
-    """Every variant (and ``paper_0.8v``) on one draw, scored on the draw's common window."""
-    work = Path(args.work) / f"{args.plant}_{seed}"
-    base = plant_scenario(args.config, args.plant)
-    path = path_from_scenario(base)
-    oracle = oracle_model(base, seed)
-    out: dict[str, Any] = {"seed": seed}
-    learned: LearnedFrictionModel | None = None
-    if {"learned", "online"} & set(args.variants):
-        t0 = time.perf_counter()
+def learn_on_draw(
+    args: argparse.Namespace, work: Path, base: Scenario, oracle: LearnedFrictionModel, seed: int
+) -> tuple[LearnedFrictionModel, dict[str, Any]]:
+    """Demonstrate on the draw and learn its friction (or, with ``--reuse``, the model learned
+    there before); the model and what the learning came to."""
+    t0 = time.perf_counter()
+    model_path = work / "model.yaml"
+    status = None
+    if not (args.reuse and model_path.exists()):
         demo_cfg = work / "config.yaml"
         work.mkdir(parents=True, exist_ok=True)
         demo_cfg.write_text(
@@ -158,7 +171,6 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
             str(work / "demos"),
             allowed=(0, 1),
         )
-        model_path = work / "model.yaml"
         _cli(
             "learn-friction",
             "--config",
@@ -168,21 +180,32 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
             "--out",
             str(model_path),
         )
-        learned = LearnedFrictionModel.model_validate(yaml.safe_load(model_path.read_text()))
-        mine = FrictionBelief.from_scenario(with_friction(base, learned))
-        truth_mu = FrictionBelief.from_scenario(with_friction(base, oracle)).breakaway_mu(CHECK_REST_S)
-        out["learning"] = {
-            "seconds": time.perf_counter() - t0,
-            "demonstrations_failed": status == 1,
-            "breakaway_mu_learned": mine.breakaway_mu(CHECK_REST_S)
-            if learned.static_mu_1s is not None
-            else None,
-            "breakaway_mu_plant": truth_mu,
-            "static_mu_1s": learned.static_mu_1s,
-            "static_healing": learned.static_healing,
-            "r2": learned.r2,
-            "rmse": learned.rmse,
-        }
+    learned = LearnedFrictionModel.model_validate(yaml.safe_load(model_path.read_text()))
+    mine = FrictionBelief.from_scenario(with_friction(base, learned))
+    truth_mu = FrictionBelief.from_scenario(with_friction(base, oracle)).breakaway_mu(CHECK_REST_S)
+    return learned, {
+        "seconds": time.perf_counter() - t0,
+        "reused": status is None,
+        "demonstrations_failed": status == 1,
+        "breakaway_mu_learned": mine.breakaway_mu(CHECK_REST_S) if learned.static_mu_1s is not None else None,
+        "breakaway_mu_plant": truth_mu,
+        "static_mu_1s": learned.static_mu_1s,
+        "static_healing": learned.static_healing,
+        "r2": learned.r2,
+        "rmse": learned.rmse,
+    }
+
+
+def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
+    """Every variant (and ``paper_0.8v``) on one draw, scored on the draw's common window."""
+    work = Path(args.work) / f"{args.plant}_{seed}"
+    base = plant_scenario(args.config, args.plant)
+    path = path_from_scenario(base)
+    oracle = oracle_model(base, seed)
+    out: dict[str, Any] = {"seed": seed}
+    learned: LearnedFrictionModel | None = None
+    if {"learned", "online"} & {v.removesuffix("+stick") for v in args.variants}:
+        learned, out["learning"] = learn_on_draw(args, work, base, oracle, seed)
     results = {
         "paper_0.8v": simulate(
             base,
@@ -332,7 +355,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--plant", choices=("lab", "hard"), default="lab")
     parser.add_argument("--first", type=int, default=0, help="first draw's seed (default 0)")
     parser.add_argument("--draws", type=int, default=20, help="plant draws (default 20)")
-    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS))
+    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(DEFAULT_VARIANTS))
+    parser.add_argument(
+        "--reuse",
+        action="store_true",
+        help="use a draw's model already learned in --work (default: learn anew)",
+    )
     parser.add_argument(
         "--speeds",
         type=float,

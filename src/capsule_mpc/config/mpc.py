@@ -276,6 +276,16 @@ class MPCConfig(StrictModel):
         gt=0,
         description="Kalman filter process noise: capsule acceleration standard deviation, m/s^2, > 0.",
     )
+    stick_prediction: StrictBool = Field(
+        False,
+        description=(
+            "Predict static friction: while the camera sees the capsule at rest, the stages up to "
+            "the first at which the model's force on it exceeds the friction belief's breakaway "
+            "force (healed over the rest so far) get that breakaway force, less the model's friction "
+            "at rest, against the motion; the later ones slide. Off: the prediction slides whenever "
+            "a force acts."
+        ),
+    )
     compile_c: StrictBool = Field(
         True,
         description=(

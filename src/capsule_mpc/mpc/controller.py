@@ -45,6 +45,7 @@ from ..planner import cached_plan
 from ..safety import safe_command
 from .adaptation import FrictionOffsetRLS, friction_regression
 from .approach import FinalApproach
+from .contact import ContactModes
 from .grid import prediction_steps_s
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
@@ -198,6 +199,13 @@ class MPCController(Controller):
         )
         if self.approach.enabled:
             self.approach.warm_up(scenario.plate.epm_height_m)
+        self.contact = (
+            ContactModes(
+                scenario, self.stack.force, self.friction_belief, self.stack.ocp.node_times_s[1:], _MOVING_MPS
+            )
+            if cfg.stick_prediction
+            else None
+        )
 
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
@@ -306,7 +314,32 @@ class MPCController(Controller):
         held = np.tile(self.u_prev[:, None], (1, n))
         return ocp.pack_variables(np.tile(x0[:, None], (1, n)), held, np.zeros((2, n)), x0, self.u_prev)
 
-    def _solve(self, x0: np.ndarray, ref: np.ndarray, held: bool) -> tuple[SolveResult, StepOutcome]:
+    def _contact_modes(
+        self, t_s: float, x0: np.ndarray, ref: np.ndarray, guess: np.ndarray | None
+    ) -> np.ndarray | None:
+        """``mpc.stick_prediction``: the stages static friction holds the capsule in
+        (:mod:`.contact`), the EPM where the shifted plan ``guess`` puts it. Where that plan (or
+        no plan) breaks the capsule loose at no stage, the EPM moved by the reference's
+        feed-forward instead: a plan in which nothing the EPM does moves the capsule gives the
+        solver no reason to move the EPM."""
+        if self.contact is None:
+            return None
+        ocp = self.stack.ocp  # type: ignore[union-attr]
+        flags = None
+        if guess is not None:
+            epm = ocp.unpack(guess)[0][4:7]
+            flags = self.contact.static_n(t_s, x0[0:4], epm, self.disturbance_n[0:2], self._progress_m)
+            if self.contact.breakaway_stage < ocp.horizon:
+                return flags
+        moved = np.cumsum(ref[4:6] * ocp.steps_s, axis=1)
+        epm = np.vstack([x0[4:6, None] + moved, np.full((1, ocp.horizon), x0[6])])
+        return self.contact.static_n(
+            t_s, x0[0:4], epm, self.disturbance_n[0:2], self._progress_m, update=flags is None
+        )
+
+    def _solve(
+        self, t_s: float, x0: np.ndarray, ref: np.ndarray, held: bool
+    ) -> tuple[SolveResult, StepOutcome]:
         """This frame's solve and what it came to if it succeeds (solved, recovered, or held);
         ``held``: the rig holds the EPM (settle phase)."""
         stack = self.stack
@@ -316,11 +349,13 @@ class MPCController(Controller):
         # The model's drag grows with the tether paid out: its growth so far joins the estimated
         # extra friction (both oppose the motion), a feed-forward the estimator need not learn.
         dist = self.disturbance_n + np.array([0.0, 0.0, self._drag_growth_n])
-        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, dist, offset, self.slope_prev)
-        if self.plan is None:
+        plan = self.plan
+        guess = None if plan is None else stack.ocp.shift(plan.w)
+        static = self._contact_modes(t_s, x0, ref, guess)
+        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, dist, offset, self.slope_prev, static)
+        if plan is None or guess is None:
             return solver.solve_converged(p, self._initial_guess(x0)), StepOutcome.SOLVED
-        guess = stack.ocp.shift(self.plan.w)
-        res = solver.solve(p, guess, self.plan.lam_x, self.plan.lam_g)
+        res = solver.solve(p, guess, plan.lam_x, plan.lam_g)
         if res.success or solver.scheme == "ipopt":
             return res, StepOutcome.SOLVED
         if held and np.all(np.isfinite(res.w)):
@@ -371,7 +406,7 @@ class MPCController(Controller):
         if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
             self._update_disturbance(vel)
             self._update_friction(t_s, x0)
-        res, outcome = self._solve(x0, self._reference(t_s), held=t_s < 0)
+        res, outcome = self._solve(t_s, x0, self._reference(t_s), held=t_s < 0)
         if res.success and not np.all(np.isfinite(res.w)):  # a solver that says so is not trusted
             res = replace(res, success=False, status=f"non-finite solution ({res.status})")
         late = res.solve_ms > self.deadline_ms and self.plan is not None
@@ -390,6 +425,8 @@ class MPCController(Controller):
         )
         if self.friction_rls is not None:
             stats.extra.update(self.friction_rls.as_stats())
+        if self.contact is not None:
+            stats.extra["breakaway_stage"] = float(self.contact.breakaway_stage)
         if not accepted:
             stats.extra["measurement_rejected"] = 1.0
         if res.success:
