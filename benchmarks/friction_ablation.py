@@ -20,7 +20,10 @@ robot``), once per friction model it is given:
     and drag growth, its breakaway after rest -- what no real rig gives a controller, the bound.
 ``<variant>+stick``
     the variant with ``mpc.stick_prediction`` (the prediction holds a resting capsule by the
-    model's breakaway force, :mod:`capsule_mpc.mpc.contact`).
+    model's breakaway force, :mod:`capsule_mpc.mpc.contact`);
+``<variant>+preload``
+    the variant with ``mpc.start_preload: --preload`` (the start pre-loads the capsule to that
+    fraction of the believed breakaway, :mod:`capsule_mpc.mpc.start`); both: ``+stick+preload``.
 
 A draw's learned model is kept in ``--work``; with ``--reuse`` a model already there is used
 instead of demonstrating and learning again.
@@ -62,7 +65,11 @@ from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
 from capsule_mpc.sim.oracle import oracle_friction_model
 
 BASE_VARIANTS = ("none", "paper", "learned", "online", "oracle")
-VARIANTS = (*BASE_VARIANTS, *(f"{v}+stick" for v in BASE_VARIANTS))
+#: What a variant's suffixes switch on (``+stick``, ``+preload``, in this order).
+MODIFIERS = ("stick", "preload")
+VARIANTS = tuple(
+    base + suffix for base in BASE_VARIANTS for suffix in ("", "+stick", "+preload", "+stick+preload")
+)
 #: Variants run unless --variants says otherwise.
 DEFAULT_VARIANTS = BASE_VARIANTS
 METRICS = ("tracking_rms_mm", "cross_track_rms_mm", "start_tracking_rms_mm", "final_error_mm")
@@ -107,14 +114,18 @@ def variant_scenario(
     gain: float,
     cap: float,
     time_s: float,
+    preload: float = 0.9,
 ) -> Scenario:
     """The controller's scenario of one variant (the plant is drawn from the base scenario)."""
     fr, mpc = base.friction, base.mpc
-    if variant.endswith("+stick"):
-        scenario = variant_scenario(
-            base, variant.removesuffix("+stick"), learned_on_draw, oracle, gain, cap, time_s
-        )
-        return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"stick_prediction": True})})
+    if "+" in variant:
+        name, *mods = variant.split("+")
+        scenario = variant_scenario(base, name, learned_on_draw, oracle, gain, cap, time_s)
+        update = {
+            "stick_prediction": "stick" in mods,
+            "start_preload": preload if "preload" in mods else None,
+        }
+        return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=update)})
     if variant == "paper":
         return base
     if variant == "none":
@@ -204,7 +215,7 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
     oracle = oracle_model(base, seed)
     out: dict[str, Any] = {"seed": seed}
     learned: LearnedFrictionModel | None = None
-    if {"learned", "online"} & {v.removesuffix("+stick") for v in args.variants}:
+    if {"learned", "online"} & {v.split("+")[0] for v in args.variants}:
         learned, out["learning"] = learn_on_draw(args, work, base, oracle, seed)
     results = {
         "paper_0.8v": simulate(
@@ -218,7 +229,14 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
     }
     for variant in args.variants:
         scenario = variant_scenario(
-            base, variant, learned, oracle, args.residual_gain, args.residual_cap, args.online_time
+            base,
+            variant,
+            learned,
+            oracle,
+            args.residual_gain,
+            args.residual_cap,
+            args.online_time,
+            args.preload,
         )
         plant = CapsulePlant(base, truth=draw_plant_truth(base, seed))  # truth from the base: the same rig
         results[variant] = simulate(scenario, "mpc", path, seed, progress=False, plant=plant)
@@ -332,6 +350,7 @@ def _report(
         "draws_done": len(draws),
         "draws_failed": failed,
         "residual_gain": args.residual_gain,
+        "preload_fraction": args.preload,
         "online_time_s": args.online_time,
         "residual_cap_n": args.residual_cap,
         "demonstration_speeds_mps": args.speeds,
@@ -356,6 +375,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--first", type=int, default=0, help="first draw's seed (default 0)")
     parser.add_argument("--draws", type=int, default=20, help="plant draws (default 20)")
     parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(DEFAULT_VARIANTS))
+    parser.add_argument(
+        "--preload", type=float, default=0.9, help="+preload: mpc.start_preload, (0, 1] (0.9)"
+    )
     parser.add_argument(
         "--reuse",
         action="store_true",

@@ -16,7 +16,7 @@ from capsule_mpc.config import LearnedFrictionModel
 from capsule_mpc.dynamics import X_SCALE, capsule_model, normal_force_expr
 from capsule_mpc.friction import FrictionBelief
 from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
-from capsule_mpc.mpc.contact import REST_WINDOW_S, ContactModes, mu_at_rest
+from capsule_mpc.mpc.contact import REST_WINDOW_S, ContactModes, RestDetector, mu_at_rest
 from capsule_mpc.mpc.problem import N_STICK_PER_STAGE, build_ocp
 
 MOVING_MPS = 2e-3
@@ -34,9 +34,12 @@ def learned(scenario: Scenario, mu_1s: float = 0.3, healing: float = 0.02) -> Sc
 
 
 def modes(scenario: Scenario, n: int = 10) -> ContactModes:
+    """Contact modes of a capsule resting at the origin since t = 0."""
     times = FRAME_S * np.arange(1, n + 1)
     belief = FrictionBelief.from_scenario(scenario)
-    return ContactModes(scenario, capsule_force_function(scenario), belief, times, MOVING_MPS)
+    rest = RestDetector(scenario.camera.noise_std_m, MOVING_MPS)
+    rest.update(0.0, np.zeros(2))
+    return ContactModes(scenario, capsule_force_function(scenario), belief, times, rest)
 
 
 def at_rest_path(scenario: Scenario, position: np.ndarray, n: int) -> np.ndarray:
@@ -49,30 +52,30 @@ def at_rest_path(scenario: Scenario, position: np.ndarray, n: int) -> np.ndarray
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 10_000))
 def test_camera_noise_alone_never_breaks_the_rest(scenario, seed):
-    contact = modes(scenario)
-    rng = np.random.default_rng(seed)
     sigma = scenario.camera.noise_std_m
+    rest = RestDetector(sigma, MOVING_MPS)
+    rng = np.random.default_rng(seed)
     for k in range(300):  # ten seconds of frames of a still capsule, noise at the camera's own level
-        assert contact.resting(k * FRAME_S, rng.normal(0.0, sigma, 2))
-    assert contact.rest_s(299 * FRAME_S) == pytest.approx(299 * FRAME_S)
+        assert rest.update(k * FRAME_S, rng.normal(0.0, sigma, 2))
+    assert rest.rest_s(299 * FRAME_S) == pytest.approx(299 * FRAME_S)
 
 
 def test_a_capsule_that_moves_off_stops_resting_and_rests_again_once_still(scenario):
-    contact = modes(scenario)
-    assert contact.resting(0.0, np.zeros(2))
+    contact = RestDetector(scenario.camera.noise_std_m, MOVING_MPS)
+    assert contact.update(0.0, np.zeros(2))
     t, pos = 0.0, np.zeros(2)
     moved_at = None
     for _ in range(20):  # sliding at 20 mm/s
         t += FRAME_S
         pos = pos + np.array([0.02 * FRAME_S, 0.0])
-        if not contact.resting(t, pos) and moved_at is None:
+        if not contact.update(t, pos) and moved_at is None:
             moved_at = t
     assert moved_at is not None and moved_at <= 6 * FRAME_S + 1e-9  # seen within 0.2 s at 20 mm/s
     stop = t
     rested_at = None
     while t < stop + 1.0:
         t += FRAME_S
-        if contact.resting(t, pos):
+        if contact.update(t, pos):
             rested_at = t
             break
     assert rested_at is not None and rested_at <= stop + REST_WINDOW_S + 2 * FRAME_S
@@ -88,7 +91,7 @@ def test_the_static_force_is_the_breakaway_less_the_models_friction_at_rest(scen
     epm = at_rest_path(sc, position, n)
     # Pull the EPM ahead by a growing distance: the force crosses the breakaway at some stage.
     epm[0] += np.linspace(0.0, 0.012, n)
-    static = contact.static_n(0.0, np.zeros(4), epm, np.zeros(2), lambda t: 0.0)
+    static = contact.static_n(0.0, epm, np.zeros(2), lambda t: 0.0)
     belief = FrictionBelief.from_scenario(sc)
     force = capsule_force_function(sc)
     lateral, expected = [], []
@@ -111,8 +114,10 @@ def test_a_moving_capsule_gets_no_static_force(scenario):
     sc = learned(scenario)
     contact = modes(sc)
     epm = at_rest_path(sc, np.zeros(2), 10)
-    contact.resting(0.0, np.zeros(2))
-    static = contact.static_n(FRAME_S, np.array([0.005, 0.0, 0.02, 0.0]), epm, np.zeros(2), lambda t: 0.0)
+    for k in range(1, 9):  # sliding off at 20 mm/s
+        contact.rest.update(k * FRAME_S, np.array([0.02 * k * FRAME_S, 0.0]))
+    assert not contact.rest.resting
+    static = contact.static_n(9 * FRAME_S, epm, np.zeros(2), lambda t: 0.0)
     assert np.all(static == 0.0) and contact.breakaway_stage == 0
 
 
@@ -120,10 +125,10 @@ def test_the_breakaway_heals_with_the_rest_so_far(scenario):
     sc = learned(scenario, healing=0.05)
     contact = modes(sc)
     epm = at_rest_path(sc, np.zeros(2), 10)
-    early = contact.static_n(0.0, np.zeros(4), epm, np.zeros(2), lambda t: 0.0)
+    early = contact.static_n(0.0, epm, np.zeros(2), lambda t: 0.0)
     for k in range(1, 60):
-        contact.resting(k * FRAME_S, np.zeros(2))
-    later = contact.static_n(60 * FRAME_S, np.zeros(4), epm, np.zeros(2), lambda t: 0.0)
+        contact.rest.update(k * FRAME_S, np.zeros(2))
+    later = contact.static_n(60 * FRAME_S, epm, np.zeros(2), lambda t: 0.0)
     assert np.all(later > early)
 
 
@@ -133,7 +138,7 @@ def test_the_paper_law_holds_by_mu0(scenario):
     contact = modes(scenario)
     belief = FrictionBelief.from_scenario(scenario)
     epm = at_rest_path(scenario, np.zeros(2), 10)
-    static = contact.static_n(0.0, np.zeros(4), epm, np.zeros(2), lambda t: 0.0)
+    static = contact.static_n(0.0, epm, np.zeros(2), lambda t: 0.0)
     f = np.asarray(capsule_force_function(scenario)(epm[0:2, 0], epm[2, 0])).ravel()
     f_n = float(normal_force_expr(scenario, f[2]))
     rest_mu = mu_at_rest(belief, scenario.mpc.friction_smoothing_eps_mps)

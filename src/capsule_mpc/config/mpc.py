@@ -286,6 +286,18 @@ class MPCConfig(StrictModel):
             "a force acts."
         ),
     )
+    start_preload: Number | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description=(
+            "Start from rest by pre-loading: from t = 0 the EPM is driven time-optimally (within "
+            "the limits) along the path's initial direction to the lead at which the believed force "
+            "is this fraction of the friction belief's breakaway force, arriving at the path's speed "
+            "(or until the camera sees the capsule break loose); then the MPC takes over. (0, 1]; "
+            "null: the MPC from the first frame."
+        ),
+    )
     compile_c: StrictBool = Field(
         True,
         description=(

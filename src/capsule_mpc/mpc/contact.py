@@ -41,7 +41,7 @@ from ..dynamics import normal_force_expr
 from ..estimation import fit_window
 from ..friction import FrictionBelief
 
-__all__ = ["REST_WINDOW_S", "ContactModes", "mu_at_rest"]
+__all__ = ["REST_WINDOW_S", "ContactModes", "RestDetector", "mu_at_rest"]
 
 #: Window of estimated positions a capsule must stay slow over to count as resting again, s.
 REST_WINDOW_S = 0.3
@@ -58,48 +58,38 @@ def mu_at_rest(belief: FrictionBelief, eps_mps: float) -> float:
     return max(law.mu0 - c * float(np.log(law.v_star_mps / eps_mps)), 0.0)
 
 
-class ContactModes:
-    """Per-frame static friction of the MPC's stages (:mod:`capsule_mpc.mpc.contact`).
+class RestDetector:
+    """Whether a capsule rests, from its estimated positions, and since when (see the module
+    docstring for the rule).
 
     Parameters
     ----------
-    scenario : Scenario
-        The controller's scenario (its model's view of the rig).
-    force : casadi.Function
-        The controller's force model, ``F (3) = force(lead (2), height)``, N.
-    belief : FrictionBelief
-        The controller's friction belief (its breakaway force).
-    stage_times_s : numpy.ndarray (N,)
-        Times of stages 1..N from the frame the plan starts at, s.
+    noise_std_m : float
+        The camera's noise per axis the controller assumes, m.
     moving_mps : float
         Speed of a line through the recent estimates above which the capsule has not come to
         rest, m/s.
     """
 
-    def __init__(
-        self,
-        scenario: Scenario,
-        force: ca.Function,
-        belief: FrictionBelief,
-        stage_times_s: np.ndarray,
-        moving_mps: float,
-    ) -> None:
-        self.scenario = scenario
-        self.belief = belief
-        self.stage_times_s = np.asarray(stage_times_s, dtype=float)
-        self.moving_mps = float(moving_mps)
-        self._forces = force.map(len(self.stage_times_s))
-        eps = scenario.mpc.friction_smoothing_eps_mps or scenario.friction.smoothing_eps_mps
-        #: The model's friction coefficient at rest (what the static force adds to).
-        self.mu_rest = mu_at_rest(belief, eps)
+    def __init__(self, noise_std_m: float, moving_mps: float) -> None:
         #: Distance from the rest position at which the capsule counts as moving, m.
-        self.depart_m = max(DEPART_NOISE_STDS * scenario.camera.noise_std_m, DEPART_MIN_M)
+        self.depart_m = max(DEPART_NOISE_STDS * noise_std_m, DEPART_MIN_M)
+        self.moving_mps = float(moving_mps)
         self._rest_start_s: float | None = None
         self._rest_sum = np.zeros(2)
         self._rest_count = 0
         self._recent: deque[tuple[float, np.ndarray]] = deque()
         self._first = True
-        self.breakaway_stage = 0
+
+    @property
+    def resting(self) -> bool:
+        """Whether the capsule rested at the last update."""
+        return self._rest_start_s is not None
+
+    @property
+    def rest_position_m(self) -> np.ndarray | None:
+        """Where it rests (the mean of its estimates since it came to rest), m; None if it moves."""
+        return None if self._rest_start_s is None else self._rest_sum / self._rest_count
 
     def rest_s(self, t_s: float) -> float:
         """How long the capsule has rested at ``t_s``, s (0 while it moves)."""
@@ -110,9 +100,8 @@ class ContactModes:
         self._rest_sum = np.sum(positions, axis=0)
         self._rest_count = len(positions)
 
-    def resting(self, t_s: float, position_m: np.ndarray) -> bool:
-        """Update the rest state with the estimated position at ``t_s`` and say whether the
-        capsule rests."""
+    def update(self, t_s: float, position_m: np.ndarray) -> bool:
+        """Take the estimated position at ``t_s`` and say whether the capsule rests."""
         pos = np.asarray(position_m, dtype=float)
         if self._first:
             self._first = False
@@ -139,45 +128,75 @@ class ContactModes:
         self._rest(self._recent[0][0], [p for _, p in self._recent])
         return True
 
+
+class ContactModes:
+    """Per-frame static friction of the MPC's stages (:mod:`capsule_mpc.mpc.contact`).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The controller's scenario (its model's view of the rig).
+    force : casadi.Function
+        The controller's force model, ``F (3) = force(lead (2), height)``, N.
+    belief : FrictionBelief
+        The controller's friction belief (its breakaway force).
+    stage_times_s : numpy.ndarray (N,)
+        Times of stages 1..N from the frame the plan starts at, s.
+    rest : RestDetector
+        Whether the capsule rests and since when (updated by the caller every frame).
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        force: ca.Function,
+        belief: FrictionBelief,
+        stage_times_s: np.ndarray,
+        rest: RestDetector,
+    ) -> None:
+        self.scenario = scenario
+        self.belief = belief
+        self.stage_times_s = np.asarray(stage_times_s, dtype=float)
+        self._forces = force.map(len(self.stage_times_s))
+        eps = scenario.mpc.friction_smoothing_eps_mps or scenario.friction.smoothing_eps_mps
+        #: The model's friction coefficient at rest (what the static force adds to).
+        self.mu_rest = mu_at_rest(belief, eps)
+        self.rest = rest
+        self.breakaway_stage = 0
+
     def static_n(
         self,
         t_s: float,
-        state: np.ndarray,
         epm_path_m: np.ndarray,
         disturbance_xy_n: np.ndarray,
         progress_m: Callable[[float], float],
-        update: bool = True,
     ) -> np.ndarray:
         """The static friction of stages 0..N-1 for the frame at ``t_s``, N (stage k's velocity
-        row gives the velocity at stage k+1, so whether it rests is decided by the force there).
+        row gives the velocity at stage k+1, so whether it rests is decided by the force there),
+        with the capsule where it rests (:attr:`RestDetector.rest_position_m`).
 
         Parameters
         ----------
         t_s : float
             The frame's time, s.
-        state : numpy.ndarray
-            The estimated capsule position (2) and velocity (2), m and m/s.
         epm_path_m : numpy.ndarray (3 x N)
             The EPM's predicted position (x, y, height) at stages 1..N, m.
         disturbance_xy_n : numpy.ndarray (2,)
             The estimated constant force on the capsule besides the magnet's, N.
         progress_m : callable
             The tether paid out at a time, m (the drag grows with it).
-        update : bool
-            Whether ``state`` is new (updates the rest state); False to evaluate another EPM path
-            for the same frame.
         """
         n = len(self.stage_times_s)
-        resting = self.resting(t_s, state[0:2]) if update else self._rest_start_s is not None
-        if not resting:
+        position = self.rest.rest_position_m
+        if position is None:
             self.breakaway_stage = 0
             return np.zeros(n)
         epm = np.asarray(epm_path_m, dtype=float)
-        leads = epm[0:2] - np.asarray(state[0:2], dtype=float)[:, None]
+        leads = epm[0:2] - position[:, None]
         forces = np.asarray(self._forces(leads, epm[2:3]))
         lateral = np.linalg.norm(forces[0:2] + np.asarray(disturbance_xy_n, dtype=float)[:, None], axis=0)
         normal = np.asarray([float(normal_force_expr(self.scenario, f)) for f in forces[2]])
-        rest = self.rest_s(t_s)
+        rest = self.rest.rest_s(t_s)
         drag = np.array([self.belief.drag_n(progress_m(t_s + dt)) for dt in self.stage_times_s])
         breakaway = (
             np.array([self.belief.breakaway_mu(rest + dt) for dt in self.stage_times_s])

@@ -45,10 +45,11 @@ from ..planner import cached_plan
 from ..safety import safe_command
 from .adaptation import FrictionOffsetRLS, friction_regression
 from .approach import FinalApproach
-from .contact import ContactModes
+from .contact import ContactModes, RestDetector
 from .grid import prediction_steps_s
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
+from .start import StartPreload
 
 __all__ = ["MPCController", "MPCStack", "build_mpc_stack", "model_scenario", "safe_command"]
 
@@ -199,13 +200,23 @@ class MPCController(Controller):
         )
         if self.approach.enabled:
             self.approach.warm_up(scenario.plate.epm_height_m)
-        self.contact = (
-            ContactModes(
-                scenario, self.stack.force, self.friction_belief, self.stack.ocp.node_times_s[1:], _MOVING_MPS
+        self._static_parts(scenario, path)
+
+    def _static_parts(self, scenario: Scenario, path: ReferencePath) -> None:
+        """The parts that use static friction, each only when configured: the rest detector they
+        share, the prediction's contact modes and the start's pre-load."""
+        cfg, stack = scenario.mpc, self.stack
+        assert stack is not None
+        used = cfg.stick_prediction or cfg.start_preload is not None
+        self.rest = RestDetector(scenario.camera.noise_std_m, _MOVING_MPS) if used else None
+        self.contact = self.start = None
+        if self.rest is not None and cfg.stick_prediction:
+            times = stack.ocp.node_times_s[1:]
+            self.contact = ContactModes(scenario, stack.force, self.friction_belief, times, self.rest)
+        if self.rest is not None and cfg.start_preload is not None:
+            self.start = StartPreload(
+                scenario, path, stack.force, stack.ocp.lead_eq_m, self.friction_belief, self.rest, self.dt_s
             )
-            if cfg.stick_prediction
-            else None
-        )
 
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
@@ -325,17 +336,14 @@ class MPCController(Controller):
         if self.contact is None:
             return None
         ocp = self.stack.ocp  # type: ignore[union-attr]
-        flags = None
         if guess is not None:
             epm = ocp.unpack(guess)[0][4:7]
-            flags = self.contact.static_n(t_s, x0[0:4], epm, self.disturbance_n[0:2], self._progress_m)
+            static = self.contact.static_n(t_s, epm, self.disturbance_n[0:2], self._progress_m)
             if self.contact.breakaway_stage < ocp.horizon:
-                return flags
+                return static
         moved = np.cumsum(ref[4:6] * ocp.steps_s, axis=1)
         epm = np.vstack([x0[4:6, None] + moved, np.full((1, ocp.horizon), x0[6])])
-        return self.contact.static_n(
-            t_s, x0[0:4], epm, self.disturbance_n[0:2], self._progress_m, update=flags is None
-        )
+        return self.contact.static_n(t_s, epm, self.disturbance_n[0:2], self._progress_m)
 
     def _solve(
         self, t_s: float, x0: np.ndarray, ref: np.ndarray, held: bool
@@ -397,6 +405,8 @@ class MPCController(Controller):
             if self.scenario.mpc.start_blend_s > 0:
                 self._start_offset = pos - self.path.start_m
         self._calibrate_rest_offset(t_s, epm, measurement)
+        if self.rest is not None:
+            self.rest.update(t_s, pos)
         self.approach.observe(measurement)
         u_approach = self.approach.step(t_s, epm, self.u_prev, self.disturbance_n[0:2])
         if u_approach is not None:
@@ -435,7 +445,7 @@ class MPCController(Controller):
             if not late:
                 self.plan = new_plan
                 self.last_prediction = xs[0:2].T.copy()
-                return self._emit(us[:, 0], epm, stats, hold=t_s < 0)
+                return self._send(us[:, 0], epm, stats, t_s)
             # Late: this frame's command comes from the previous plan (the new one arrived too
             # late to be sent), but the new solution is the better warm start for the next
             # frame -- dropping it makes the next step start cold and be late again.
@@ -444,7 +454,7 @@ class MPCController(Controller):
             self.fallback_steps += 1
             u = self._fallback_command()
             self.plan = new_plan
-            return self._emit(u, epm, stats, hold=t_s < 0)
+            return self._send(u, epm, stats, t_s)
         stats.failed, stats.outcome = True, StepOutcome.FAILED
         stats.status = "failed: " + res.status
         self.fallback_steps += 1
@@ -454,6 +464,17 @@ class MPCController(Controller):
             # merit from the shifted plan's) warm-starts the next frame, whose step goes on with
             # the repair; restarting from the shifted plan would repeat the same failed step.
             self.plan.w = res.w
+        return self._send(u, epm, stats, t_s)
+
+    def _send(self, u: np.ndarray, epm: np.ndarray, stats: StepStats, t_s: float) -> Command:
+        """Send the MPC's command ``u``, or the start's pre-load command while that phase lasts
+        (:mod:`.start`; the MPC solves meanwhile, so its plan is warm when it takes over)."""
+        start = self.start
+        if start is not None and t_s >= 0 and start.active:
+            u_start = start.command(t_s, epm, self.u_prev, self.disturbance_n[0:2])
+            if u_start is not None:
+                stats.extra["start_preload"] = 1.0
+                u = u_start
         return self._emit(u, epm, stats, hold=t_s < 0)
 
     def _approach_command(self, u: np.ndarray, epm: np.ndarray) -> Command:

@@ -1,0 +1,185 @@
+"""The start from rest: pre-load the capsule up to its believed breakaway at once.
+
+A capsule that has rested is held by healed static friction until the lateral force passes its
+breakaway force, and from t = 0 the reference moves on without it. The MPC's own ramp of the EPM
+is set by its acceleration and jerk weights and by its smooth friction law, which says a small
+force moves the capsule, so the capsule sits stuck for a few tenths of a second while the lead
+builds up, then lurches. What an operator does instead: pull the magnet ahead briskly until the
+capsule is about to go.
+
+With ``mpc.start_preload`` (a fraction of the believed breakaway), from the first frame of
+motion the EPM is driven time-optimally within ``limits.speed_mps``, ``limits.accel_mps2`` and
+``limits.jerk_mps3`` (Ruckig, position interface) along the path's initial direction û to the
+lead at which the controller's force model plus its estimated constant disturbance, along û,
+reaches that fraction of the friction belief's breakaway force after the rest so far
+(:meth:`capsule_mpc.friction.FrictionBelief.breakaway_n`), arriving there at the path's speed.
+The phase ends there (pre-loaded), or earlier when the camera sees the capsule leave its rest
+position (:class:`~capsule_mpc.mpc.contact.RestDetector`), when the lead would leave the coupling
+limit (``limits.max_lead_m`` around the model's equilibrium lead), or after :data:`PRELOAD_MAX_S`;
+the MPC, which has solved every frame meanwhile, then takes over. The target lead is fixed at the
+phase's start and Ruckig runs open loop on its own state, so every command lies on one
+jerk-limited profile. A breakaway the belief puts too low stops the pre-load short, one it puts
+too high makes the capsule break loose during the pre-load and lurch further: the phase is as
+good as the believed breakaway.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import ruckig
+from scipy.optimize import brentq
+
+from ..config import Scenario
+from ..dynamics import normal_force_expr
+from ..friction import FrictionBelief
+from ..paths import ReferencePath
+from .contact import RestDetector
+
+__all__ = ["PRELOAD_MAX_S", "StartPreload"]
+
+#: Longest pre-load from t = 0, s: the MPC takes over then whatever the capsule does.
+PRELOAD_MAX_S = 1.5
+
+
+class StartPreload:
+    """The start's pre-load phase of one run (see the module docstring).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The controller's scenario (``mpc.start_preload``, the limits).
+    path : ReferencePath
+        The reference; û is its direction at the start, the speed its nominal speed.
+    force : casadi.Function
+        The controller's force model ``(lead (2), height) -> (F_x, F_y, F_att)``, N.
+    lead_eq_m : numpy.ndarray (2,)
+        The model's equilibrium lead (the coupling limit's centre), m.
+    belief : FrictionBelief
+        The controller's friction belief (its breakaway).
+    rest : RestDetector
+        Tells whether the capsule rests and since when (updated by the caller every frame).
+    dt_s : float
+        The controller's frame period, s.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        path: ReferencePath,
+        force: ca.Function,
+        lead_eq_m: np.ndarray,
+        belief: FrictionBelief,
+        rest: RestDetector,
+        dt_s: float,
+    ) -> None:
+        self.scenario = scenario
+        self.fraction = scenario.mpc.start_preload
+        self.force = force
+        self.lead_eq_m = np.asarray(lead_eq_m, dtype=float)
+        self.belief = belief
+        self.rest = rest
+        velocity = np.asarray(path.velocity(np.array([0.0]))[0], dtype=float)
+        speed = float(np.linalg.norm(velocity))
+        self.direction = velocity / speed if speed > 0 else np.zeros(2)
+        self.speed_mps = speed
+        self.active = self.fraction is not None and speed > 0
+        self.target_lead_m: np.ndarray | None = None
+        self.end_reason = ""
+        lim = scenario.limits
+        self._ruckig = ruckig.Ruckig(3, dt_s)
+        self._in, self._out = ruckig.InputParameter(3), ruckig.OutputParameter(3)
+        # Each axis on its own time-optimal profile: synchronised, a millimetre's correction across
+        # the path would stretch the pull along it.
+        self._in.synchronization = ruckig.Synchronization.No
+        self._in.max_velocity = [lim.speed_mps] * 3
+        self._in.max_acceleration = [lim.accel_mps2] * 3
+        self._in.max_jerk = [lim.jerk_mps3] * 3
+        self._reached = False
+        self._state: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._target_m = np.zeros(3)
+
+    def _along(self, lead: np.ndarray, height_m: float, disturbance_xy_n: np.ndarray) -> tuple[float, float]:
+        """The believed lateral force along û at ``lead`` (N) and the normal force there (N)."""
+        f = np.asarray(self.force(lead, height_m)).ravel()
+        return float((f[0:2] + disturbance_xy_n) @ self.direction), float(
+            normal_force_expr(self.scenario, f[2])
+        )
+
+    def target_lead(
+        self, rest_lead_m: np.ndarray, height_m: float, rest_s: float, disturbance_xy_n: np.ndarray
+    ) -> np.ndarray:
+        """The lead (2,), m, along û from ``rest_lead_m`` at which the believed force along û is the
+        pre-load fraction of the believed breakaway after ``rest_s``; the farthest lead within the
+        coupling limit if the force does not get there."""
+        d = np.asarray(disturbance_xy_n, dtype=float)
+        fraction = float(self.fraction or 0.0)
+        offset = float(np.linalg.norm(rest_lead_m - self.lead_eq_m))
+        reach = max(self.scenario.limits.max_lead_m - offset, 0.0)
+
+        def excess(s: float) -> float:
+            along, normal = self._along(rest_lead_m + s * self.direction, height_m, d)
+            return along - fraction * self.belief.breakaway_n(normal, rest_s)
+
+        if excess(0.0) >= 0.0:
+            return np.asarray(rest_lead_m, dtype=float).copy()
+        if excess(reach) <= 0.0:
+            return rest_lead_m + reach * self.direction
+        return rest_lead_m + brentq(excess, 0.0, reach, xtol=1e-6) * self.direction
+
+    def command(
+        self,
+        t_s: float,
+        epm_m: np.ndarray,
+        u_prev: np.ndarray,
+        disturbance_xy_n: np.ndarray,
+    ) -> np.ndarray | None:
+        """This frame's EPM velocity command (3,), m/s, or None once the phase is over (or off)."""
+        if not self.active:
+            return None
+        over = self._over(t_s, epm_m)
+        if over:
+            self.active, self.end_reason = False, over
+            return None
+        rest_pos = self.rest.rest_position_m
+        assert rest_pos is not None  # _over: it rests
+        if self.target_lead_m is None:  # fixed at the phase's start: the EPM's target stays put
+            self.target_lead_m = self.target_lead(
+                epm_m[0:2] - rest_pos, float(epm_m[2]), self.rest.rest_s(t_s), disturbance_xy_n
+            )
+            self._target_m = np.append(rest_pos + self.target_lead_m, float(epm_m[2]))
+        cruise = np.append(self.speed_mps * self.direction, 0.0)
+        # Ruckig runs open loop on its own state from the phase's first frame (the measured EPM,
+        # the command being applied): fed back its own output, every command it gives lies on one
+        # jerk-limited profile; the arm's lag does not restart it.
+        if self._state is None:
+            self._state = (np.asarray(epm_m, dtype=float), np.asarray(u_prev, dtype=float), np.zeros(3))
+        inp, out = self._in, self._out
+        inp.current_position, inp.current_velocity, inp.current_acceleration = (list(x) for x in self._state)
+        inp.target_position = list(self._target_m)
+        inp.target_velocity = list(cruise)
+        inp.target_acceleration = [0.0, 0.0, 0.0]
+        result = self._ruckig.update(inp, out)
+        if result == ruckig.Result.Finished:  # pre-loaded: the MPC goes on from here
+            self._reached = True
+            self.active, self.end_reason = False, "pre-loaded"
+        elif result != ruckig.Result.Working:
+            self.active, self.end_reason = False, "no jerk-limited profile to the pre-load lead"
+            return None
+        self._state = tuple(
+            np.asarray(x, dtype=float) for x in (out.new_position, out.new_velocity, out.new_acceleration)
+        )  # type: ignore[assignment]
+        return np.asarray(out.new_velocity, dtype=float)
+
+    def _over(self, t_s: float, epm_m: np.ndarray) -> str:
+        """Why the phase ends at this frame ('' if it goes on)."""
+        if t_s >= PRELOAD_MAX_S:
+            return f"no breakaway within {PRELOAD_MAX_S} s"
+        if not self.rest.resting:
+            return "broke loose"
+        rest_pos = self.rest.rest_position_m
+        assert rest_pos is not None
+        lead = epm_m[0:2] - rest_pos
+        if float(np.linalg.norm(lead - self.lead_eq_m)) > self.scenario.limits.max_lead_m:
+            return "coupling limit"
+        return ""

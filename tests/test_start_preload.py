@@ -1,0 +1,131 @@
+"""The start's pre-load (capsule_mpc.mpc.start, mpc.start_preload): the lead it aims at against an
+independent evaluation of the force model and the friction belief, the arm's limits on every
+command, and when the phase ends."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pydantic import ValidationError
+
+from capsule_mpc import Scenario
+from capsule_mpc.config import LearnedFrictionModel
+from capsule_mpc.dynamics import normal_force_expr
+from capsule_mpc.friction import FrictionBelief
+from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
+from capsule_mpc.mpc.contact import RestDetector
+from capsule_mpc.mpc.start import PRELOAD_MAX_S, StartPreload
+from capsule_mpc.paths import ReferencePath
+
+FRAME_S = 1 / 30
+
+
+def preload_scenario(scenario: Scenario, fraction: float | None = 0.9) -> Scenario:
+    model = LearnedFrictionModel(
+        coefficients=list(scenario.friction.paper_c.coefficients),
+        validity_mps=(0.005, 0.04),
+        static_mu_1s=0.3,
+        static_healing=0.02,
+    )
+    return scenario.model_copy(
+        update={
+            "friction": scenario.friction.model_copy(update={"learned": model}),
+            "mpc": scenario.mpc.model_copy(update={"start_preload": fraction}),
+        }
+    )
+
+
+def make(sc: Scenario, angle: float = 0.0) -> tuple[StartPreload, RestDetector, np.ndarray]:
+    """A pre-load along a straight path at ``angle`` from a capsule resting at the origin under
+    the EPM at the model's equilibrium lead; also the EPM's start position."""
+    direction = np.array([np.cos(angle), np.sin(angle)])
+    path = ReferencePath(np.array([[0.0, 0.0], 0.04 * direction]), False, sc.path.speed_mps)
+    rest = RestDetector(sc.camera.noise_std_m, 2e-3)
+    rest.update(-1.0, np.zeros(2))
+    lead_eq = model_equilibrium_lead(sc)
+    belief = FrictionBelief.from_scenario(sc)
+    start = StartPreload(sc, path, capsule_force_function(sc), lead_eq, belief, rest, FRAME_S)
+    epm = np.append(lead_eq, sc.plate.epm_height_m)
+    return start, rest, epm
+
+
+@settings(max_examples=15, deadline=None)
+@given(fraction=st.floats(0.3, 1.0), angle=st.floats(0.0, 2 * np.pi))
+def test_the_preload_lead_gives_the_fraction_of_the_believed_breakaway(scenario, fraction, angle):
+    sc = preload_scenario(scenario, fraction)
+    start, _, epm = make(sc, angle)
+    lead0 = epm[0:2]
+    target = start.target_lead(lead0, float(epm[2]), 1.0, np.zeros(2))
+    step = target - lead0
+    # Along the path's direction from the rest lead.
+    assert abs(step[0] * start.direction[1] - step[1] * start.direction[0]) < 1e-9
+    assert step @ start.direction > 0
+    f = np.asarray(capsule_force_function(sc)(target, epm[2])).ravel()
+    f_n = float(normal_force_expr(sc, f[2]))
+    breakaway = FrictionBelief.from_scenario(sc).breakaway_n(f_n, 1.0)
+    reach = sc.limits.max_lead_m - float(np.linalg.norm(lead0 - model_equilibrium_lead(sc)))
+    if np.linalg.norm(step) < reach - 1e-9:
+        assert f[0:2] @ start.direction == pytest.approx(fraction * breakaway, rel=1e-4)
+    else:  # the force does not get there within the coupling limit: the farthest lead
+        assert f[0:2] @ start.direction < fraction * breakaway
+
+
+@settings(max_examples=10, deadline=None)
+@given(angle=st.floats(0.0, 2 * np.pi))
+def test_every_preload_command_keeps_the_arms_limits(scenario, angle):
+    sc = preload_scenario(scenario)
+    start, _, epm = make(sc, angle)
+    lim = sc.limits
+    u_prev = np.zeros(3)
+    velocities = [u_prev]
+    t = 0.0
+    while t < PRELOAD_MAX_S:
+        u = start.command(t, epm, u_prev, np.zeros(2))
+        if u is None:
+            break
+        assert np.all(np.isfinite(u))
+        epm = epm + FRAME_S * 0.5 * (u + u_prev)
+        u_prev = u
+        velocities.append(u)
+        t += FRAME_S
+    v = np.array(velocities)
+    a = np.diff(v, axis=0) / FRAME_S
+    j = np.diff(a, axis=0) / FRAME_S
+    assert np.abs(v).max() <= lim.speed_mps + 1e-9
+    assert np.abs(a).max() <= lim.accel_mps2 + 1e-6
+    assert np.abs(j).max() <= lim.jerk_mps3 * (1 + 1e-6) + 1e-6
+    # It got to the pre-load lead and then runs on along the path at the path's speed.
+    assert start._reached
+    np.testing.assert_allclose(v[-1][0:2], sc.path.speed_mps * start.direction, atol=1e-9)
+    assert v[-1][2] == 0.0
+
+
+def test_the_preload_ends_when_the_capsule_breaks_loose(scenario):
+    sc = preload_scenario(scenario)
+    start, rest, epm = make(sc)
+    assert start.command(0.0, epm, np.zeros(3), np.zeros(2)) is not None
+    for k in range(1, 9):  # the camera sees it slide off at 20 mm/s
+        rest.update(k * FRAME_S, np.array([0.02 * k * FRAME_S, 0.0]))
+    assert start.command(9 * FRAME_S, epm, np.zeros(3), np.zeros(2)) is None
+    assert not start.active and start.end_reason == "broke loose"
+
+
+def test_the_preload_ends_at_its_time_limit(scenario):
+    sc = preload_scenario(scenario)
+    start, _, epm = make(sc)
+    assert start.command(PRELOAD_MAX_S, epm, np.zeros(3), np.zeros(2)) is None
+    assert "within" in start.end_reason
+
+
+def test_without_start_preload_there_is_no_phase(scenario):
+    start, _, epm = make(preload_scenario(scenario, None))
+    assert not start.active
+    assert start.command(0.0, epm, np.zeros(3), np.zeros(2)) is None
+
+
+def test_start_preload_is_validated(scenario):
+    for bad in (0.0, -0.5, 1.5):
+        with pytest.raises(ValidationError, match="start_preload"):
+            type(scenario.mpc).model_validate({**scenario.mpc.model_dump(), "start_preload": bad})
