@@ -13,8 +13,11 @@ and the controller node as a ``capsule-mpc control`` subprocess, over Zenoh on t
    in-process real-time run of the same seed (``simulate --realtime``).
 3. Optionally (``--draws-100hz``) the same at 100 Hz (configs/rectangle_100hz.yaml).
 
-    .venv/bin/python benchmarks/nodes_latency.py [--draws 3] [--draws-100hz 1]
-        [--out results/benchmarks/nodes_latency.json]
+``--only latency`` runs the first part alone; ``--low-latency`` runs every part with Zenoh's
+low-latency transport on both sides (``--low-latency`` of the nodes, docs/nodes.md).
+
+    .venv/bin/python benchmarks/nodes_latency.py [--draws 3] [--draws-100hz 1] [--only latency]
+        [--low-latency] [--out results/benchmarks/nodes_latency.json]
 
 The machine's load average is recorded at the start and the end: wall-clock figures depend on it.
 """
@@ -75,6 +78,9 @@ conf.insert_json5("mode", '"peer"')
 conf.insert_json5("scouting/multicast/enabled", "false")
 conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
 conf.insert_json5("listen/endpoints", "[]")
+if sys.argv[4] == "low":
+    conf.insert_json5("transport/unicast/lowlatency", "true")
+    conf.insert_json5("transport/unicast/qos/enabled", "false")
 with zenoh.open(conf) as s:
     pub = s.declare_publisher(sys.argv[2] + "/pong", express=True)
     s.declare_subscriber(sys.argv[2] + "/ping", lambda smp: pub.put(smp.payload.to_bytes()))
@@ -82,11 +88,13 @@ with zenoh.open(conf) as s:
 """
 
 
-def zenoh_baseline(samples: int = 300, period_s: float = 1 / 30) -> dict[str, float]:
+def zenoh_baseline(
+    samples: int = 300, period_s: float = 1 / 30, low_latency: bool = False
+) -> dict[str, float]:
     """Round trips of a bare Zenoh ping to an echoing process, paced like camera frames: what the
     transport costs without the nodes' Python (messages, sequence numbers, the loop), ms."""
     endpoint, prefix = _endpoint(), f"bench/{uuid.uuid4().hex}"
-    with Transport(prefix, listen=[endpoint]) as transport:
+    with Transport(prefix, listen=[endpoint], low_latency=low_latency) as transport:
         cond, arrived = threading.Condition(), []
 
         def on_pong(_sample: Any) -> None:
@@ -96,7 +104,9 @@ def zenoh_baseline(samples: int = 300, period_s: float = 1 / 30) -> dict[str, fl
 
         transport.session.declare_subscriber(f"{prefix}/pong", on_pong)
         pub = transport.session.declare_publisher(f"{prefix}/ping", express=True)
-        echo = subprocess.Popen([sys.executable, "-c", ECHO, endpoint, prefix, str(samples * period_s + 30)])
+        mode = "low" if low_latency else "default"
+        lasts_s = str(samples * period_s + 30)
+        echo = subprocess.Popen([sys.executable, "-c", ECHO, endpoint, prefix, lasts_s, mode])
         try:
             time.sleep(3.0)  # the echo process starts and connects
             trips = []
@@ -120,11 +130,13 @@ def zenoh_baseline(samples: int = 300, period_s: float = 1 / 30) -> dict[str, fl
     }
 
 
-def over_nodes(config: Path, plant: str, controller: str, seed: int) -> dict[str, Any]:
+def over_nodes(
+    config: Path, plant: str, controller: str, seed: int, low_latency: bool = False
+) -> dict[str, Any]:
     """One real-time run with the controller in a ``capsule-mpc control`` subprocess."""
     scenario, path, meta = prepare_run(config, None, None, plant)
     endpoint, prefix = _endpoint(), f"bench/{uuid.uuid4().hex}"
-    with Transport(prefix, listen=[endpoint]) as transport:
+    with Transport(prefix, listen=[endpoint], low_latency=low_latency) as transport:
         args = [
             "control",
             "--config",
@@ -137,6 +149,7 @@ def over_nodes(config: Path, plant: str, controller: str, seed: int) -> dict[str
             prefix,
             "--wait",
             "600",
+            *(["--low-latency"] if low_latency else []),
         ]
         proc = subprocess.Popen([*CLI, *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
@@ -180,11 +193,11 @@ def in_process(config: Path, plant: str, controller: str, seed: int) -> dict[str
     }
 
 
-def compare(config: Path, draws: int) -> list[dict[str, Any]]:
+def compare(config: Path, draws: int, low_latency: bool = False) -> list[dict[str, Any]]:
     """The MPC over nodes and in process on ``draws`` ``lab`` draws of ``config``."""
     rows = []
     for seed in range(draws):
-        nodes = over_nodes(config, "lab", "mpc", seed)
+        nodes = over_nodes(config, "lab", "mpc", seed, low_latency)
         local = in_process(config, "lab", "mpc", seed)
         rms_n, rms_l = nodes["tracking_rms_mm"], local["tracking_rms_mm"]
         rows.append(
@@ -211,6 +224,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--draws-100hz", type=int_at_least(0, 20), default=1, help="lab draws at 100 Hz, in [0, 20]"
     )
+    parser.add_argument(
+        "--only", choices=["latency"], default=None, help="run only the latency part (no MPC runs)"
+    )
+    parser.add_argument(
+        "--low-latency", action="store_true", help="Zenoh's low-latency transport on both sides"
+    )
     parser.add_argument("--out", default="results/benchmarks/nodes_latency.json", help="JSON report file")
     args = parser.parse_args(argv)
     out = Path(args.out)
@@ -220,13 +239,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     load_start, started = os.getloadavg(), time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
     rect = packaged_config_path("rectangle")
-    baseline = zenoh_baseline()
+    low = args.low_latency
+    baseline = zenoh_baseline(low_latency=low)
     print(
         f"bare Zenoh round trip: median {baseline['round_trip_ms_median']:.3f} ms, p99 "
         f"{baseline['round_trip_ms_p99']:.3f} ms",
         flush=True,
     )
-    latency = over_nodes(rect, "ideal", "follow", 0)
+    latency = over_nodes(rect, "ideal", "follow", 0, low)
     print(
         f"latency (follow, ideal): transport median {latency['node_transport_ms_median']:.3f} ms, p99 "
         f"{latency['node_transport_ms_p99']:.3f} ms; round trip median "
@@ -239,8 +259,11 @@ def main(argv: list[str] | None = None) -> int:
         "started": started,
         "zenoh_round_trip": baseline,
         "latency_follow_ideal": latency,
-        "mpc_30hz_lab": compare(rect, args.draws),
-        "mpc_100hz_lab": compare(packaged_config_path("rectangle_100hz"), args.draws_100hz),
+        "low_latency": low,
+        "mpc_30hz_lab": [] if args.only else compare(rect, args.draws, low),
+        "mpc_100hz_lab": []
+        if args.only
+        else compare(packaged_config_path("rectangle_100hz"), args.draws_100hz, low),
         "load_average_start": list(load_start),
         "load_average_end": list(os.getloadavg()),
         "finished": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),

@@ -9,6 +9,7 @@ import uuid
 
 import pytest
 
+from capsule_mpc.baselines import FollowPath
 from capsule_mpc.errors import ConfigError
 from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.nodes import messages as m
@@ -99,6 +100,50 @@ def test_nodes_in_time_give_the_in_process_run(tmp_path, controller, plant, rate
     # the commands in time: the in-process run, but for the wall-clock columns
     assert same_physics(result.log, ref.log) == []
     assert result.metrics["tracking_rms_mm"] == ref.metrics["tracking_rms_mm"]
+
+
+class Failing(FollowPath):
+    """``follow`` whose step raises from its fourth on (counted)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.steps_taken = self.raised = 0
+
+    def step(self, t_s, measurement, epm_position_m):
+        if self.steps_taken == 3:
+            self.raised += 1
+            raise RuntimeError("the controller broke")
+        self.steps_taken += 1
+        return super().step(t_s, measurement, epm_position_m)
+
+
+def test_a_quick_controller_answers_frames_on_arrival_and_a_failing_step_ends_the_node(tmp_path):
+    wp = waypoints(tmp_path, [(-0.05, -0.03), (-0.045, -0.03)])
+    scenario, path, _meta = prepare_run(QUICK, wp, None, "ideal")
+    result, _events, rc, node = run_in_process(scenario, path, 2, "follow")
+    assert rc == 0
+    # all but the first frame (and any after a slow step) without the hand-off to the node's loop
+    assert node.counts["frames_answered_on_arrival"] >= result.realtime.frames // 2
+    assert node.steps == result.realtime.frames
+
+    failing = Failing()
+    errors: list[BaseException] = []
+    endpoint, prefix = free_endpoint(), f"test/{uuid.uuid4().hex}"
+    with Transport(prefix, listen=[endpoint]) as rig_t, Transport(prefix, connect=[endpoint]) as ctl_t:
+        node = ControllerNode(ctl_t, scenario, failing, ControlOptions(wait_s=60), say=lambda _t: None)
+
+        def run() -> None:
+            try:
+                node.run()
+            except RuntimeError as exc:
+                errors.append(exc)
+
+        thread = threading.Thread(target=run, daemon=True)
+        thread.start()
+        serve_rig(scenario, path, 2, rig_t, say=lambda _t: None, options=RigOptions(watchdog_timeout_s=0.2))
+        thread.join(10)
+    # the step that raised on Zenoh's thread ended the node's loop at once, with its error
+    assert [str(e) for e in errors] == ["the controller broke"] and failing.raised == 1
 
 
 def test_a_controller_node_coasts_through_lost_frames_one_step_per_frame(tmp_path):

@@ -39,7 +39,8 @@ headers = st.builds(
     run_id=text,
 )
 names = st.lists(text, max_size=4).map(tuple)
-MESSAGES = st.one_of(
+#: The messages of every camera frame (hand-written codecs).
+HOT = st.one_of(
     st.builds(
         m.CameraFrame,
         header=headers,
@@ -76,6 +77,9 @@ MESSAGES = st.one_of(
         extra_values=floats(4),
         predicted_path_m=floats(40),
     ),
+)
+MESSAGES = st.one_of(
+    HOT,
     st.builds(
         m.RunInfo,
         header=headers,
@@ -119,6 +123,51 @@ def test_every_message_round_trips_through_cdr(msg):
     assert _same(m.decode(payload, type(msg)), msg)
 
 
+def _identical(a, b) -> bool:
+    """``a`` and ``b`` hold the same values of the same types (arrays: dtype, shape, bits)."""
+    if dataclasses.is_dataclass(a):
+        return type(a) is type(b) and all(
+            _identical(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a)
+        )
+    if isinstance(a, np.ndarray):
+        return (
+            isinstance(b, np.ndarray)
+            and a.dtype == b.dtype
+            and a.shape == b.shape
+            and a.tobytes() == b.tobytes()
+            and a.flags.writeable == b.flags.writeable
+        )
+    if isinstance(a, tuple):
+        return type(b) is tuple and len(a) == len(b) and all(map(_identical, a, b))
+    if isinstance(a, float):
+        return type(b) is float and struct.pack("<d", a) == struct.pack("<d", b)
+    return type(a) is type(b) and a == b
+
+
+@settings(max_examples=300, deadline=None)
+@given(HOT)
+def test_the_hand_written_codecs_are_the_dynamic_ones_both_ways(msg):
+    # the per-frame messages have their own codec; it must be the dynamic codec, byte for byte
+    payload = m._encode_dynamic(msg)
+    assert m.encode(msg) == payload
+    assert _identical(m.decode(payload, type(msg)), m._decode_dynamic(payload, type(msg)))
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        m.CameraFrame(m.Header(frame_id="plate", run_id="run"), valid=True, position_m=np.ones(2)),
+        m.ArmState(joint_names=("a", "bc"), joint_positions_rad=np.ones(2)),
+        m.EpmCommand(status="x", extra_names=("n",), extra_values=np.ones(1), predicted_path_m=np.ones(4)),
+    ],
+)
+def test_every_truncation_of_a_per_frame_message_is_a_message_error(msg):
+    payload = m.encode(msg)
+    for cut in range(m._ENCAPSULATION + 1, len(payload)):
+        with pytest.raises(m.MessageError):
+            m.decode(payload[:cut], type(msg))
+
+
 def test_a_known_frame_has_the_expected_bytes():
     # A byte-level check of the CDR layout (and of the encoder library the codec is built on).
     frame = m.CameraFrame(
@@ -148,6 +197,7 @@ def test_a_known_frame_has_the_expected_bytes():
         ]
     )
     assert m.encode(frame) == expected
+    assert m._encode_dynamic(frame) == expected
 
 
 def test_another_schema_version_is_refused_before_decoding():
@@ -167,6 +217,12 @@ def test_a_truncated_payload_is_a_message_error(cut):
 def test_a_fixed_array_of_the_wrong_length_is_refused():
     with pytest.raises(m.MessageError, match=r"CameraFrame.position_m: must have 2 values, got 3"):
         m.encode(m.CameraFrame(position_m=np.zeros(3)))
+    with pytest.raises(m.MessageError, match=r"ArmState.epm_velocity_mps: must have 3 values, got 2"):
+        m.encode(m.ArmState(epm_velocity_mps=np.zeros(2)))
+    with pytest.raises(m.MessageError, match=r"EpmCommand.velocity_mps: must have 3 values, got 0"):
+        m.encode(m.EpmCommand(velocity_mps=np.zeros(0)))
+    with pytest.raises(m.MessageError, match=r"RunInfo.epm_position_m: must have 3 values, got 1"):
+        m.encode(m.RunInfo(epm_position_m=np.zeros(1)))
 
 
 def test_the_msg_files_are_the_dataclasses_and_parse_as_ros2_definitions():

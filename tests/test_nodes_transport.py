@@ -13,7 +13,13 @@ import pytest
 
 from capsule_mpc.errors import ConfigError
 from capsule_mpc.nodes import messages as m
-from capsule_mpc.nodes.transport import SequenceFilter, Transport, check_endpoint, check_prefix
+from capsule_mpc.nodes.transport import (
+    LOW_LATENCY_MAX_BYTES,
+    SequenceFilter,
+    Transport,
+    check_endpoint,
+    check_prefix,
+)
 
 
 def free_endpoint() -> str:
@@ -103,6 +109,29 @@ def test_queries_and_liveliness(pair):
     assert wait_for(lambda: ("controller/mpc", True) in changes)
     token.undeclare()
     assert wait_for(lambda: ("controller/mpc", False) in changes)
+
+
+@pytest.mark.parametrize("low", [(True, True), (True, False)], ids=["both", "one"])
+def test_low_latency_sessions_talk_and_refuse_a_message_too_long_for_it(low):
+    # both offer it: the low-latency transport; one only: the default one; either way they talk
+    endpoint, prefix = free_endpoint(), f"test/{uuid.uuid4().hex}"
+    with (
+        Transport(prefix, listen=[endpoint], low_latency=low[0]) as a,
+        Transport(prefix, connect=[endpoint], low_latency=low[1]) as b,
+    ):
+        got: list[int] = []
+        b.subscribe("frame", lambda msg: got.append(msg.frame_index))
+        a.serve("run", lambda: m.RunInfo(path_waypoints_m=np.zeros(1000)))
+        pub = a.publisher("frame")
+        wait_for(lambda: False, 0.3)
+        for i in range(3):
+            pub.publish(m.CameraFrame(frame_index=i), 0.0, "r")
+        assert wait_for(lambda: got == [0, 1, 2]), got
+        assert wait_for(lambda: [r.path_waypoints_m.size for r in b.query("run", timeout_s=0.5)] == [1000])
+        long = m.RunInfo(path_waypoints_m=np.zeros(LOW_LATENCY_MAX_BYTES // 8))
+        with pytest.raises(ConfigError, match=r"low_latency: a RunInfo message of \d+ bytes is longer"):
+            a.publisher("run").publish(long, 0.0, "r")
+        assert pub.seq == 3
 
 
 def test_a_closed_peer_is_seen_gone():

@@ -66,6 +66,6 @@ def run(args: argparse.Namespace) -> int:
         return 2
     scenario = load_config(args.config)
     connect, listen = transport_endpoints(args, listens=False)
-    with Transport(args.prefix, connect=connect, listen=listen) as transport:
+    with Transport(args.prefix, connect=connect, listen=listen, low_latency=args.low_latency) as transport:
         node = ControllerNode(transport, scenario, args.controller, ControlOptions(wait_s=args.wait))
         return node.run()

@@ -57,8 +57,8 @@ def seconds(most: float) -> Callable[[str], float]:
 
 
 def add_transport_arguments(p: argparse.ArgumentParser, listens: bool) -> None:
-    """``--connect``, ``--listen`` and ``--prefix`` (by default the rig ``listens``, a controller
-    connects)."""
+    """``--connect``, ``--listen``, ``--prefix`` and ``--low-latency`` (by default the rig
+    ``listens``, a controller connects)."""
     unless = f"; without --connect and --listen: {DEFAULT_ENDPOINT}"
     p.add_argument(
         "--connect",
@@ -83,6 +83,12 @@ def add_transport_arguments(p: argparse.ArgumentParser, listens: bool) -> None:
         default=DEFAULT_PREFIX,
         help=f"key prefix of the rig's topics (default {DEFAULT_PREFIX}); the rig and its controller "
         "must share it",
+    )
+    p.add_argument(
+        "--low-latency",
+        action="store_true",
+        help="offer Zenoh's low-latency transport (no QoS, no fragmentation: messages up to 32 kB); "
+        "used only when both nodes offer it",
     )
 
 
@@ -248,7 +254,9 @@ def _serve(args: argparse.Namespace, out: Path | None, calibration: Any = None) 
         for tel in map(stack.enter_context, telemetry):
             if tel.live_url:
                 print(f"live view: {tel.live_url} (Foxglove: Open connection)", file=sys.stderr)
-        transport = stack.enter_context(Transport(args.prefix, connect=connect, listen=listen))
+        transport = stack.enter_context(
+            Transport(args.prefix, connect=connect, listen=listen, low_latency=args.low_latency)
+        )
         try:
             # entered last, so closed first: the robot stops before anything else is torn down
             actuator = (

@@ -9,6 +9,15 @@ itself ready (a liveliness token). Then, for each camera frame, it pairs the fra
 state of the same frame, calls :meth:`~capsule_mpc.interfaces.Controller.step` and publishes the
 command that answers the frame's sequence number.
 
+Threads: a frame is answered on the Zenoh thread that delivers it when the node can do so at
+once, with no hand-off to its loop: the node is serving the frame's run, its loop holds nothing
+back (the inbox is empty, no step under way), the arm state of the frame has come, and the
+controller's last step took less than half a frame period (a controller that takes longer holds
+that thread, and frames that come meanwhile would each be answered in turn instead of the newest
+alone); counted as ``frames_answered_on_arrival``. Otherwise the frame goes through the inbox to
+the node's loop, which answers the newest of the frames waiting. One lock keeps the controller's
+steps apart; an error of a step on the Zenoh thread is raised in the loop.
+
 Losing frames: a frame overdue by ``coast_periods`` frame periods is stepped as a dropped camera
 frame (no position) at its expected time and answered under its expected sequence number, so the
 controller coasts and then stops as it does in-process on dropped frames. A restarted node resets
@@ -51,6 +60,9 @@ _PAIR_PERIODS = 0.25
 _GO_ON = object()
 #: Seconds between two asks for the run info.
 _ASK_EVERY_S = 0.25
+#: A frame is answered on the Zenoh thread if the controller's last step took less than this many
+#: frame periods.
+_INLINE_STEP_PERIODS = 0.5
 
 
 def _stderr(text: str) -> None:
@@ -115,10 +127,13 @@ class ControllerNode:
         self._arm_cond = threading.Condition()
         self._commands = transport.publisher("cmd")
         self._events = transport.publisher("events", realtime=False)
+        self._step_lock = threading.Lock()
+        self._serving = False
+        self._inline = False
         self.run_id = ""
         self.rig_time_s = 0.0
         self.steps = 0
-        transport.subscribe("frame", self.inbox.put)
+        transport.subscribe("frame", self._on_frame)
         transport.subscribe("run", self.inbox.put)
         transport.subscribe("arm_state", self._on_arm)
         transport.watch("rig", lambda _name, alive: self.inbox.put(("rig", alive)))
@@ -136,6 +151,28 @@ class ControllerNode:
             while len(self._arm) > _ARM_STATES_KEPT:
                 self._arm.popitem(last=False)
             self._arm_cond.notify_all()
+
+    def _on_frame(self, frame: CameraFrame) -> None:
+        """Answer ``frame`` on this (Zenoh's) thread if the node can at once (module docstring),
+        else pass it to the node's loop."""
+        if self._inline and self._step_lock.acquire(blocking=False):
+            try:
+                if (
+                    self._serving
+                    and self._inline
+                    and self.inbox.empty()
+                    and frame.header.run_id == self.run_id
+                    and frame.frame_index in self._arm
+                ):
+                    self._answer([frame])
+                    self.counts["frames_answered_on_arrival"] += 1
+                    return
+            except Exception as exc:  # raised in the node's loop, as a step there would
+                self.inbox.put(("error", exc))
+                return
+            finally:
+                self._step_lock.release()
+        self.inbox.put(frame)
 
     def _epm_at(self, frame_index: int, timeout_s: float) -> np.ndarray | None:
         """The EPM position the arm reported with frame ``frame_index`` (waiting up to
@@ -205,20 +242,26 @@ class ControllerNode:
     def _serve(self, info: RunInfo) -> int | RunInfo | None:
         """Answer the frames of the run ``info`` until it ends (exit status) or another run is
         found (its info, or None to wait for one)."""
-        self._reset(info)
+        with self._step_lock:
+            self._reset(info)
+            self._serving = True
         try:
             while True:
                 try:
                     items = [self.inbox.get(timeout=self._until_coasting())]
                 except queue.Empty:
-                    if self.last is not None:
-                        self._coast()
+                    with self._step_lock:
+                        if self.last is not None:
+                            self._coast()
                     continue
                 items += self._drain()
-                outcome = self._handle(items)
+                with self._step_lock:
+                    outcome = self._handle(items)
                 if outcome is not _GO_ON:
                     return outcome  # type: ignore[return-value]
         finally:
+            with self._step_lock:
+                self._serving = self._inline = False
             self._token.undeclare()
 
     def _drain(self) -> list[Any]:
@@ -233,6 +276,9 @@ class ControllerNode:
     def _handle(self, items: list[Any]) -> object:
         """Answer the newest of the frames among ``items`` and act on the rest; returns what
         :meth:`_serve` returns, or :data:`_GO_ON`."""
+        for item in items:
+            if isinstance(item, tuple) and item[0] == "error":
+                raise item[1]
         frames = [item for item in items if isinstance(item, CameraFrame)]
         if any(f.header.run_id != self.run_id for f in frames):
             self.counts["frames_other_run"] += 1
@@ -265,6 +311,12 @@ class ControllerNode:
         stepped again (one step per frame)."""
         last = self.last
         if last is not None:
+            older = [f for f in frames if f.header.seq <= last.header.seq]
+            if older:  # passed to the loop while a newer frame was answered on Zenoh's thread
+                self.counts["frames_skipped"] += len(older)
+                frames = [f for f in frames if f.header.seq > last.header.seq]
+                if not frames:
+                    return
             stepped = last.header.seq + self.coasted  # the last frame stepped, come or coasted
             if frames[-1].header.seq <= stepped:  # coasted through already: resynchronise the coasting
                 self.counts["frames_after_coasting"] += len(frames)
@@ -292,6 +344,8 @@ class ControllerNode:
         time (one step per frame, as in process)."""
         last = self.last
         assert last is not None
+        if self._until_coasting() > 0:  # a frame came on Zenoh's thread meanwhile
+            return
         due = math.floor((time.monotonic() - self.last_arrival) / self.period_s)
         if self.coasted == 0:
             self.event("coasting", f"no frame after frame {last.frame_index}: stepping without measurements")
@@ -314,6 +368,7 @@ class ControllerNode:
         c0 = time.perf_counter()
         cmd = ctrl.step(meas.t_s, meas, epm)
         step_ms = (time.perf_counter() - c0) * 1e3
+        self._inline = step_ms * 1e-3 < _INLINE_STEP_PERIODS * self.period_s
         vel = np.asarray(getattr(cmd, "epm_velocity_mps", np.nan), dtype=float).ravel()
         stats = cmd.stats if isinstance(cmd, Command) else StepStats(status="invalid", failed=True)
         if vel.shape != (3,):  # the rig takes a non-finite command as invalid and stops the EPM

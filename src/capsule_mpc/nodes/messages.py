@@ -19,11 +19,13 @@ frame (x, y on the plate; for the EPM the third coordinate is its height above t
 
 The payload is what a ROS 2 node publishes for these types: the 4-byte CDR encapsulation header
 (little-endian CDR) and the CDR body, made and read by ``mcap_ros2``'s dynamic encoders built from
-the ``.msg`` text. That encoder fills a field it is not given with its default and reads a dict
-key named like a dict method as the method, so every message is converted here from its dataclass
-with every field present (:func:`encode` checks the fixed array sizes), and the field names avoid
-dict method names. The schema version is the first byte of the CDR body: :func:`decode` reads it
-before the rest and refuses another version (:class:`VersionError`).
+the ``.msg`` text; the messages of every camera frame (:class:`CameraFrame`, :class:`ArmState`,
+:class:`EpmCommand`) by hand-written codecs that give the same bytes. The dynamic encoder
+fills a field it is not given with its default and reads a dict key named like a dict method as
+the method, so every message is converted here from its dataclass with every field present
+(:func:`encode` checks the fixed array sizes), and the field names avoid dict method names. The
+schema version is the first byte of the CDR body: :func:`decode` reads it before the rest and
+refuses another version (:class:`VersionError`).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -317,6 +320,211 @@ def _header_from_wire(w: Any) -> Header:
 _CODECS: dict[type, _Codec] = {cls: _Codec(cls) for cls in _TYPES}
 
 
+# -- the per-frame messages, hand-written ---------------------------------------------------------
+# A frame, the arm state and the command cross the transport at every camera frame, on the path
+# from a frame to its command; the dynamic codec interprets the .msg definition field by field in
+# Python for each message, so these three are packed and unpacked here with precompiled
+# ``struct.Struct`` layouts instead. They give the same bytes as the dynamic codec and read its
+# bytes the same way (tests/test_nodes_messages.py checks both over the fields' ranges); the other
+# messages use the dynamic codec. Offsets: CDR aligns each value to its size counted from the end
+# of the encapsulation header, and an empty sequence adds no padding after its count.
+
+#: Encapsulation, schema_version, padding, publisher_id, seq, rig_time_s, stamp sec and nanosec.
+_HEAD = struct.Struct("<4sB7xQQdII")
+_U32 = struct.Struct("<I")
+#: CameraFrame after its header (8-aligned): frame_index, capture_time_s, valid, position_m.
+_FRAME_TAIL = struct.Struct("<qdB7x2d")
+#: ArmState after its header (8-aligned): frame_index, the three 3-vectors, watchdog_active.
+_ARM_BODY = struct.Struct("<q9dB")
+#: EpmCommand after its header (8-aligned): frame_seq, frame_index, velocity_mps.
+_CMD_HEAD = struct.Struct("<Qq3d")
+#: EpmCommand after its two strings (8-aligned): solve_ms, iterations, failed, finished, step_ms.
+_CMD_STATS = struct.Struct("<diBB2xd")
+_CDR_LE = b"\x00\x01\x00\x00"
+_ZEROS = tuple(bytes(n) for n in range(8))
+_NS = 1_000_000_000
+
+
+def _pad(buf: bytearray, size: int) -> None:
+    buf += _ZEROS[-(len(buf) - _ENCAPSULATION) % size]
+
+
+def _put_str(buf: bytearray, value: str) -> None:
+    data = str(value).encode()
+    _pad(buf, 4)
+    buf += _U32.pack(len(data) + 1)
+    buf += data
+    buf += b"\0"
+
+
+def _put_strs(buf: bytearray, values: tuple[str, ...]) -> None:
+    _pad(buf, 4)
+    buf += _U32.pack(len(values))
+    for value in values:
+        _put_str(buf, value)
+
+
+def _floats(cls: type, name: str, value: Any, size: int) -> np.ndarray:
+    """``value`` as little-endian float64s, checked to have ``size`` values (-1: any number)."""
+    arr = np.ascontiguousarray(value, dtype="<f8").ravel()
+    if size >= 0 and arr.size != size:
+        raise MessageError(f"{cls.__name__}.{name}: must have {size} values, got {arr.size}")
+    return arr
+
+
+def _put_floats(buf: bytearray, values: np.ndarray) -> None:
+    """A float64 sequence: its count, then (8-aligned) its values."""
+    _pad(buf, 4)
+    buf += _U32.pack(values.size)
+    if values.size:
+        _pad(buf, 8)
+        buf += values.tobytes()
+
+
+def _put_header(h: Header) -> bytearray:
+    sec, nanosec = divmod(int(h.stamp_ns), _NS)
+    buf = bytearray(_HEAD.pack(_CDR_LE, h.schema_version, h.publisher_id, h.seq, h.rig_time_s, sec, nanosec))
+    _put_str(buf, h.frame_id)
+    _put_str(buf, h.run_id)
+    _pad(buf, 8)
+    return buf
+
+
+def _encode_frame(msg: CameraFrame) -> bytes:
+    x, y = _floats(CameraFrame, "position_m", msg.position_m, 2).tolist()
+    buf = _put_header(msg.header)
+    buf += _FRAME_TAIL.pack(msg.frame_index, msg.capture_time_s, 1 if msg.valid else 0, x, y)
+    return bytes(buf)
+
+
+def _encode_arm(msg: ArmState) -> bytes:
+    xyz = [
+        v
+        for name in ("epm_position_m", "epm_velocity_mps", "epm_velocity_command_mps")
+        for v in _floats(ArmState, name, getattr(msg, name), 3).tolist()
+    ]
+    joints = _floats(ArmState, "joint_positions_rad", msg.joint_positions_rad, -1)
+    buf = _put_header(msg.header)
+    buf += _ARM_BODY.pack(msg.frame_index, *xyz, 1 if msg.watchdog_active else 0)
+    _put_strs(buf, msg.joint_names)
+    _put_floats(buf, joints)
+    return bytes(buf)
+
+
+def _encode_command(msg: EpmCommand) -> bytes:
+    vx, vy, vz = _floats(EpmCommand, "velocity_mps", msg.velocity_mps, 3).tolist()
+    extra = _floats(EpmCommand, "extra_values", msg.extra_values, -1)
+    path = _floats(EpmCommand, "predicted_path_m", msg.predicted_path_m, -1)
+    buf = _put_header(msg.header)
+    buf += _CMD_HEAD.pack(msg.frame_seq, msg.frame_index, vx, vy, vz)
+    _put_str(buf, msg.outcome)
+    _put_str(buf, msg.status)
+    _pad(buf, 8)
+    failed, finished = 1 if msg.failed else 0, 1 if msg.finished else 0
+    buf += _CMD_STATS.pack(msg.solve_ms, msg.iterations, failed, finished, msg.step_ms)
+    _put_strs(buf, msg.extra_names)
+    _put_floats(buf, extra)
+    _put_floats(buf, path)
+    return bytes(buf)
+
+
+def _aligned(off: int, size: int) -> int:
+    return off + (-(off - _ENCAPSULATION) % size)
+
+
+def _get_str(data: bytes, off: int) -> tuple[str, int]:
+    """The string at ``off`` (4-aligned first) and the offset after it."""
+    off = _aligned(off, 4)
+    (n,) = _U32.unpack_from(data, off)
+    off += 4
+    if off + n > len(data):
+        raise MessageError(f"a string of {n} bytes runs past the payload's end ({len(data)} bytes)")
+    return ("" if n <= 1 else data[off : off + n - 1].decode()), off + n
+
+
+def _get_strs(data: bytes, off: int) -> tuple[tuple[str, ...], int]:
+    (n,) = _U32.unpack_from(data, _aligned(off, 4))
+    off = _aligned(off, 4) + 4
+    out = []
+    for _ in range(n):
+        value, off = _get_str(data, off)
+        out.append(value)
+    return tuple(out), off
+
+
+def _get_floats(data: bytes, off: int) -> tuple[np.ndarray, int]:
+    (n,) = _U32.unpack_from(data, _aligned(off, 4))
+    off = _aligned(off, 4) + 4
+    if not n:
+        return np.zeros(0), off
+    off = _aligned(off, 8)
+    return np.frombuffer(data, "<f8", n, off).astype(float), off + 8 * n
+
+
+def _get_header(data: bytes) -> tuple[Header, int]:
+    _encap, version, publisher_id, seq, rig_time_s, sec, nanosec = _HEAD.unpack_from(data)
+    frame_id, off = _get_str(data, _HEAD.size)
+    run_id, off = _get_str(data, off)
+    header = Header(version, publisher_id, seq, rig_time_s, sec * _NS + nanosec, frame_id, run_id)
+    return header, _aligned(off, 8)
+
+
+def _decode_frame(data: bytes) -> CameraFrame:
+    header, off = _get_header(data)
+    index, capture, valid, x, y = _FRAME_TAIL.unpack_from(data, off)
+    return CameraFrame(header, index, capture, valid != 0, np.array([x, y]))
+
+
+def _decode_arm(data: bytes) -> ArmState:
+    header, off = _get_header(data)
+    index, *vectors, watchdog = _ARM_BODY.unpack_from(data, off)
+    names, off = _get_strs(data, off + _ARM_BODY.size)
+    joints, _ = _get_floats(data, off)
+    xyz = np.array(vectors).reshape(3, 3)
+    return ArmState(header, index, xyz[0].copy(), xyz[1].copy(), xyz[2].copy(), watchdog != 0, names, joints)
+
+
+def _decode_command(data: bytes) -> EpmCommand:
+    header, off = _get_header(data)
+    frame_seq, index, vx, vy, vz = _CMD_HEAD.unpack_from(data, off)
+    outcome, off = _get_str(data, off + _CMD_HEAD.size)
+    status, off = _get_str(data, off)
+    off = _aligned(off, 8)
+    solve_ms, iterations, failed, finished, step_ms = _CMD_STATS.unpack_from(data, off)
+    names, off = _get_strs(data, off + _CMD_STATS.size)
+    extra, off = _get_floats(data, off)
+    path, _ = _get_floats(data, off)
+    return EpmCommand(
+        header, frame_seq, index, np.array([vx, vy, vz]), outcome, status, solve_ms, iterations,
+        failed != 0, finished != 0, step_ms, names, extra, path,
+    )  # fmt: skip
+
+
+_FAST_ENCODERS: dict[type, Callable[[Any], bytes]] = {
+    CameraFrame: _encode_frame,
+    ArmState: _encode_arm,
+    EpmCommand: _encode_command,
+}
+_FAST_DECODERS: dict[type, Callable[[bytes], Any]] = {
+    CameraFrame: _decode_frame,
+    ArmState: _decode_arm,
+    EpmCommand: _decode_command,
+}
+
+
+def _encode_dynamic(msg: Any) -> bytes:
+    """``msg``'s payload made by the dynamic encoder (every type has one)."""
+    codec = _CODECS[type(msg)]
+    return codec.encoder(codec.to_wire(msg))
+
+
+def _decode_dynamic(payload: bytes, cls: type[M]) -> M:
+    """The ``cls`` message in ``payload`` read by the dynamic decoder (every type has one)."""
+    codec = _CODECS[cls]
+    msg: M = codec.from_wire(codec.decoder(payload))
+    return msg
+
+
 def encode(msg: Any) -> bytes:
     """The CDR payload of ``msg`` (one of :func:`message_types`).
 
@@ -325,8 +533,8 @@ def encode(msg: Any) -> bytes:
     MessageError
         A fixed-size array field of the wrong length.
     """
-    codec = _CODECS[type(msg)]
-    return codec.encoder(codec.to_wire(msg))
+    fast = _FAST_ENCODERS.get(type(msg))
+    return fast(msg) if fast is not None else _encode_dynamic(msg)
 
 
 def peek_version(payload: bytes) -> int:
@@ -355,12 +563,12 @@ def decode(payload: bytes, cls: type[M]) -> M:
     version = peek_version(payload)
     if version != SCHEMA_VERSION:
         raise VersionError(version)
-    codec = _CODECS[cls]
+    data = bytes(payload)
+    fast = _FAST_DECODERS.get(cls)
     try:
-        wire = codec.decoder(bytes(payload))
-        msg: M = codec.from_wire(wire)
+        msg: M = fast(data) if fast is not None else _decode_dynamic(data, cls)
     except MessageError:
         raise
-    except Exception as exc:  # the CDR reader raises struct.error, ValueError, UnicodeDecodeError, ...
+    except Exception as exc:  # the CDR readers raise struct.error, ValueError, UnicodeDecodeError, ...
         raise MessageError(f"{cls.__name__}: cannot decode {len(payload)} bytes: {exc}") from exc
     return msg

@@ -3,7 +3,12 @@ publishers and subscribers that stamp and check headers, and the drop of stale m
 
 The session is a Zenoh *peer* with multicast scouting off: it listens on the ``listen`` endpoints
 and connects to the ``connect`` ones (``tcp/127.0.0.1:7447`` by default: the rig listens, the
-controller connects; no router). Keys (``<prefix>`` e.g. ``capsule_mpc/rig0``):
+controller connects; no router). With ``low_latency`` the session offers Zenoh's low-latency
+unicast transport (``transport/unicast/lowlatency``, QoS off): two sessions that both offer it use
+it, else they fall back to the default transport. It does not fragment, so a message must fit in
+one batch: a publisher refuses a message longer than :data:`LOW_LATENCY_MAX_BYTES`.
+
+Keys (``<prefix>`` e.g. ``capsule_mpc/rig0``):
 
 ==========================================  =========================================
 ``<prefix>/frame``                          :class:`~.messages.CameraFrame`
@@ -52,6 +57,7 @@ from .messages import (
 __all__ = [
     "DEFAULT_ENDPOINT",
     "DEFAULT_PREFIX",
+    "LOW_LATENCY_MAX_BYTES",
     "TOPICS",
     "Publisher",
     "SequenceFilter",
@@ -68,6 +74,9 @@ TOPICS: dict[str, type] = {
     "run": RunInfo,
     "events": Event,
 }
+#: Longest payload sent over the low-latency transport, bytes (it does not fragment; a batch is
+#: at most 65535 bytes with Zenoh's framing, and a query's reply carries more of it).
+LOW_LATENCY_MAX_BYTES = 32_000
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
 _CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
@@ -132,12 +141,25 @@ class SequenceFilter:
         return True
 
 
-class Publisher:
-    """Publishes one topic's messages with a stamped header (own id, next sequence number)."""
+def _check_size(payload: bytes, msg: Any, max_bytes: int | None) -> bytes:
+    if max_bytes is not None and len(payload) > max_bytes:
+        raise ConfigError(
+            f"low_latency: a {type(msg).__name__} message of {len(payload)} bytes is longer than the "
+            f"low-latency transport carries ({max_bytes} bytes); run both nodes without it "
+            "(e.g. for a path of many waypoints)"
+        )
+    return payload
 
-    def __init__(self, pub: Any, key: str) -> None:
+
+class Publisher:
+    """Publishes one topic's messages with a stamped header (own id, next sequence number);
+    ``max_bytes``: the longest payload it sends (:class:`~capsule_mpc.errors.ConfigError` for a
+    longer one), None for any."""
+
+    def __init__(self, pub: Any, key: str, max_bytes: int | None = None) -> None:
         self._pub = pub
         self.key = key
+        self.max_bytes = max_bytes
         self.publisher_id = secrets.randbits(64)
         self.seq = 0
         self._lock = threading.Lock()
@@ -161,16 +183,19 @@ class Publisher:
         with self._lock:
             self.stamp(msg, rig_time_s, run_id, frame_id)
             self.seq += 1
-            self._pub.put(encode(msg))
+            self._pub.put(_check_size(encode(msg), msg, self.max_bytes))
         return msg.header
 
 
-def _config(connect: Sequence[str], listen: Sequence[str]) -> zenoh.Config:
+def _config(connect: Sequence[str], listen: Sequence[str], low_latency: bool) -> zenoh.Config:
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps("peer"))
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", json.dumps([check_endpoint(e) for e in connect]))
     conf.insert_json5("listen/endpoints", json.dumps([check_endpoint(e) for e in listen]))
+    if low_latency:  # the low-latency transport has no QoS: Zenoh refuses it with QoS on
+        conf.insert_json5("transport/unicast/lowlatency", "true")
+        conf.insert_json5("transport/unicast/qos/enabled", "false")
     return conf
 
 
@@ -183,6 +208,9 @@ class Transport:
         Key prefix of the rig (:func:`check_prefix`).
     connect, listen : sequence of str
         Zenoh endpoints to connect to and to listen on (:func:`check_endpoint`).
+    low_latency : bool
+        Offer Zenoh's low-latency transport (module docstring); both nodes must offer it for it to
+        be used.
 
     Raises
     ------
@@ -190,9 +218,17 @@ class Transport:
         A bad prefix or endpoint, or a session that cannot open (e.g. the listen port is taken).
     """
 
-    def __init__(self, prefix: str, *, connect: Sequence[str] = (), listen: Sequence[str] = ()) -> None:
+    def __init__(
+        self,
+        prefix: str,
+        *,
+        connect: Sequence[str] = (),
+        listen: Sequence[str] = (),
+        low_latency: bool = False,
+    ) -> None:
         self.prefix = check_prefix(prefix)
-        conf = _config(connect, listen)
+        self.max_bytes = LOW_LATENCY_MAX_BYTES if low_latency else None
+        conf = _config(connect, listen, low_latency)
         zenoh.init_log_from_env_or("error")
         try:
             self.session = zenoh.open(conf)
@@ -225,14 +261,14 @@ class Transport:
         priority, and never dropped for a full queue (the publisher waits); else Zenoh's defaults."""
         key = self.key(topic)
         if not realtime:
-            return Publisher(self.session.declare_publisher(key), key)
+            return Publisher(self.session.declare_publisher(key), key, self.max_bytes)
         pub = self.session.declare_publisher(
             key,
             express=True,
             priority=zenoh.Priority.REAL_TIME,
             congestion_control=zenoh.CongestionControl.BLOCK,
         )
-        return Publisher(pub, key)
+        return Publisher(pub, key, self.max_bytes)
 
     def _count(self, what: str, n: int = 1) -> None:
         with self._lock:
@@ -275,7 +311,8 @@ class Transport:
         key = self.key(topic)
 
         def on_query(query: Any) -> None:
-            query.reply(key, encode(reply()))
+            msg = reply()
+            query.reply(key, _check_size(encode(msg), msg, self.max_bytes))
 
         self._keep.append(self.session.declare_queryable(key, on_query))
 
