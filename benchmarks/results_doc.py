@@ -39,6 +39,8 @@ ABLATION_VARIANTS = {
     "learned": "learned on the draw",
     "online": "learned + online",
     "oracle": "oracle (the plant's own)",
+    "learned+stick": "learned, static friction in the prediction",
+    "learned+preload": "learned, pre-load at the start",
 }
 ABLATION_METRICS = {
     "tracking_rms_mm": "tracking RMS (mm)",

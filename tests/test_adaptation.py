@@ -18,7 +18,7 @@ from capsule_mpc.config import AdaptationConfig, LearnedFrictionModel, MPCConfig
 from capsule_mpc.dynamics import capsule_model
 from capsule_mpc.magnetics import model_equilibrium_lead
 from capsule_mpc.mpc.adaptation import SPEED_WINDOW_S, FrictionOffsetRLS, friction_regression
-from capsule_mpc.mpc.problem import N_PATH, N_STATE, X_SCALE, build_ocp
+from capsule_mpc.mpc.problem import N_PATH, N_STATE, N_STICK_PER_STAGE, X_SCALE, build_ocp
 
 DT = 1.0 / 30
 RLS_CFG = AdaptationConfig(mode="rls")
@@ -173,8 +173,10 @@ def test_the_offset_parameter_is_used_only_with_adaptation(scenario, mode):
     )
     ocp = build_ocp(capsule_model(sc), DT, model_equilibrium_lead(sc))
     per_parameter = np.diff(ca.jacobian_sparsity(ocp.nlp["g"], ocp.nlp["p"]).colind())
-    assert per_parameter[-2] > 0  # d_fric
-    assert (per_parameter[-1] > 0) == (mode == "rls")
+    i_dmu = ocp.n_p - N_STICK_PER_STAGE * ocp.horizon - 1  # the static friction parameters follow
+    assert per_parameter[i_dmu - 1] > 0  # d_fric
+    assert (per_parameter[i_dmu] > 0) == (mode == "rls")
+    assert np.all(per_parameter[i_dmu + 1 :] == 0)  # without mpc.stick_prediction
 
 
 @pytest.mark.parametrize(
