@@ -26,7 +26,9 @@ robot``), once per friction model it is given:
     fraction of the believed breakaway, :mod:`capsule_mpc.mpc.start`); both: ``+stick+preload``.
 
 A draw's learned model is kept in ``--work``; with ``--reuse`` a model already there is used
-instead of demonstrating and learning again.
+instead of demonstrating and learning again. ``--merge A.json B.json --out C.json`` writes one
+report from the outputs of a campaign run in parts (same config and plant; each seed once; the
+variants every draw ran; the parts' commands kept).
 
 The ``paper_0.8v`` heuristic runs on the same draw, and every run of a draw is scored on one
 window: t = 0 to the latest end among them (:func:`capsule_mpc.experiments.compare.rescore_on_common_window`).
@@ -368,6 +370,35 @@ def _report(
     return report
 
 
+def merge_reports(paths: list[Path], final_tol_mm: float) -> dict[str, Any]:
+    """One report from the outputs of a campaign run in parts (see the module docstring)."""
+    reports = [json.loads(p.read_text()) for p in paths]
+    for key in ("config", "plant"):
+        values = sorted({str(r[key]) for r in reports})
+        if len(values) > 1:
+            raise SystemExit(f"--merge: the files differ in {key}: {values}")
+    by_seed: dict[int, dict[str, Any]] = {}
+    for report in reports:
+        for draw in report["draws"]:
+            by_seed.setdefault(draw["seed"], draw)
+    draws = [by_seed[seed] for seed in sorted(by_seed)]
+    variants = [v for v in VARIANTS if all(v in d["runs"] for d in draws)]
+    return {
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        "parts": [r["command"] for r in reports],
+        "config": reports[0]["config"],
+        "plant": reports[0]["plant"],
+        "seeds": sorted({s for r in reports for s in r["seeds"]}),
+        "draws_done": len(draws),
+        "draws_failed": [f for r in reports for f in r.get("draws_failed", [])],
+        "variants": variants,
+        "summary": summarise(draws, variants, final_tol_mm),
+        "draws": draws,
+        "seconds": sum(r["seconds"] for r in reports),
+        "machine": reports[-1]["machine"],
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=ROOT / "configs" / "rectangle.yaml")
@@ -409,7 +440,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json"
     )
+    parser.add_argument("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
     args = parser.parse_args(argv)
+    if args.merge:
+        merged = merge_reports(args.merge, args.final_tol)
+        args.out.write_text(json.dumps(merged, indent=1))
+        print_table(merged["summary"], merged["variants"], merged["draws_done"], args.final_tol)
+        print(f"wrote {args.out}")
+        return 0
     if args.draws < 1 or args.first < 0 or args.workers < 1:
         parser.error("--draws and --workers must be >= 1, --first >= 0")
     seeds = list(range(args.first, args.first + args.draws))
