@@ -13,7 +13,13 @@ from hypothesis import strategies as st
 from capsule_mpc.cli import main
 from capsule_mpc.config import ConfigError, LearnedFrictionModel, LearnedModelWarning, load_config
 from capsule_mpc.learning import LearningDataError, LogOptions, learn_from_logs, read_run_log
-from capsule_mpc.learning.breakaway import detect_breakaway, fit_healing, is_breakaway_log
+from capsule_mpc.learning import core as learning_core
+from capsule_mpc.learning.breakaway import (
+    StaticFrictionResult,
+    detect_breakaway,
+    fit_healing,
+    is_breakaway_log,
+)
 from capsule_mpc.learning.demonstrations import BreakawayPlan, run_demonstrations
 from capsule_mpc.learning.logs import RunLog
 from capsule_mpc.sim import CapsulePlant, draw_plant_truth, read_log
@@ -361,3 +367,22 @@ def test_demonstrate_cli_refuses_bad_breakaway_options(tmp_path, capsys, extra, 
     assert main(["demonstrate", "--out", str(tmp_path / "o"), *extra]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_an_unphysical_static_fit_is_left_out_of_the_model_with_a_warning(
+    lab_scenario, lab_runs, monkeypatch
+):
+    """Breakaways that scatter more than they heal can fit mu_s(1 s) < 0: not friction. The model
+    is still learned (its c(v)), without a static part, and says why."""
+    _, runs = lab_runs
+    fit = fit_healing([2.0, 2.0, 10.0, 50.0], [0.02, 0.03, 0.15, 0.30])
+    assert fit.static_mu_1s < 0
+    bad = StaticFrictionResult(events=(), fit=fit, notes=[], force_model="lookup")
+    monkeypatch.setattr(learning_core, "learn_static_friction", lambda *a, **k: bad)
+    result = learn_from_logs([r.log_path for r in runs], _lookup(lab_scenario), LogOptions(), degree=1)
+    assert result.model.static_mu_1s is None and result.model.static_healing is None
+    assert result.static is bad  # still reported
+    assert any(
+        w.startswith("static friction not in the model: the breakaway fit gives mu_s(1 s) = ")
+        for w in result.warnings
+    )

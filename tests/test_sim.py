@@ -18,6 +18,7 @@ from capsule_mpc.sim import (
     REQUIRED_COLUMNS,
     Camera,
     CapsulePlant,
+    ClosedLoop,
     MapForces,
     PathProgress,
     SimpleArm,
@@ -306,6 +307,36 @@ def test_capsule_that_cannot_follow_decouples_and_is_reported(scenario):
     assert res.flags.decoupled and not res.flags.dropped and res.metrics["decoupled"]
     assert res.flags.failure_t_s > 0
     assert res.log["t_s"][-1] == pytest.approx(res.flags.failure_t_s)
+    assert np.all(np.diff(res.log["t_s"]) > 0)  # the failure's row comes after the last frame's
+
+
+@pytest.mark.parametrize("frame_offset_ms", [0, 1, 17])
+def test_a_failure_at_any_plant_step_of_a_frame_logs_after_that_frame(scenario, frame_offset_ms):
+    """A plant that fails at the first plant step after a frame (or later) ends the log at the
+    failing step's end, never at the previous frame's time (a log read back must have strictly
+    increasing times)."""
+    sc = short_settle(scenario)
+    loop = ClosedLoop(sc, "follow", SHORT, 0)
+    loop.reset()
+    for _ in range(40):
+        loop.step()
+    k_fail = loop.k + frame_offset_ms
+    step = loop.plant.step
+    calls = {"n": 0}
+
+    def fail_at(dt_s, x, y, z):
+        calls["n"] += 1
+        if calls["n"] > frame_offset_ms:
+            loop.plant.failure = "dropped: test"
+            return FAILURE_DROPPED
+        return step(dt_s, x, y, z)
+
+    loop.plant.step = fail_at
+    while not loop.done:
+        loop.step()
+    t = loop.result().log["t_s"]
+    assert np.all(np.diff(t) > 0)
+    assert t[-1] == pytest.approx((k_fail + 1) * loop.dt)
 
 
 def test_same_seed_same_log_other_seed_other_noise(scenario):

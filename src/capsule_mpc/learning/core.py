@@ -75,6 +75,8 @@ class LearningResult:
         The breakaways and the healing law, when breakaway logs were among the inputs.
     rig_warning : str or None
         Why no rig is recorded although the logs have provenance (they ran on several rigs).
+    static_warning : str or None
+        Why the static friction fitted from the breakaways is not in the model (it is unphysical).
     """
 
     samples: FrictionSamples
@@ -87,6 +89,7 @@ class LearningResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     static: StaticFrictionResult | None = None
     rig_warning: str | None = None
+    static_warning: str | None = None
 
     @property
     def warnings(self) -> list[str]:
@@ -94,6 +97,8 @@ class LearningResult:
         out = [f"weak fit: {reason}" for reason in self.quality.reasons]
         if self.rig_warning:
             out.append(self.rig_warning)
+        if self.static_warning:
+            out.append(self.static_warning)
         for check in self.loop_checks:
             if check.closed_loop:
                 out.append(
@@ -259,7 +264,8 @@ def learn_from_logs(
     rig, rig_warning = _rig_of(found)
     result = learn_friction(samples, scenario, force_model=kind, **kwargs)  # type: ignore[arg-type]
     model = result.model
-    if static is not None:
+    static_warning = _static_problem(static)
+    if static is not None and static_warning is None:
         ci95 = {**(model.ci95 or {}), **static.fit.ci95}
         model = model.model_copy(
             update={
@@ -272,9 +278,31 @@ def learn_from_logs(
     if rig is not None:
         model = model.model_copy(update={"rig": rig})
     model = LearnedFrictionModel.model_validate(model.model_dump())  # re-check the combined record
-    result = replace(result, model=model, loop_checks=checks, static=static, rig_warning=rig_warning)
+    result = replace(
+        result,
+        model=model,
+        loop_checks=checks,
+        static=static,
+        rig_warning=rig_warning,
+        static_warning=static_warning,
+    )
     result.timings_s.update(samples=t1 - t0, loop_check=t2 - t1, breakaway=t3 - t2)
     return result
+
+
+def _static_problem(static: StaticFrictionResult | None) -> str | None:
+    """Why the fitted static friction cannot go into the model (None: it can): a breakaway
+    coefficient below 0 after 1 s of rest is not friction; it comes from breakaways that scatter
+    more than they heal over the rest times tried."""
+    if static is None or static.fit.static_mu_1s >= 0:
+        return None
+    fit = static.fit
+    return (
+        f"static friction not in the model: the breakaway fit gives mu_s(1 s) = {fit.static_mu_1s:.3g} < 0 "
+        f"(healing {fit.static_healing:.3g} per e-fold from {fit.n} breakaways), which is not friction; "
+        "the breakaways scatter more than they heal over these rest times: run more breakaway "
+        "experiments (capsule-mpc demonstrate --rest-times)"
+    )
 
 
 def _rig_of(paths: Sequence[Path]) -> tuple[LearnedRig | None, str | None]:

@@ -480,7 +480,9 @@ class ClosedLoop:
         self.actuator.set_velocity_command(k * self.dt, np.zeros(3))
 
     def _advance(self, k: int, k_to: int) -> tuple[int, int]:
-        """Step the plant and the arm from plant step ``k`` to ``k_to``; returns (k, status)."""
+        """Step the plant and the arm from plant step ``k`` to ``k_to``; returns (k, status). A
+        failing step counts: the arm has moved for it and the plant failed under the arm's new
+        position, so the failure is at the step's end (its row comes after the last frame's)."""
         step_plant, step_act, pending = self.plant.step, self.actuator.step_xyz, self.pending
         status = OK
         while k < k_to:
@@ -491,9 +493,9 @@ class ClosedLoop:
                 self.actuator.set_velocity_command(k * self.dt, self.arm_cmd)
             ex, ey, ez = step_act(self.dt)
             status = step_plant(self.dt, ex, ey, ez)
+            k += 1
             if status != OK:
                 break
-            k += 1
         return k, status
 
     def _command(self, k: int, t: float, vel: np.ndarray, step_s: float, extra_s: float = 0.0) -> None:
