@@ -732,6 +732,22 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "larger magnet and camera errors.",
     ),
     (
+        "friction_ablation_hard100",
+        "Stalls on 100 `hard` draws: the paper's c(v) against the learned model",
+        render_ablation,
+        "The `hard` ablation's paper and learned variants on 100 draws: the 38 draws above and 62 more "
+        "(seeds 38-99) run later with the same code for these two variants, merged with "
+        "`friction_ablation.py --merge`.",
+    ),
+    (
+        "friction_options_lab",
+        "Static friction in the controller beyond the approach (`lab`)",
+        render_ablation,
+        "The learned model with the two optional uses of its breakaway: static friction in the MPC's "
+        "prediction of a resting capsule (`mpc.stick_prediction`) and the start's pre-load to 0.9 of "
+        "the believed breakaway (`mpc.start_preload: 0.9`); see [friction.md](friction.md).",
+    ),
+    (
         "dipole_vs_finite",
         "Point dipole against finite magnets",
         render_dipole,

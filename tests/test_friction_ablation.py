@@ -43,6 +43,7 @@ def _report(path: Path, seeds: list[int], variants: list[str], plant: str = "har
         for s in seeds
     ]
     data = {"command": f"part {seeds[0]}", "config": "c.yaml", "plant": plant, "seeds": seeds, "draws": draws}
+    data["draws_failed"] = [{"seed": 1, "error": "e"}, {"seed": 9, "error": "e"}] if 0 in seeds else []
     path.write_text(json.dumps({**data, "seconds": 10.0, "machine": {"cpus": 2}}))
     return path
 
@@ -54,6 +55,7 @@ def test_parts_merge_into_one_report(ablation, tmp_path):
     assert [d["seed"] for d in merged["draws"]] == [0, 1, 2, 3]  # seed 1 once
     assert merged["variants"] == ["paper", "learned"]  # what every draw ran
     assert merged["parts"] == ["part 0", "part 1"] and merged["seconds"] == 20.0
+    assert [f["seed"] for f in merged["draws_failed"]] == [9]  # seed 1 ran in a part
     s = merged["summary"]
     assert s["paper"]["stalled"] == 2 and s["learned"]["stalled"] == 2  # seeds 0 and 2
     assert s["learned"]["vs_paper"]["tracking_rms_mm"]["better"] == 0
