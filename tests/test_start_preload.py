@@ -97,7 +97,7 @@ def test_every_preload_command_keeps_the_arms_limits(scenario, angle):
     assert np.abs(a).max() <= lim.accel_mps2 + 1e-6
     assert np.abs(j).max() <= lim.jerk_mps3 * (1 + 1e-6) + 1e-6
     # It got to the pre-load lead and then runs on along the path at the path's speed.
-    assert start._reached
+    assert not start.active and start.end_reason == "pre-loaded"
     np.testing.assert_allclose(v[-1][0:2], sc.path.speed_mps * start.direction, atol=1e-9)
     assert v[-1][2] == 0.0
 

@@ -76,6 +76,7 @@ __all__ = [
     "OBSERVE_SETTLE_S",
     "RELEASE_LEAD_S",
     "FinalApproach",
+    "epm_ruckig",
 ]
 
 #: Time constant of the crawl speed profile, s: the desired speed is the remaining distance over
@@ -93,6 +94,22 @@ _RELEASE_TOL_M = 2e-4
 _MIN_SPEED_FRACTION = 0.25
 #: Largest EPM speed of the crawl and the release, in units of the crawl speed.
 _EPM_SPEED_FACTOR = 4.0
+
+
+def epm_ruckig(
+    scenario: Scenario, dt_s: float
+) -> tuple[ruckig.Ruckig, ruckig.InputParameter, ruckig.OutputParameter]:
+    """Ruckig for the EPM's three axes at the frame period ``dt_s``, within ``limits.speed_mps``,
+    ``limits.accel_mps2`` and ``limits.jerk_mps3`` per axis, each axis on its own time-optimal
+    profile (synchronised, a millimetre's correction on one axis would stretch the motion on the
+    others); the position interface unless the caller sets another."""
+    lim = scenario.limits
+    inp = ruckig.InputParameter(3)
+    inp.synchronization = ruckig.Synchronization.No
+    inp.max_velocity = [lim.speed_mps] * 3
+    inp.max_acceleration = [lim.accel_mps2] * 3
+    inp.max_jerk = [lim.jerk_mps3] * 3
+    return ruckig.Ruckig(3, dt_s), inp, ruckig.OutputParameter(3)
 
 
 class FinalApproach:
@@ -150,14 +167,8 @@ class FinalApproach:
         self._release_lead = 0.0
         self._start_s = math.nan
         self._accel = np.zeros(3)
-        lim = scenario.limits
-        self._ruckig = ruckig.Ruckig(3, dt_s)
-        self._ruckig_in, self._ruckig_out = ruckig.InputParameter(3), ruckig.OutputParameter(3)
+        self._ruckig, self._ruckig_in, self._ruckig_out = epm_ruckig(scenario, dt_s)
         self._ruckig_in.control_interface = ruckig.ControlInterface.Velocity
-        self._ruckig_in.synchronization = ruckig.Synchronization.No
-        self._ruckig_in.max_velocity = [lim.speed_mps] * 3
-        self._ruckig_in.max_acceleration = [lim.accel_mps2] * 3
-        self._ruckig_in.max_jerk = [lim.jerk_mps3] * 3
 
     def warm_up(self, height_m: float) -> None:
         """Run once, before the loop, the numerics the approach first reaches at the path's end: the

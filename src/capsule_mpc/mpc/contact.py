@@ -33,29 +33,19 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 
-import casadi as ca
 import numpy as np
 
-from ..config import Scenario
-from ..dynamics import normal_force_expr
+from ..dynamics import CapsuleModel
 from ..estimation import fit_window
 from ..friction import FrictionBelief
 
-__all__ = ["REST_WINDOW_S", "ContactModes", "RestDetector", "mu_at_rest"]
+__all__ = ["REST_WINDOW_S", "ContactModes", "RestDetector"]
 
 #: Window of estimated positions a capsule must stay slow over to count as resting again, s.
 REST_WINDOW_S = 0.3
 #: Fewest camera noise standard deviations the recent estimates must leave the rest position by
 #: to count as moving, the least distance (m), and how many recent estimates are averaged.
 DEPART_NOISE_STDS, DEPART_MIN_M, DEPART_FRAMES = 4.0, 5e-4, 4
-
-
-def mu_at_rest(belief: FrictionBelief, eps_mps: float) -> float:
-    """The friction coefficient the controller's model gives a capsule at rest: its law at the
-    smoothed speed ``eps_mps`` (c(v) held inside its validity range, as the model holds it)."""
-    law = belief.law
-    c = float(np.polyval(law.coefficients, np.clip(eps_mps, *law.validity_mps)))
-    return max(law.mu0 - c * float(np.log(law.v_star_mps / eps_mps)), 0.0)
 
 
 class RestDetector:
@@ -134,10 +124,8 @@ class ContactModes:
 
     Parameters
     ----------
-    scenario : Scenario
-        The controller's scenario (its model's view of the rig).
-    force : casadi.Function
-        The controller's force model, ``F (3) = force(lead (2), height)``, N.
+    model : CapsuleModel
+        The MPC's capsule model: its force, normal force and friction at rest.
     belief : FrictionBelief
         The controller's friction belief (its breakaway force).
     stage_times_s : numpy.ndarray (N,)
@@ -148,19 +136,14 @@ class ContactModes:
 
     def __init__(
         self,
-        scenario: Scenario,
-        force: ca.Function,
+        model: CapsuleModel,
         belief: FrictionBelief,
         stage_times_s: np.ndarray,
         rest: RestDetector,
     ) -> None:
-        self.scenario = scenario
         self.belief = belief
         self.stage_times_s = np.asarray(stage_times_s, dtype=float)
-        self._forces = force.map(len(self.stage_times_s))
-        eps = scenario.mpc.friction_smoothing_eps_mps or scenario.friction.smoothing_eps_mps
-        #: The model's friction coefficient at rest (what the static force adds to).
-        self.mu_rest = mu_at_rest(belief, eps)
+        self._outputs = model.outputs.map(len(self.stage_times_s))
         self.rest = rest
         self.breakaway_stage = 0
 
@@ -192,18 +175,16 @@ class ContactModes:
             self.breakaway_stage = 0
             return np.zeros(n)
         epm = np.asarray(epm_path_m, dtype=float)
-        leads = epm[0:2] - position[:, None]
-        forces = np.asarray(self._forces(leads, epm[2:3]))
+        still = np.vstack([np.tile(position[:, None], (1, n)), np.zeros((2, n)), epm])
+        _lead, forces, normal, mu = (np.asarray(x) for x in self._outputs(still))
         lateral = np.linalg.norm(forces[0:2] + np.asarray(disturbance_xy_n, dtype=float)[:, None], axis=0)
-        normal = np.asarray([float(normal_force_expr(self.scenario, f)) for f in forces[2]])
+        normal = np.maximum(normal.ravel(), 0.0)
         rest = self.rest.rest_s(t_s)
         drag = np.array([self.belief.drag_n(progress_m(t_s + dt)) for dt in self.stage_times_s])
         breakaway = (
-            np.array([self.belief.breakaway_mu(rest + dt) for dt in self.stage_times_s])
-            * np.maximum(normal, 0.0)
-            + drag
+            np.array([self.belief.breakaway_mu(rest + dt) for dt in self.stage_times_s]) * normal + drag
         )
         free = np.maximum.accumulate(lateral > breakaway)
         self.breakaway_stage = int(np.argmax(free)) if free.any() else n
-        sliding = self.mu_rest * np.maximum(normal, 0.0) + drag
+        sliding = mu.ravel() * normal + drag  # the model's own friction of a capsule at rest
         return np.where(free, 0.0, np.maximum(breakaway - sliding, 0.0))

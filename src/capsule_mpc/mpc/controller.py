@@ -212,7 +212,7 @@ class MPCController(Controller):
         self.contact = self.start = None
         if self.rest is not None and cfg.stick_prediction:
             times = stack.ocp.node_times_s[1:]
-            self.contact = ContactModes(scenario, stack.force, self.friction_belief, times, self.rest)
+            self.contact = ContactModes(stack.model, self.friction_belief, times, self.rest)
         if self.rest is not None and cfg.start_preload is not None:
             self.start = StartPreload(
                 scenario, path, stack.force, stack.ocp.lead_eq_m, self.friction_belief, self.rest, self.dt_s

@@ -34,6 +34,7 @@ from ..config import Scenario
 from ..dynamics import normal_force_expr
 from ..friction import FrictionBelief
 from ..paths import ReferencePath
+from .approach import epm_ruckig
 from .contact import RestDetector
 
 __all__ = ["PRELOAD_MAX_S", "StartPreload"]
@@ -86,16 +87,7 @@ class StartPreload:
         self.active = self.fraction is not None and speed > 0
         self.target_lead_m: np.ndarray | None = None
         self.end_reason = ""
-        lim = scenario.limits
-        self._ruckig = ruckig.Ruckig(3, dt_s)
-        self._in, self._out = ruckig.InputParameter(3), ruckig.OutputParameter(3)
-        # Each axis on its own time-optimal profile: synchronised, a millimetre's correction across
-        # the path would stretch the pull along it.
-        self._in.synchronization = ruckig.Synchronization.No
-        self._in.max_velocity = [lim.speed_mps] * 3
-        self._in.max_acceleration = [lim.accel_mps2] * 3
-        self._in.max_jerk = [lim.jerk_mps3] * 3
-        self._reached = False
+        self._ruckig, self._in, self._out = epm_ruckig(scenario, dt_s)
         self._state: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._target_m = np.zeros(3)
 
@@ -161,7 +153,6 @@ class StartPreload:
         inp.target_acceleration = [0.0, 0.0, 0.0]
         result = self._ruckig.update(inp, out)
         if result == ruckig.Result.Finished:  # pre-loaded: the MPC goes on from here
-            self._reached = True
             self.active, self.end_reason = False, "pre-loaded"
         elif result != ruckig.Result.Working:
             self.active, self.end_reason = False, "no jerk-limited profile to the pre-load lead"
