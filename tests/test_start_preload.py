@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
@@ -74,6 +74,8 @@ def test_the_preload_lead_gives_the_fraction_of_the_believed_breakaway(scenario,
 
 @settings(max_examples=10, deadline=None)
 @given(angle=st.floats(0.0, 2 * np.pi))
+@example(angle=0.0)
+@example(angle=5.0)  # across the soft axis: the target lies on the coupling limit
 def test_every_preload_command_keeps_the_arms_limits(scenario, angle):
     sc = preload_scenario(scenario)
     start, _, epm = make(sc, angle)
@@ -96,8 +98,12 @@ def test_every_preload_command_keeps_the_arms_limits(scenario, angle):
     assert np.abs(v).max() <= lim.speed_mps + 1e-9
     assert np.abs(a).max() <= lim.accel_mps2 + 1e-6
     assert np.abs(j).max() <= lim.jerk_mps3 * (1 + 1e-6) + 1e-6
-    # It got to the pre-load lead and then runs on along the path at the path's speed.
-    assert not start.active and start.end_reason == "pre-loaded"
+    assert not start.active
+    on_limit = np.linalg.norm(start.target_lead_m - model_equilibrium_lead(sc)) >= lim.max_lead_m - 1e-9
+    if on_limit and start.end_reason == "coupling limit":
+        return  # a target on the coupling limit (the force does not get there): the EPM reaches it
+    # It got to the pre-load lead, arriving at the path's speed along the path.
+    assert start.end_reason == "pre-loaded"
     np.testing.assert_allclose(v[-1][0:2], sc.path.speed_mps * start.direction, atol=1e-9)
     assert v[-1][2] == 0.0
 
