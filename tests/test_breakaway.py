@@ -191,6 +191,19 @@ def test_lab_rig_breakaways_match_the_plants_breakaway_coefficient(lab_scenario,
     _fit_against_truth(lab_scenario, 0, runs, LAB_TOL)
 
 
+def test_the_capsule_rests_where_the_controlled_runs_start(scenario, ideal_runs):
+    """The plate's friction varies over it: the breakaway is measured where the controller needs it."""
+    from capsule_mpc.paths import path_from_scenario
+
+    _, runs = ideal_runs
+    start = path_from_scenario(scenario).start_m
+    assert np.hypot(*start) > 0.01  # the rectangle does not start at the plate's origin
+    for run in runs:
+        log = read_log(run.log_path)
+        rest = np.array([log["capsule_x_m"][0], log["capsule_y_m"][0]])
+        assert np.hypot(*(rest - start)) < 1e-3
+
+
 def test_every_run_is_on_the_one_rig_and_the_rig_is_recorded(lab_scenario, lab_runs):
     out, runs = lab_runs
     manifest = json.loads((out / "demonstrations.json").read_text())

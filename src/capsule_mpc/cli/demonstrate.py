@@ -34,8 +34,8 @@ def register(sub: Any) -> None:
         description=(
             "On one rig (--plant, --seed: one plant draw), run the `follow` baseline in the simulator at "
             "each speed on straight and rectangular paths (as the paper recorded its samples), and breakaway "
-            "experiments (the capsule rests T seconds under the still EPM, then the EPM is pulled slowly "
-            "along x, and along y, until the capsule slides). One run folder per run (log.csv, config.yaml, "
+            "experiments at the start of the path (the capsule rests T seconds under the still EPM, then the "
+            "EPM is pulled slowly along x, and along y, until the capsule slides). One run folder per run (log.csv, config.yaml, "
             "run.json, demonstration.json). Finished runs with the same config, rig, path, speed and seed "
             "are reused."
         ),

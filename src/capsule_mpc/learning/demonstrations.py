@@ -41,7 +41,7 @@ from .. import __version__
 from ..atomic import write_text_atomic
 from ..config import Scenario, dump_config
 from ..interfaces import Command, Controller, Measurement, StepStats
-from ..paths import ReferencePath, rectangle
+from ..paths import ReferencePath, path_from_scenario, rectangle
 from ..sim import simulate, write_run
 
 __all__ = [
@@ -274,13 +274,16 @@ def _status(flags: Any) -> str:
 
 
 def breakaway_path(scenario: Scenario, direction: str, plan: BreakawayPlan) -> ReferencePath:
-    """The reference of a breakaway experiment: from ``scenario.path.origin_m`` along x or y by the pull.
+    """The reference of a breakaway experiment: from the start of the scenario's path along x or y
+    by the pull.
 
-    The capsule rests at its start (the EPM at the nominal equilibrium lead over it); the path's
-    length and speed are the pull's, so the run lasts the pull plus the rest time before it.
+    The capsule rests where the controlled runs start (and a closed path ends): the friction of
+    the plate varies over it, and the controller needs the breakaway there. The EPM is at the
+    nominal equilibrium lead over the capsule; the path's length and speed are the pull's, so the
+    run lasts the pull plus the rest time before it.
     """
     unit = np.array([1.0, 0.0]) if direction == "x" else np.array([0.0, 1.0])
-    origin = np.asarray(scenario.path.origin_m, dtype=float)
+    origin = np.asarray(path_from_scenario(scenario).start_m, dtype=float)
     return ReferencePath(np.array([origin, origin + plan.pull_m * unit]), False, plan.speed_mps)
 
 
