@@ -35,7 +35,8 @@ window: t = 0 to the latest end among them (:func:`capsule_mpc.experiments.compa
 Prints, per variant, mean +- sd (worst) over the draws of the tracking RMS, cross-track RMS, the
 start window's tracking RMS (first 1.5 s), the final error, the runs ending within
 ``--final-tol``, stalls and solver failures, and the paired difference to ``paper``; the learned
-breakaway after 2 s at rest against the plant's. Writes it all, with each draw's numbers and the
+breakaway after 2 s at rest, and after the rest the draw's capsule had before its run, against the
+plant's at the path's start (``--learn-only``: only this, no controller runs). Writes it all, with each draw's numbers and the
 command, to ``--out`` (JSON).
 
     .venv/bin/python benchmarks/friction_ablation.py --plant lab --draws 20 \\
@@ -182,6 +183,7 @@ def learn_on_draw(
             *map(str, args.speeds),
             "--out",
             str(work / "demos"),
+            *([] if args.pull_preload is None else ["--pull-preload", str(args.pull_preload)]),
             allowed=(0, 1),
         )
         _cli(
@@ -195,8 +197,15 @@ def learn_on_draw(
         )
     learned = LearnedFrictionModel.model_validate(yaml.safe_load(model_path.read_text()))
     mine = FrictionBelief.from_scenario(with_friction(base, learned))
-    truth_mu = FrictionBelief.from_scenario(with_friction(base, oracle)).breakaway_mu(CHECK_REST_S)
+    truth = FrictionBelief.from_scenario(with_friction(base, oracle))
+    truth_mu = truth.breakaway_mu(CHECK_REST_S)
+    # The breakaway the start needs: after the rest the draw's capsule had before the run.
+    start_rest = draw_plant_truth(base, seed).rest_before_start_s
+    has_static = learned.static_mu_1s is not None
     return learned, {
+        "start_rest_s": start_rest,
+        "breakaway_mu_learned_start": mine.breakaway_mu(start_rest) if has_static else None,
+        "breakaway_mu_plant_start": truth.breakaway_mu(start_rest),
         "seconds": time.perf_counter() - t0,
         "reused": status is None,
         "demonstrations_failed": status == 1,
@@ -217,8 +226,16 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
     oracle = oracle_model(base, seed)
     out: dict[str, Any] = {"seed": seed}
     learned: LearnedFrictionModel | None = None
-    if {"learned", "online"} & {v.split("+")[0] for v in args.variants}:
+    if args.learn_only or {"learned", "online"} & {v.split("+")[0] for v in args.variants}:
         learned, out["learning"] = learn_on_draw(args, work, base, oracle, seed)
+    if args.learn_only:
+        ln = out["learning"]
+        print(
+            f"draw {seed}: breakaway learned {ln['breakaway_mu_learned']}, plant {ln['breakaway_mu_plant']:.3f}",
+            flush=True,
+        )
+        out["runs"] = {}
+        return out
     results = {
         "paper_0.8v": simulate(
             base,
@@ -301,10 +318,19 @@ def summarise(draws: list[dict[str, Any]], variants: list[str], final_tol_mm: fl
             "n": len(rel),
             "relative_error": _spread(rel),
         }
+        at_start = [x for x in learning if "breakaway_mu_plant_start" in x]
+        if at_start:
+            rel = [abs(x["breakaway_mu_learned_start"] / x["breakaway_mu_plant_start"] - 1) for x in at_start]
+            summary["breakaway_start_rest"] = {
+                "within_10pct": int(sum(r <= 0.1 for r in rel)),
+                "n": len(rel),
+                "relative_error": _spread(rel),
+            }
+    summary["learning_failed"] = sum(1 for d in draws if "learning" in d and not d["learning"]["breakaway_mu_learned"])
     return summary
 
 
-def print_table(summary: dict[str, Any], variants: list[str], n: int, final_tol_mm: float) -> None:
+def _print_runs(summary: dict[str, Any], variants: list[str], n: int, final_tol_mm: float) -> None:
     print(f"\n{n} draws; mean +- sd (worst); paired difference to paper: mean (better on k of {n})")
     print(
         "| model | tracking RMS (mm) | cross-track RMS (mm) | first 1.5 s (mm) | final error (mm) "
@@ -325,11 +351,24 @@ def print_table(summary: dict[str, Any], variants: list[str], n: int, final_tol_
             + " | ".join(cells)
             + f" | {s['final_within_tol']}/{n} | {s['stalled']} | {s['solver_failures']} |"
         )
+
+
+def print_table(summary: dict[str, Any], variants: list[str], n: int, final_tol_mm: float) -> None:
+    if variants:
+        _print_runs(summary, variants, n, final_tol_mm)
     if "breakaway" in summary:
         b = summary["breakaway"]
         err = b["relative_error"]
         print(
             f"\nlearned breakaway after {b['rest_s']:g} s at rest within 10 % of the plant's: "
+            f"{b['within_10pct']}/{b['n']} (|relative error| {err['mean']:.3f} +- {err['sd']:.3f}, "
+            f"worst {err['worst']:.3f})"
+        )
+    if "breakaway_start_rest" in summary:
+        b = summary["breakaway_start_rest"]
+        err = b["relative_error"]
+        print(
+            "learned breakaway after the draw's rest before its run within 10 % of the plant's: "
             f"{b['within_10pct']}/{b['n']} (|relative error| {err['mean']:.3f} +- {err['sd']:.3f}, "
             f"worst {err['worst']:.3f})"
         )
@@ -442,7 +481,20 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json"
     )
     parser.add_argument("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
+    parser.add_argument(
+        "--learn-only",
+        action="store_true",
+        help="demonstrate and learn on each draw and check its breakaway; run no controller",
+    )
+    parser.add_argument(
+        "--pull-preload",
+        type=float,
+        default=None,
+        help="demonstrate --pull-preload (default: the command's default)",
+    )
     args = parser.parse_args(argv)
+    if args.learn_only:
+        args.variants = []
     if args.merge:
         merged = merge_reports(args.merge, args.final_tol)
         args.out.write_text(json.dumps(merged, indent=1))

@@ -140,9 +140,9 @@ def test_a_capsule_that_never_moves_has_no_breakaway():
 
 # --- simulated breakaways on one rig ---------------------------------------------------------
 
-#: A shorter, quicker pull than the default (1 mm/s over 32 mm): along x the capsule breaks away
-#: within a few millimetres, and the plant's breakaway does not depend on the reload speed.
-FAST_PULL = {"speed_mps": 0.002, "pull_m": 0.012}
+#: A shorter pull than the default (32 mm): after the pre-load the capsule breaks away along x
+#: within a few millimetres of the slow pull.
+FAST_PULL = {"speed_mps": 0.001, "pull_m": 0.01}
 
 
 @pytest.fixture(scope="module")
@@ -202,6 +202,52 @@ def test_the_capsule_rests_where_the_controlled_runs_start(scenario, ideal_runs)
         log = read_log(run.log_path)
         rest = np.array([log["capsule_x_m"][0], log["capsule_y_m"][0]])
         assert np.hypot(*(rest - start)) < 1e-3
+
+
+@settings(max_examples=15, deadline=None)
+@given(low=st.floats(0.05, 0.85), step=st.floats(0.02, 0.1))
+def test_the_preload_lead_is_the_last_below_the_fraction_and_grows_with_it(scenario, low, step):
+    """The pre-load stops where the nominal lateral force reaches the fraction of the nominal
+    sliding friction (mu0 F_N + f_s), computed here from the force model directly."""
+    from capsule_mpc.dynamics import normal_force_expr
+    from capsule_mpc.learning.demonstrations import _PRELOAD_STEP_M, preload_distance
+    from capsule_mpc.magnetics import capsule_force_function
+
+    fn = capsule_force_function(scenario, "lookup")
+    h, u = scenario.plate.epm_height_m, np.array([1.0, 0.0])
+    lead0 = np.array([-0.0165, 0.0])  # about the Halbach array's equilibrium lead
+
+    def ratio(d):
+        f = np.asarray(fn(lead0 + d * u, h), dtype=float).ravel()
+        n = float(normal_force_expr(scenario, f[2]))
+        return np.hypot(f[0], f[1]) / (scenario.friction.mu0 * n + scenario.friction.tether_drag_n)
+
+    assume(ratio(0.0) < low)
+    d_low = preload_distance(scenario, lead0, h, u, low)
+    d_high = preload_distance(scenario, lead0, h, u, min(low + step, 0.95))
+    assert ratio(d_low) < low <= ratio(d_low + _PRELOAD_STEP_M) + 1e-12
+    assert d_high >= d_low
+
+
+def test_a_preloaded_pull_breaks_away_after_about_the_rest_asked_for(scenario, tmp_path):
+    """Without the pre-load the slow pull loads the capsule for seconds while it heals; with it the
+    capsule breaks loose in the slow part of the pull, seconds sooner."""
+    from capsule_mpc.learning.demonstrations import BreakawayPull, breakaway_path
+
+    rest, found = 0.5, {}
+    for preload in (0.0, 0.6):
+        plan = BreakawayPlan(rest_s=(rest,), directions=("x",), speed_mps=0.001, pull_m=0.012, preload=preload)
+        run = run_demonstrations(scenario, [], tmp_path / f"p{preload}", seed=5, breakaway=plan)[0]
+        rest_true, _, t_before, _ = _plant_truth_mu(scenario, 5, run.log_path)
+        pull = BreakawayPull([1.0, 0.0], plan.speed_mps, plan.pull_m, preload)
+        log = read_log(run.log_path)
+        epm0 = np.array([log["epm_x_m"][0], log["epm_y_m"][0], log["epm_z_m"][0]])
+        pull.reset(scenario, breakaway_path(scenario, "x", plan), epm0)
+        found[preload] = (rest_true, t_before, pull.preload_m / pull.fast_mps)
+    slow_rest, pre_rest, (_, pre_t, fast_s) = found[0.0][0], found[0.6][0], found[0.6]
+    assert slow_rest - rest > 3.0  # a 1 mm/s pull from the rest lead loads for seconds
+    assert pre_rest < slow_rest - 1.5
+    assert 0.1 < fast_s < pre_t  # it broke loose after the quick pre-load, in the slow pull
 
 
 def test_every_run_is_on_the_one_rig_and_the_rig_is_recorded(lab_scenario, lab_runs):
@@ -374,6 +420,8 @@ def test_demonstrate_cli_runs_on_the_rig_it_is_given(tmp_path, capsys, table):
         (["--rest-times", "1", "1"], "--rest-times"),
         (["--pull", "0.05"], "--pull: must be in (0, 0.035) m"),
         (["--pull-speed", "0.5"], "--pull-speed: must be in (0, 0.08] m/s"),
+        (["--pull-preload", "1"], "--pull-preload: must be in [0, 1), got 1.0"),
+        (["--pull-preload", "-0.1"], "--pull-preload: must be in [0, 1), got -0.1"),
     ],
 )
 def test_demonstrate_cli_refuses_bad_breakaway_options(tmp_path, capsys, extra, message):

@@ -167,6 +167,14 @@ def add_breakaway_arguments(p: argparse.ArgumentParser, defaults: BreakawayPlan)
         default=defaults.pull_m,
         help=f"pull length along x and along y, m, in (0, 0.035) (default {defaults.pull_m:g})",
     )
+    g.add_argument(
+        "--pull-preload",
+        type=float,
+        default=defaults.preload,
+        metavar="FRACTION",
+        help="move the EPM quickly to the lead where the nominal force is this fraction of the nominal "
+        f"sliding friction before the slow pull, in [0, 1); 0: none (default {defaults.preload:g})",
+    )
 
 
 def add_run_arguments(p: argparse.ArgumentParser) -> None:

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc demonstrate: {problem}", file=sys.stderr)
         return 2
     try:  # a bad value or an output folder refused is exit 2 (an OutputError is a ConfigError)
-        plan = None if args.no_breakaway else breakaway_plan(args.rest_times, args.pull_speed, args.pull)
+        plan = None if args.no_breakaway else breakaway_plan(args.rest_times, args.pull_speed, args.pull, args.pull_preload)
         check_demonstrations(scenario, args.speeds, args.paths, args.repeats, plan)
         print(
             f"capsule-mpc demonstrate: on one rig: plant preset {scenario.plant.preset!r}, seed {args.seed}"

@@ -16,6 +16,7 @@ from ..budget import MAX_RUNS, check_run, speed_source
 from ..config import ConfigError, Scenario, config_from_dict
 from ..learning.demonstrations import (
     BREAKAWAY_DIRECTIONS,
+    BREAKAWAY_PRELOAD,
     DEMO_PATHS,
     BreakawayPlan,
     DemoRun,
@@ -56,19 +57,27 @@ def rig_scenario(scenario: Scenario, plant_preset: str | None) -> Scenario:
     return out
 
 
-def breakaway_plan(rest_s: Sequence[float], speed_mps: float, pull_m: float) -> BreakawayPlan:
+def breakaway_plan(
+    rest_s: Sequence[float], speed_mps: float, pull_m: float, preload: float = BREAKAWAY_PRELOAD
+) -> BreakawayPlan:
     """The breakaway experiments: a pull at ``speed_mps`` over ``pull_m`` along each direction
-    after each rest time of ``rest_s``.
+    after each rest time of ``rest_s``, pre-loaded quickly to ``preload`` of the nominal sliding
+    friction.
 
     Raises
     ------
     ConfigError
-        Naming ``--rest-times``, ``--pull-speed`` or ``--pull`` and the allowed range.
+        Naming ``--rest-times``, ``--pull-speed``, ``--pull`` or ``--pull-preload`` and the allowed
+        range.
     """
     refuse_repeats("--rest-times", list(rest_s))
     try:
         return BreakawayPlan(
-            rest_s=tuple(rest_s), speed_mps=speed_mps, pull_m=pull_m, directions=tuple(BREAKAWAY_DIRECTIONS)
+            rest_s=tuple(rest_s),
+            speed_mps=speed_mps,
+            pull_m=pull_m,
+            directions=tuple(BREAKAWAY_DIRECTIONS),
+            preload=preload,
         )
     except ValueError as exc:
         text = str(exc)
@@ -76,6 +85,7 @@ def breakaway_plan(rest_s: Sequence[float], speed_mps: float, pull_m: float) -> 
             ("rest_s", "--rest-times"),
             ("speed_mps", "--pull-speed"),
             ("pull_m", "--pull"),
+            ("preload", "--pull-preload"),
         ):
             text = text.replace(f"breakaway {field}", option)
         raise ConfigError(text) from None

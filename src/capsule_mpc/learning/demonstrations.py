@@ -41,11 +41,14 @@ from .. import __version__
 from ..atomic import write_text_atomic
 from ..config import Scenario, dump_config
 from ..interfaces import Command, Controller, Measurement, StepStats
+from ..dynamics import normal_force_expr
+from ..magnetics import capsule_force_function
 from ..paths import ReferencePath, path_from_scenario, rectangle
 from ..sim import simulate, write_run
 
 __all__ = [
     "BREAKAWAY_DIRECTIONS",
+    "BREAKAWAY_PRELOAD",
     "BREAKAWAY_PULL_M",
     "BREAKAWAY_REST_S",
     "BREAKAWAY_SPEED_MPS",
@@ -56,6 +59,7 @@ __all__ = [
     "DemoRun",
     "breakaway_path",
     "demo_path",
+    "preload_distance",
     "run_demonstrations",
 ]
 
@@ -76,6 +80,16 @@ BREAKAWAY_SPEED_MPS = 0.001
 BREAKAWAY_PULL_M = 0.032
 #: Directions of the breakaway pulls.
 BREAKAWAY_DIRECTIONS = ("x", "y")
+#: Default pre-load of a breakaway pull: the EPM first moves quickly to the lead at which the
+#: nominal magnets' lateral force is this fraction of the nominal sliding friction
+#: (friction.mu0 F_N + friction.tether_drag_n), then pulls slowly. It is below the lowest breakaway
+#: the lab preset's ranges allow (mu0 and the friction field each 15 % low, no healing), so the
+#: capsule breaks loose in the slow pull, after a rest close to the rest time asked for.
+BREAKAWAY_PRELOAD = 0.6
+#: Speed of the pre-load move, m/s (capped by limits.speed_mps).
+BREAKAWAY_PRELOAD_SPEED_MPS = 0.01
+#: Step of the search along the pull for the pre-load lead, m.
+_PRELOAD_STEP_M = 2e-4
 #: Gain of the pull's correction of the EPM's own position error, 1/s (as the follow baseline's).
 _PULL_GAIN_PER_S = 3.0
 #: Longest time a breakaway run waits after the pull for the capsule to come to rest, s.
@@ -96,12 +110,16 @@ class BreakawayPlan:
         Pull length, m, in (0, 0.035) (shorter than ``sim.decouple_lead_m``'s range).
     directions : tuple of str
         Pull directions, a subset of :data:`BREAKAWAY_DIRECTIONS`.
+    preload : float
+        Fraction of the nominal sliding friction the EPM's lead is first brought to quickly, in
+        [0, 1); 0: the slow pull starts from the rest lead (:data:`BREAKAWAY_PRELOAD`).
     """
 
     rest_s: tuple[float, ...] = BREAKAWAY_REST_S
     speed_mps: float = BREAKAWAY_SPEED_MPS
     pull_m: float = BREAKAWAY_PULL_M
     directions: tuple[str, ...] = BREAKAWAY_DIRECTIONS
+    preload: float = BREAKAWAY_PRELOAD
 
     def __post_init__(self) -> None:
         if not self.rest_s:
@@ -121,14 +139,20 @@ class BreakawayPlan:
             )
         if len(set(self.directions)) < len(self.directions):
             raise ValueError(f"breakaway directions: each direction once, got {list(self.directions)}")
+        if not (math.isfinite(self.preload) and 0 <= self.preload < 1):
+            raise ValueError(f"breakaway preload: must be in [0, 1), got {self.preload}")
 
 
 class BreakawayPull(Controller):
-    """Hold the EPM still until t = 0, then pull it at a constant speed along a direction, then hold.
+    """Hold the EPM still until t = 0, then pull it along a direction, then hold.
 
-    Open loop: the EPM is commanded along ``direction`` at ``speed_mps`` for ``pull_m``, with a
-    proportional correction of its own position error (the robot knows its pose); the camera is
-    not read.
+    Open loop: the EPM is commanded along ``direction`` for ``pull_m``, with a proportional
+    correction of its own position error (the robot knows its pose); the camera is not read. With
+    a pre-load the first part of the pull, up to the lead at which the nominal magnets' lateral
+    force on the capsule resting at the path's start is ``preload`` times the nominal sliding
+    friction (:func:`preload_distance`), runs at :data:`BREAKAWAY_PRELOAD_SPEED_MPS`; the rest at ``speed_mps``. Without it a
+    slow pull spends seconds loading the capsule (tens along y, where the magnet's lateral stiffness
+    is low) while it keeps healing, so the rest at the breakaway would be far longer than asked.
 
     Parameters
     ----------
@@ -138,11 +162,19 @@ class BreakawayPull(Controller):
         Pull speed, m/s, > 0.
     pull_m : float
         Pull length, m, > 0.
+    preload : float
+        Fraction of the nominal sliding friction to pre-load quickly, in [0, 1); 0: none.
     """
 
     name = "breakaway_pull"
 
-    def __init__(self, direction: np.ndarray | Sequence[float], speed_mps: float, pull_m: float) -> None:
+    def __init__(
+        self,
+        direction: np.ndarray | Sequence[float],
+        speed_mps: float,
+        pull_m: float,
+        preload: float = 0.0,
+    ) -> None:
         unit = np.asarray(direction, dtype=float)
         if unit.shape != (2,) or not math.isclose(float(np.hypot(*unit)), 1.0, rel_tol=1e-9):
             raise ValueError(f"direction: must be a unit vector (2,), got {direction}")
@@ -150,25 +182,43 @@ class BreakawayPull(Controller):
             raise ValueError(f"speed_mps: must be > 0, got {speed_mps}")
         if not (math.isfinite(pull_m) and pull_m > 0):
             raise ValueError(f"pull_m: must be > 0, got {pull_m}")
+        if not (math.isfinite(preload) and 0 <= preload < 1):
+            raise ValueError(f"preload: must be in [0, 1), got {preload}")
         self.direction = unit
         self.speed_mps = float(speed_mps)
         self.pull_m = float(pull_m)
+        self.preload = float(preload)
         self.start_m = np.zeros(3)
         self.speed_limit_mps = math.inf
+        self.preload_m = 0.0
+        self.fast_mps = self.speed_mps
 
     def reset(self, scenario: Scenario, path: ReferencePath, epm_position_m: np.ndarray) -> None:
-        """Remember where the EPM starts: the pull is measured from there."""
+        """Remember where the EPM starts (the pull is measured from there) and find the pre-load."""
         self.start_m = np.asarray(epm_position_m, dtype=float).copy()
         self.speed_limit_mps = scenario.limits.speed_mps
+        self.fast_mps = max(self.speed_mps, min(BREAKAWAY_PRELOAD_SPEED_MPS, self.speed_limit_mps))
+        self.preload_m = 0.0
+        if self.preload > 0:
+            lead = self.start_m[:2] - np.asarray(path.start_m, dtype=float)
+            self.preload_m = preload_distance(scenario, lead, self.start_m[2], self.direction, self.preload)
+        self.preload_m = min(self.preload_m, self.pull_m)
+
+    def _along(self, t_s: float) -> tuple[float, float]:
+        """Distance pulled at ``t_s`` (s after the pull's start), m, and the speed then, m/s."""
+        t_fast = self.preload_m / self.fast_mps
+        if t_s < t_fast:
+            return self.fast_mps * t_s, self.fast_mps
+        along = self.preload_m + self.speed_mps * (t_s - t_fast)
+        return (self.pull_m, 0.0) if along >= self.pull_m else (along, self.speed_mps)
 
     def step(self, t_s: float, measurement: Measurement, epm_position_m: np.ndarray) -> Command:
         """Zero before t = 0; then the pull's velocity plus the EPM position correction."""
         if t_s < 0:
             return Command(np.zeros(3), StepStats(status="holding"))
-        duration = self.pull_m / self.speed_mps
-        along = self.speed_mps * min(t_s, duration)
+        along, speed = self._along(t_s)
         target = self.start_m + np.array([*(along * self.direction), 0.0])
-        feed = np.array([*(self.speed_mps * self.direction), 0.0]) if t_s < duration else np.zeros(3)
+        feed = np.array([*(speed * self.direction), 0.0])
         vel = feed + _PULL_GAIN_PER_S * (target - np.asarray(epm_position_m, dtype=float))
         return Command(np.clip(vel, -self.speed_limit_mps, self.speed_limit_mps), StepStats(status="ok"))
 
@@ -176,6 +226,33 @@ class BreakawayPull(Controller):
     def finished(self) -> bool:
         """Always: the run ends when the capsule rests after the pull's nominal end."""
         return True
+
+
+def preload_distance(
+    scenario: Scenario, lead_m: np.ndarray, height_m: float, direction: np.ndarray, fraction: float
+) -> float:
+    """How far along ``direction`` the EPM can move from ``lead_m`` before the nominal magnets'
+    lateral force on the resting capsule reaches ``fraction`` of the nominal sliding friction, m.
+
+    The nominal sliding friction is ``friction.mu0 F_N + friction.tether_drag_n``, the forces those
+    of the nominal magnets' finite-magnet map (``lookup``) whatever the scenario's force model: what
+    an operator knows before learning anything, with the model that does not overstate F_N (the
+    point dipole does, so a pre-load by it would load the capsule close to its breakaway). The force
+    is scanned along the pull in :data:`_PRELOAD_STEP_M` steps up to :data:`BREAKAWAY_PULL_M` (it is
+    not monotonic far out, where the capsule would drop); the last step below the fraction is
+    returned.
+    """
+    fn = capsule_force_function(scenario, "lookup")
+    fr = scenario.friction
+    steps = np.arange(0.0, BREAKAWAY_PULL_M + _PRELOAD_STEP_M / 2, _PRELOAD_STEP_M)
+    leads = np.asarray(lead_m, dtype=float)[:, None] + np.outer(direction, steps)
+    forces = np.asarray(fn.map(len(steps))(leads, np.full((1, len(steps)), height_m)), dtype=float)
+    normal = np.asarray(normal_force_expr(scenario, forces[2]), dtype=float).ravel()
+    ratio = np.hypot(forces[0], forces[1]) / np.maximum(fr.mu0 * normal + fr.tether_drag_n, 1e-12)
+    above = np.flatnonzero((ratio >= fraction) | (normal <= 0))
+    if len(above) == 0:
+        return float(steps[-1])
+    return float(steps[max(int(above[0]) - 1, 0)])
 
 
 @dataclass(frozen=True)
@@ -519,14 +596,14 @@ def _one_breakaway(
     run_scenario = _breakaway_scenario(scenario, rest_s)
     d_idx = _BREAKAWAY_INDEX + BREAKAWAY_DIRECTIONS.index(direction)
     run_seed = _run_seed(seed, d_idx, rest_s, repeat)
-    extra = {"experiment": "breakaway", "rest_s": rest_s, "pull_m": plan.pull_m}
+    extra = {"experiment": "breakaway", "rest_s": rest_s, "pull_m": plan.pull_m, "preload": plan.preload}
     key = _cache_key(run_scenario, path, run_seed, _rig(scenario, seed), BreakawayPull.name, extra)
     run_dir = out / f"breakaway_{direction}_rest{rest_s:g}s_r{repeat}"
     hit = _cached(run_dir, key) if use_cache else None
     if hit is not None:
         return DemoRun(**{**hit["run"], "run_dir": str(run_dir), "cached": True, "wall_time_s": 0.0})
     unit = [1.0, 0.0] if direction == "x" else [0.0, 1.0]
-    controller = BreakawayPull(unit, plan.speed_mps, plan.pull_m)
+    controller = BreakawayPull(unit, plan.speed_mps, plan.pull_m, plan.preload)
     fields = {
         "path_kind": f"breakaway_{direction}",
         "speed_mps": plan.speed_mps,
