@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import csv
+import dataclasses
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -16,6 +19,7 @@ from capsule_mpc.learning import LearningDataError, LogOptions, learn_from_logs,
 from capsule_mpc.learning import core as learning_core
 from capsule_mpc.learning.breakaway import (
     StaticFrictionResult,
+    breakaway_event,
     detect_breakaway,
     fit_healing,
     is_breakaway_log,
@@ -30,8 +34,9 @@ RESTS = (0.5, 4.0, 16.0)
 #: model: detection and force-model interpolation only.
 IDEAL_TOL = 0.005
 #: The same on a lab rig: the nominal tether drag (the lab draws 0.02-0.04 N against 0.03 N,
-#: i.e. up to +-0.015 in mu at F_N ~ 0.7 N) and the magnets' errors (remanence, tilt) on top.
-LAB_TOL = 0.03
+#: i.e. up to +-0.015 in mu at F_N ~ 0.7 N) and what the tare leaves of the magnets' and the
+#: camera's errors (remanence, tilt, bias).
+LAB_TOL = 0.02
 
 
 def _with_preset(scenario, preset):
@@ -248,6 +253,42 @@ def test_a_preloaded_pull_breaks_away_after_about_the_rest_asked_for(scenario, t
     assert slow_rest - rest > 3.0  # a 1 mm/s pull from the rest lead loads for seconds
     assert pre_rest < slow_rest - 1.5
     assert 0.1 < fast_s < pre_t  # it broke loose after the quick pre-load, in the slow pull
+
+
+@pytest.mark.parametrize("bias_mm", [(0.5, 0.0), (-0.4, 0.3)])
+def test_the_tare_takes_a_camera_bias_out_of_the_breakaway(scenario, ideal_runs, bias_mm):
+    """A camera bias shifts the measured lead; measured from the rest lead, the pull's lead does
+    not move, so the breakaway coefficient stays where the unbiased camera puts it."""
+    _, runs = ideal_runs
+    log = read_run_log(runs[0].log_path)
+    bias = np.array(bias_mm) * 1e-3
+    biased = dataclasses.replace(log, capsule_m=log.capsule_m + bias)
+    lookup = _lookup(scenario)
+    clean, tared = breakaway_event(log, lookup), breakaway_event(biased, lookup)
+    raw = breakaway_event(biased, lookup, tare=False)
+    assert tared.mu_s == pytest.approx(clean.mu_s, abs=0.002)
+    assert abs(raw.mu_s - clean.mu_s) > 0.01  # without the tare the bias moves it by per cents
+    np.testing.assert_allclose(tared.tare_m - clean.tare_m, -bias, atol=5e-5)
+
+
+def test_a_capsule_resting_far_from_the_zero_force_lead_is_noted(scenario, ideal_runs, tmp_path):
+    _, runs = ideal_runs
+    source = runs[0].log_path
+    rows = list(csv.reader(source.read_text().splitlines()))
+    col = rows[0].index("meas_x_m")
+    for row in rows[1:]:
+        if row[col] != "nan":
+            row[col] = repr(float(row[col]) + 3e-3)
+    (tmp_path / "run").mkdir()
+    with open(tmp_path / "run" / "log.csv", "w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    shutil.copy(source.parent / "demonstration.json", tmp_path / "run" / "demonstration.json")
+    from capsule_mpc.learning.breakaway import learn_static_friction
+
+    logs = [tmp_path / "run" / "log.csv", *(r.log_path for r in runs[1:])]
+    notes = learn_static_friction(logs, _lookup(scenario)).notes
+    assert len(notes) == 1 and "rested 3.0 mm from the force model's zero-force lead" in notes[0]
+    assert "--no-tare" in notes[0]
 
 
 def test_every_run_is_on_the_one_rig_and_the_rig_is_recorded(lab_scenario, lab_runs):

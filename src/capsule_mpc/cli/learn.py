@@ -126,6 +126,12 @@ def register(sub: Any) -> None:
     logs.add_argument(
         "--samples-out", metavar="CSV", help="also write the extracted samples as a samples CSV"
     )
+    logs.add_argument(
+        "--no-tare",
+        action="store_true",
+        help="breakaway experiments: use the measured lead as it is, not measured from the force model's "
+        "zero-force lead at the rest (for a capsule not settled under the magnet before the pull)",
+    )
     p.add_argument("--figures", metavar="DIR", help="write Fig. 7b/7c-style PNGs to this folder")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
     p.set_defaults(func=run)
@@ -160,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
                 force_model=args.force_model,
                 speed_source=args.speed_source,
                 steady_tolerance=None if args.keep_transients else args.steady_tol,
+                tare_breakaway=not args.no_tare,
             )
         )
         result = learn_model(

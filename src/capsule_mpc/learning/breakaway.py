@@ -17,6 +17,14 @@ logs is enough to measure the static friction it overcame:
    at the lead ``EPM - rest position`` at that instant; the breakaway coefficient is
    ``mu_s = (|F_xy| - f_s) / F_N`` with the tether drag ``f_s`` of the scenario (the rig's
    at rest; the capsule has not moved since it came to rest).
+
+   The lead is *tared* (default): the capsule settled under the still magnet where its lateral
+   force vanishes, so the lead it rests at is taken as the force model's zero-force
+   (equilibrium) lead, and the pull's lead is measured from there. As one zeroes a force
+   sensor, this removes what the camera's bias and the magnet's mounting errors add to the
+   measured lead; where the force rises steeply with the lead (along the Halbach array's x)
+   a few tenths of a millimetre are several per cent of the breakaway force. Without the tare
+   (for a capsule that was not settled at the equilibrium) the measured lead is used.
 3. **The rest time** ``T``: from the capsule coming to rest (the run's provenance,
    ``rest_since_t_s``; default the log's first frame) to the breakaway. The capsule heals
    while the EPM loads it, so T is the rest before the pull plus the loading time.
@@ -45,7 +53,7 @@ from scipy import stats
 
 from ..config import Scenario
 from ..dynamics import normal_force_expr
-from ..magnetics import capsule_force_function
+from ..magnetics import capsule_force_function, equilibrium_lead
 from .data import LearningDataError
 from .logs import RunLog, read_run_log
 
@@ -76,6 +84,9 @@ _MIN_REST_FRAMES = 5
 _BACKTRACK_FACTOR = 4.0
 #: Confidence level of the intervals.
 CONFIDENCE = 0.95
+#: A tare larger than this, m, is noted: more than camera bias and mounting errors give, so the
+#: capsule may not have settled at the zero-force lead.
+TARE_NOTE_M = 2e-3
 
 
 def run_provenance(log_path: str | Path) -> dict[str, Any] | None:
@@ -128,6 +139,9 @@ class BreakawayEvent:
         Camera noise estimated from the frames at rest (per axis), m.
     threshold_m : float
         Displacement from the rest position that counted as moved, m.
+    tare_m : numpy.ndarray (2,)
+        Measured rest lead less the force model's equilibrium lead, m, taken off ``lead_m``
+        (zeros without the tare).
     """
 
     path: Path
@@ -142,6 +156,7 @@ class BreakawayEvent:
     mu_s: float
     noise_m: float
     threshold_m: float
+    tare_m: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able dict."""
@@ -250,6 +265,7 @@ def breakaway_event(
     force_fn: ca.Function | None = None,
     force_model: Literal["dipole", "lookup"] | None = None,
     rest_since_t_s: float | None = None,
+    tare: bool = True,
     **detect: Any,
 ) -> BreakawayEvent | None:
     """The breakaway of one run log (see the module docstring), or None if the capsule never moved.
@@ -267,6 +283,10 @@ def breakaway_event(
     rest_since_t_s : float, optional
         Log time the capsule came to rest, s; default: from the run's provenance, else the first
         frame.
+    tare : bool
+        Measure the lead from the force model's equilibrium lead at the rest (see the module
+        docstring); the EPM at rest is the last log row before the pull (``pull_start_t_s`` of
+        ``detect``, default 0), else the first.
     **detect
         Passed to :func:`detect_breakaway`.
     """
@@ -285,9 +305,10 @@ def breakaway_event(
             f"(rest_since_t_s = {rest_since_t_s:.3f} s)"
         )
     epm = np.array([np.interp(t_b, log.t_s, log.epm_m[:, k]) for k in range(3)])
-    lead = epm[:2] - rest
     if force_fn is None:
         force_fn = capsule_force_function(scenario, force_model or scenario.force_model)
+    offset = _tare(log, rest, force_fn, float(detect.get("pull_start_t_s", 0.0))) if tare else np.zeros(2)
+    lead = epm[:2] - rest - offset
     force = np.asarray(force_fn(lead, epm[2]), dtype=float).ravel()
     normal = float(np.asarray(normal_force_expr(scenario, force[2]), dtype=float))
     if not normal > 0:
@@ -307,7 +328,21 @@ def breakaway_event(
         mu_s=float(mu_s),
         noise_m=float(noise),
         threshold_m=float(threshold),
+        tare_m=offset,
     )
+
+
+def _tare(log: RunLog, rest: np.ndarray, force_fn: ca.Function, pull_start_t_s: float) -> np.ndarray:
+    """The measured rest lead less the force model's equilibrium lead at the EPM's rest height, m."""
+    before = np.flatnonzero(log.t_s <= pull_start_t_s)
+    k = int(before[-1]) if len(before) else 0
+    epm = log.epm_m[k]
+    measured = epm[:2] - rest
+    try:
+        equilibrium = equilibrium_lead(lambda lead: np.asarray(force_fn(lead, epm[2]), dtype=float).ravel(), measured)
+    except RuntimeError as exc:
+        raise LearningDataError(f"{log.path}: cannot tare the lead: {exc}") from None
+    return np.asarray(measured - equilibrium, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -427,6 +462,7 @@ def learn_static_friction(
     paths: Sequence[str | Path],
     scenario: Scenario,
     force_model: Literal["dipole", "lookup"] | None = None,
+    tare: bool = True,
     **detect: Any,
 ) -> StaticFrictionResult:
     """Measure the breakaway in each breakaway log and fit the healing law to them.
@@ -439,6 +475,9 @@ def learn_static_friction(
         Force model (default), capsule, tether drag.
     force_model : {'dipole', 'lookup'}, optional
         Default ``scenario.force_model``.
+    tare : bool
+        Measure each lead from the force model's equilibrium lead at the rest
+        (:func:`breakaway_event`); a rest lead farther than :data:`TARE_NOTE_M` from it is noted.
     **detect
         Passed to :func:`detect_breakaway`.
 
@@ -452,11 +491,17 @@ def learn_static_friction(
     events, notes = [], []
     for path in paths:
         log = read_run_log(path)
-        event = breakaway_event(log, scenario, force_fn=force_fn, **detect)
+        event = breakaway_event(log, scenario, force_fn=force_fn, tare=tare, **detect)
         if event is None:
             notes.append(f"{path}: no breakaway found (the capsule never moved clearly from its rest)")
-        else:
-            events.append(event)
+            continue
+        events.append(event)
+        if float(np.hypot(*event.tare_m)) > TARE_NOTE_M:
+            notes.append(
+                f"{path}: the capsule rested {1e3 * float(np.hypot(*event.tare_m)):.1f} mm from the force "
+                "model's zero-force lead; if it was not settled under the magnet, learn without the tare "
+                "(--no-tare)"
+            )
     try:
         fit = fit_healing([e.rest_s for e in events], [e.mu_s for e in events])
     except LearningDataError as exc:

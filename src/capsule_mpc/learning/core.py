@@ -259,7 +259,11 @@ def learn_from_logs(
     checks = tuple(check_open_loop(log) for log in logs)
     t2 = time.perf_counter()
     kind = log_options.force_model or scenario.force_model
-    static = learn_static_friction(breakaway, scenario, force_model=kind) if breakaway else None
+    static = (
+        learn_static_friction(breakaway, scenario, force_model=kind, tare=log_options.tare_breakaway)
+        if breakaway
+        else None
+    )
     t3 = time.perf_counter()
     rig, rig_warning = _rig_of(found)
     result = learn_friction(samples, scenario, force_model=kind, **kwargs)  # type: ignore[arg-type]

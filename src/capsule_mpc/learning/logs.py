@@ -93,6 +93,9 @@ class LogOptions:
     steady_tolerance : float or None
         Flag samples with |v_capsule - v_EPM| > tolerance x |v_EPM| as ``unsteady``; None keeps
         every sample (as the paper did).
+    tare_breakaway : bool
+        Measure a breakaway experiment's lead from the force model's zero-force lead at the rest
+        (:func:`capsule_mpc.learning.breakaway.breakaway_event`).
     """
 
     window_s: float = 0.7
@@ -102,6 +105,7 @@ class LogOptions:
     force_model: Literal["dipole", "lookup"] | None = None
     speed_source: Literal["epm", "capsule"] = "epm"
     steady_tolerance: float | None = 0.3
+    tare_breakaway: bool = True
 
     def __post_init__(self) -> None:
         if not self.window_s > 0:
