@@ -118,12 +118,18 @@ def variant_scenario(
     cap: float,
     time_s: float,
     preload: float = 0.9,
+    approach_fraction: float | None = None,
 ) -> Scenario:
-    """The controller's scenario of one variant (the plant is drawn from the base scenario)."""
+    """The controller's scenario of one variant (the plant is drawn from the base scenario).
+
+    ``approach_fraction`` replaces ``mpc.approach.force_fraction`` in the variants with a static
+    friction model of the draw (``learned``, ``online``, ``oracle``)."""
     fr, mpc = base.friction, base.mpc
     if "+" in variant:
         name, *mods = variant.split("+")
-        scenario = variant_scenario(base, name, learned_on_draw, oracle, gain, cap, time_s)
+        scenario = variant_scenario(
+            base, name, learned_on_draw, oracle, gain, cap, time_s, approach_fraction=approach_fraction
+        )
         update = {
             "stick_prediction": "stick" in mods,
             "start_preload": preload if "preload" in mods else None,
@@ -149,6 +155,9 @@ def variant_scenario(
         adaptation = mpc.adaptation.model_copy(update={"mode": "rls", "time_s": time_s})
         update = {"adaptation": adaptation, "disturbance_gain": gain, "disturbance_max_n": cap}
         scenario = scenario.model_copy(update={"mpc": mpc.model_copy(update=update)})
+    if approach_fraction is not None and variant in ("learned", "online", "oracle"):
+        approach = scenario.mpc.approach.model_copy(update={"force_fraction": approach_fraction})
+        scenario = scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"approach": approach})})
     return scenario
 
 
@@ -256,6 +265,7 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
             args.residual_cap,
             args.online_time,
             args.preload,
+            args.approach_fraction,
         )
         plant = CapsulePlant(base, truth=draw_plant_truth(base, seed))  # truth from the base: the same rig
         results[variant] = simulate(scenario, "mpc", path, seed, progress=False, plant=plant)
@@ -392,6 +402,7 @@ def _report(
         "draws_failed": failed,
         "residual_gain": args.residual_gain,
         "preload_fraction": args.preload,
+        "approach_fraction": args.approach_fraction,
         "online_time_s": args.online_time,
         "residual_cap_n": args.residual_cap,
         "demonstration_speeds_mps": args.speeds,
@@ -481,6 +492,13 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json"
     )
     parser.add_argument("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
+    parser.add_argument(
+        "--approach-fraction",
+        type=float,
+        default=None,
+        help="mpc.approach.force_fraction of the variants with the draw's static friction "
+        "(learned, online, oracle), (0, 1) (default: the config's)",
+    )
     parser.add_argument(
         "--learn-only",
         action="store_true",
