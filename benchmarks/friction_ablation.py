@@ -36,8 +36,8 @@ Prints, per variant, mean +- sd (worst) over the draws of the tracking RMS, cros
 start window's tracking RMS (first 1.5 s), the final error, the runs ending within
 ``--final-tol``, stalls and solver failures, and the paired difference to ``paper``; the learned
 breakaway after 2 s at rest, and after the rest the draw's capsule had before its run, against the
-plant's at the path's start (``--learn-only``: only this, no controller runs). Writes it all, with each draw's numbers and the
-command, to ``--out`` (JSON).
+plant's at the path's start (``--learn-only``: only this, no controller runs). Writes it all, with
+each draw's numbers and the command, to ``--out`` (JSON).
 
     .venv/bin/python benchmarks/friction_ablation.py --plant lab --draws 20 \\
         --out results/benchmarks/friction_ablation_lab.json
@@ -239,10 +239,8 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
         learned, out["learning"] = learn_on_draw(args, work, base, oracle, seed)
     if args.learn_only:
         ln = out["learning"]
-        print(
-            f"draw {seed}: breakaway learned {ln['breakaway_mu_learned']}, plant {ln['breakaway_mu_plant']:.3f}",
-            flush=True,
-        )
+        mine, plant = ln["breakaway_mu_learned"], ln["breakaway_mu_plant"]
+        print(f"draw {seed}: breakaway learned {mine}, plant {plant:.3f}", flush=True)
         out["runs"] = {}
         return out
     results = {
@@ -336,7 +334,9 @@ def summarise(draws: list[dict[str, Any]], variants: list[str], final_tol_mm: fl
                 "n": len(rel),
                 "relative_error": _spread(rel),
             }
-    summary["learning_failed"] = sum(1 for d in draws if "learning" in d and not d["learning"]["breakaway_mu_learned"])
+    summary["learning_failed"] = sum(
+        1 for d in draws if "learning" in d and not d["learning"]["breakaway_mu_learned"]
+    )
     return summary
 
 

@@ -241,7 +241,9 @@ def test_a_preloaded_pull_breaks_away_after_about_the_rest_asked_for(scenario, t
 
     rest, found = 0.5, {}
     for preload in (0.0, 0.6):
-        plan = BreakawayPlan(rest_s=(rest,), directions=("x",), speed_mps=0.001, pull_m=0.012, preload=preload)
+        plan = BreakawayPlan(
+            rest_s=(rest,), directions=("x",), speed_mps=0.001, pull_m=0.012, preload=preload
+        )
         run = run_demonstrations(scenario, [], tmp_path / f"p{preload}", seed=5, breakaway=plan)[0]
         rest_true, _, t_before, _ = _plant_truth_mu(scenario, 5, run.log_path)
         pull = BreakawayPull([1.0, 0.0], plan.speed_mps, plan.pull_m, preload)
@@ -280,7 +282,7 @@ def test_a_capsule_resting_far_from_the_zero_force_lead_is_noted(scenario, ideal
         if row[col] != "nan":
             row[col] = repr(float(row[col]) + 3e-3)
     (tmp_path / "run").mkdir()
-    with open(tmp_path / "run" / "log.csv", "w", newline="") as fh:
+    with (tmp_path / "run" / "log.csv").open("w", newline="") as fh:
         csv.writer(fh).writerows(rows)
     shutil.copy(source.parent / "demonstration.json", tmp_path / "run" / "demonstration.json")
     from capsule_mpc.learning.breakaway import learn_static_friction

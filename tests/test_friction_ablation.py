@@ -67,3 +67,50 @@ def test_parts_of_other_plants_are_refused(ablation, tmp_path):
     b = _report(tmp_path / "b.json", [1], ["paper"], plant="lab")
     with pytest.raises(SystemExit, match="plant"):
         ablation.merge_reports([a, b], 0.5)
+
+
+def _learning(learned: float, plant: float, start_learned: float, start_plant: float) -> dict:
+    return {
+        "breakaway_mu_learned": learned,
+        "breakaway_mu_plant": plant,
+        "breakaway_mu_learned_start": start_learned,
+        "breakaway_mu_plant_start": start_plant,
+    }
+
+
+def test_learn_only_parts_merge_into_the_breakaway_check(ablation, tmp_path):
+    parts = []
+    for name, seeds, learning in (
+        ("a", [0, 1], [_learning(0.20, 0.21, 0.2, 0.21), _learning(0.30, 0.25, 0.3, 0.28)]),
+        ("b", [2], [_learning(None, 0.25, None, 0.25)]),  # no static part learned
+    ):
+        draws = [{"seed": s, "runs": {}, "learning": ln} for s, ln in zip(seeds, learning)]
+        data = {"command": name, "config": "c.yaml", "plant": "lab", "seeds": seeds, "draws": draws}
+        parts.append(tmp_path / f"{name}.json")
+        parts[-1].write_text(json.dumps({**data, "seconds": 1.0, "machine": {}}))
+    merged = ablation.merge_reports(parts, 0.5)
+    s = merged["summary"]
+    assert merged["variants"] == []
+    assert s["breakaway"]["n"] == 2 and s["breakaway"]["within_10pct"] == 1  # 0.30 / 0.25 is +20 %
+    assert s["breakaway_start_rest"]["within_10pct"] == 2  # 0.3 / 0.28 is +7 %
+    assert s["learning_failed"] == 1
+
+
+def test_the_approach_fraction_goes_to_the_variants_with_the_draws_static_friction(ablation):
+    from capsule_mpc.config import LearnedFrictionModel, load_config
+
+    base = load_config(REPO / "configs" / "rectangle_lookup.yaml")
+    model = LearnedFrictionModel(
+        coefficients=[0.03], validity_mps=(0.005, 0.04), static_mu_1s=0.25, static_healing=0.01,
+        force_model="lookup",
+    )  # fmt: skip
+    default = base.mpc.approach.force_fraction
+    for variant, expected in (("paper", default), ("none", default), ("learned", 0.85), ("oracle", 0.85)):
+        scenario = ablation.variant_scenario(
+            base, variant, model, model, 0.05, 0.1, 0.3, approach_fraction=0.85
+        )
+        assert scenario.mpc.approach.force_fraction == expected, variant
+    stick = ablation.variant_scenario(
+        base, "learned+stick", model, model, 0.05, 0.1, 0.3, approach_fraction=0.85
+    )
+    assert stick.mpc.approach.force_fraction == 0.85 and stick.mpc.stick_prediction

@@ -35,9 +35,9 @@ def register(sub: Any) -> None:
             "On one rig (--plant, --seed: one plant draw), run the `follow` baseline in the simulator at "
             "each speed on straight and rectangular paths (as the paper recorded its samples), and breakaway "
             "experiments at the start of the path (the capsule rests T seconds under the still EPM, then the "
-            "EPM is pulled slowly along x, and along y, until the capsule slides). One run folder per run (log.csv, config.yaml, "
-            "run.json, demonstration.json). Finished runs with the same config, rig, path, speed and seed "
-            "are reused."
+            "EPM is pulled along x, and along y, quickly to a pre-load and then slowly until the capsule "
+            "slides). One run folder per run (log.csv, config.yaml, run.json, demonstration.json). "
+            "Finished runs with the same config, rig, path, speed and seed are reused."
         ),
     )
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
@@ -82,7 +82,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"capsule-mpc demonstrate: {problem}", file=sys.stderr)
         return 2
     try:  # a bad value or an output folder refused is exit 2 (an OutputError is a ConfigError)
-        plan = None if args.no_breakaway else breakaway_plan(args.rest_times, args.pull_speed, args.pull, args.pull_preload)
+        plan = (
+            None
+            if args.no_breakaway
+            else breakaway_plan(args.rest_times, args.pull_speed, args.pull, args.pull_preload)
+        )
         check_demonstrations(scenario, args.speeds, args.paths, args.repeats, plan)
         print(
             f"capsule-mpc demonstrate: on one rig: plant preset {scenario.plant.preset!r}, seed {args.seed}"

@@ -339,7 +339,9 @@ def _tare(log: RunLog, rest: np.ndarray, force_fn: ca.Function, pull_start_t_s: 
     epm = log.epm_m[k]
     measured = epm[:2] - rest
     try:
-        equilibrium = equilibrium_lead(lambda lead: np.asarray(force_fn(lead, epm[2]), dtype=float).ravel(), measured)
+        equilibrium = equilibrium_lead(
+            lambda lead: np.asarray(force_fn(lead, epm[2]), dtype=float).ravel(), measured
+        )
     except RuntimeError as exc:
         raise LearningDataError(f"{log.path}: cannot tare the lead: {exc}") from None
     return np.asarray(measured - equilibrium, dtype=float)

@@ -40,8 +40,8 @@ import numpy as np
 from .. import __version__
 from ..atomic import write_text_atomic
 from ..config import Scenario, dump_config
-from ..interfaces import Command, Controller, Measurement, StepStats
 from ..dynamics import normal_force_expr
+from ..interfaces import Command, Controller, Measurement, StepStats
 from ..magnetics import capsule_force_function
 from ..paths import ReferencePath, path_from_scenario, rectangle
 from ..sim import simulate, write_run
@@ -150,9 +150,10 @@ class BreakawayPull(Controller):
     correction of its own position error (the robot knows its pose); the camera is not read. With
     a pre-load the first part of the pull, up to the lead at which the nominal magnets' lateral
     force on the capsule resting at the path's start is ``preload`` times the nominal sliding
-    friction (:func:`preload_distance`), runs at :data:`BREAKAWAY_PRELOAD_SPEED_MPS`; the rest at ``speed_mps``. Without it a
-    slow pull spends seconds loading the capsule (tens along y, where the magnet's lateral stiffness
-    is low) while it keeps healing, so the rest at the breakaway would be far longer than asked.
+    friction (:func:`preload_distance`), runs at :data:`BREAKAWAY_PRELOAD_SPEED_MPS`; the rest at
+    ``speed_mps``. Without it a slow pull spends seconds loading the capsule (tens along y, where
+    the magnet's lateral stiffness is low) while it keeps healing, so the rest at the breakaway
+    would be far longer than asked.
 
     Parameters
     ----------
