@@ -205,19 +205,7 @@ def render_ablation(data: dict[str, Any]) -> list[str]:
         ],
         rows,
     )
-    learning = [
-        d["learning"]
-        for d in draws
-        if d.get("learning") and d["learning"].get("breakaway_mu_learned") is not None
-    ]
-    if learning:
-        rel = [abs(x["breakaway_mu_learned"] / x["breakaway_mu_plant"] - 1) for x in learning]
-        within = sum(r <= 0.1 for r in rel)
-        lines += [
-            "",
-            f"Learned breakaway friction after 2 s at rest against the plant's: within 10 % on {within} "
-            f"of {len(rel)} draws; |relative error| {mean_sd_worst([100 * r for r in rel], 0)} %.",
-        ]
+    lines += _breakaway_lines(draws)
     partial = sum(bool(d.get("learning", {}).get("demonstrations_failed")) for d in draws)
     if partial:
         lines += [
@@ -225,6 +213,39 @@ def render_ablation(data: dict[str, Any]) -> list[str]:
             f"On {partial} draws some demonstrations failed; the model was learned from those that ran.",
         ]
     return lines
+
+
+def _breakaway_lines(draws: list[dict[str, Any]]) -> list[str]:
+    """The learned breakaway coefficient against the plant's at the path's start, after 2 s at rest
+    and (where recorded) after the rest the draw's capsule had before its run."""
+    learning = [d["learning"] for d in draws if d.get("learning")]
+    learned = [x for x in learning if x.get("breakaway_mu_learned") is not None]
+    if not learned:
+        return []
+    lines = [""]
+    checks = [("after 2 s at rest", "breakaway_mu_learned", "breakaway_mu_plant")]
+    if all("breakaway_mu_plant_start" in x for x in learned):
+        checks.append(
+            ("after the rest before the draw's run", "breakaway_mu_learned_start", "breakaway_mu_plant_start")
+        )
+    for when, mine, plant in checks:
+        rel = [abs(x[mine] / x[plant] - 1) for x in learned]
+        lines.append(
+            f"Learned breakaway friction {when}, against the plant's at the path's start: within 10 % "
+            f"on {sum(r <= 0.1 for r in rel)} of {len(rel)} draws; |relative error| "
+            f"{mean_sd_worst([100 * r for r in rel], 1)} %."
+        )
+    if len(learned) < len(learning):
+        lines.append(f"No static friction was learned on {len(learning) - len(learned)} draws.")
+    return lines
+
+
+def render_breakaway(data: dict[str, Any]) -> list[str]:
+    """The learned breakaway on each draw (``friction_ablation.py --learn-only``)."""
+    draws = data["draws"]
+    seeds = [d["seed"] for d in draws]
+    lines = [f"{len(draws)} draws of `{data['plant']}` (seeds {_seeds(seeds)}), config `{data['config']}`."]
+    return lines + _breakaway_lines(draws)
 
 
 def render_dipole(data: dict[str, Any]) -> list[str]:
@@ -738,6 +759,15 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "The `hard` ablation's paper and learned variants on 100 draws: the 38 draws above and 62 more "
         "(seeds 38-99) run later with the same code for these two variants, merged with "
         "`friction_ablation.py --merge`.",
+    ),
+    (
+        "breakaway_lab",
+        "The learned breakaway against the plant's (`lab`)",
+        render_breakaway,
+        "On each draw, `capsule-mpc demonstrate` (the follow runs and the breakaway experiments at the "
+        "path's start) and `capsule-mpc learn-friction`; the learned breakaway coefficient "
+        "μ_s(T) against the plant's own at the path's start, its friction field included "
+        "([friction.md](friction.md)). No controller runs.",
     ),
     (
         "friction_options_lab",

@@ -115,3 +115,29 @@ def test_sweep_row_from_synthetic_json(results_doc):
         "| `mpc` | 5.00 ± 2.58 (8.00) | 2.50 ± 1.29 (4.00) | 1.25 ± 0.65 (2.00) | 1/4 | 1/4 |"
     )
     assert "seeds 0\u20133" in lines[0]
+
+
+def test_breakaway_check_from_synthetic_json(results_doc):
+    """The learn-only report: how many draws' learned breakaway is within 10 % of the plant's."""
+
+    def draw(seed, learned, plant, start_learned, start_plant):
+        learning = {
+            "breakaway_mu_learned": learned,
+            "breakaway_mu_plant": plant,
+            "breakaway_mu_learned_start": start_learned,
+            "breakaway_mu_plant_start": start_plant,
+        }
+        return {"seed": seed, "runs": {}, "learning": learning}
+
+    data = {
+        "plant": "lab",
+        "config": "c.yaml",
+        "draws": [draw(0, 0.2, 0.2, 0.3, 0.3), draw(1, 0.32, 0.3, 0.2, 0.25), draw(2, None, 0.3, None, 0.3)],
+    }
+    text = "\n".join(results_doc.render_breakaway(data))
+    assert "3 draws of `lab` (seeds 0–2)" in text
+    # |errors| 0 and 6.7 % (0.32 / 0.3): both within; at the start 0 and 20 %: one
+    assert "after 2 s at rest, against the plant's at the path's start: within 10 % on 2 of 2 draws" in text
+    assert "3.3 ± 4.7 (6.7) %" in text
+    assert "before the draw's run, against the plant's at the path's start: within 10 % on 1 of 2" in text
+    assert "No static friction was learned on 1 draws." in text
