@@ -165,8 +165,7 @@ LEARNED_LAB5 = Path(__file__).parent / "data" / "learned_lab5_lookup.yaml"
 def test_a_model_learned_on_the_rig_starts_the_capsule_closer_than_the_papers(lab_scenario, table):
     """The start from rest on `lab` draw 5 (one leg of the rectangle, the arm in the loop, the force
     map in the controller): the friction learned on that draw's demonstrations brings the capsule
-    onto the path sooner than the paper's c(v). (Over `lab` draws 0-19 the learned model's start
-    window is better on 15; benchmarks/friction_ablation.py.)"""
+    onto the path sooner than the paper's c(v) (over many draws: benchmarks/friction_ablation.py)."""
     base = load_config(packaged_config_path("rectangle_lookup"))
     base = base.model_copy(
         update={
