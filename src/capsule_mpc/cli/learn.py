@@ -79,7 +79,6 @@ def register(sub: Any) -> None:
         default=MIN_LOG_RATIO,
         help=f"exclude samples with |ln(v*/v)| below this (default {MIN_LOG_RATIO})",
     )
-    logs = p.add_argument_group("run logs (--log)")
     p.add_argument(
         "--force-model",
         choices=("dipole", "lookup"),
@@ -87,6 +86,14 @@ def register(sub: Any) -> None:
         help="force model for F and F_N, recorded in the model (default: the config's "
         "force_model); a scenario using the model must use the same one",
     )
+    _add_log_arguments(p.add_argument_group("run logs (--log)"))
+    p.add_argument("--figures", metavar="DIR", help="write Fig. 7b/7c-style PNGs to this folder")
+    p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
+    p.set_defaults(func=run)
+
+
+def _add_log_arguments(logs: Any) -> None:
+    """How run logs become samples (:class:`~capsule_mpc.learning.LogOptions`)."""
     logs.add_argument(
         "--truth",
         action="store_true",
@@ -132,9 +139,6 @@ def register(sub: Any) -> None:
         help="breakaway experiments: use the measured lead as it is, not measured from the force model's "
         "zero-force lead at the rest (for a capsule not settled under the magnet before the pull)",
     )
-    p.add_argument("--figures", metavar="DIR", help="write Fig. 7b/7c-style PNGs to this folder")
-    p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
