@@ -135,6 +135,36 @@ def test_the_detector_finds_a_jump_within_a_frame(noise, jump, k_break, seed):
     assert np.hypot(*rest) < max(4 * noise, 1e-9)
 
 
+@settings(max_examples=20, deadline=None)
+@given(
+    noise=st.floats(4e-4, 8e-4),
+    slip=st.floats(0.5e-3, 1.5e-3),
+    creep=st.floats(0.8e-3, 1.2e-3),
+    k_break=st.integers(60, 150),
+    seed=st.integers(0, 2**16),
+)
+def test_a_capsule_that_creeps_off_is_dated_where_it_started(noise, slip, creep, k_break, seed):
+    """On a rig whose static friction is barely above its sliding friction the capsule slips by
+    less than the camera's noise threshold and creeps on behind the slowly pulled magnet: it
+    crosses the threshold seconds after it broke loose; the breakaway is dated near that."""
+    rng = np.random.default_rng(seed)
+    n, dt = 600, 1 / 30
+    t = np.arange(n) * dt - 1.0
+    true = np.zeros((n, 2))
+    x = t[k_break:] - t[k_break]
+    true[k_break:, 0] = slip * (1 - np.exp(-x / 0.1)) + creep * x
+    meas = true + rng.normal(0.0, noise, (n, 2))
+    epm = np.column_stack([-0.017 + 1e-3 * np.clip(t, 0, None), np.zeros(n), np.full(n, 0.05)])
+    log = RunLog(path=None, t_s=t, epm_m=epm, capsule_m=meas, capture_t_s=None, source="camera")  # type: ignore[arg-type]
+    found = detect_breakaway(log)
+    assert found is not None
+    t_b, _, _, threshold = found
+    crossed = t[k_break + int(np.searchsorted(true[k_break:, 0], threshold))]
+    assume(crossed - t[k_break] > 1.0)  # a creep the threshold alone dates a second late or more
+    assert t_b >= 0.0  # not before the pull began
+    assert abs(t_b - t[k_break]) < 0.5 * (crossed - t[k_break])
+
+
 def test_a_capsule_that_never_moves_has_no_breakaway():
     rng = np.random.default_rng(1)
     n = 200

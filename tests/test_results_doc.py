@@ -135,7 +135,7 @@ def test_breakaway_check_from_synthetic_json(results_doc):
         "draws": [draw(0, 0.2, 0.2, 0.3, 0.3), draw(1, 0.32, 0.3, 0.2, 0.25), draw(2, None, 0.3, None, 0.3)],
     }
     text = "\n".join(results_doc.render_breakaway(data))
-    assert "3 draws of `lab` (seeds 0–2)" in text
+    assert "3 draws of `lab` (seeds 0\u20132)" in text
     # |errors| 0 and 6.7 % (0.32 / 0.3): both within; at the start 0 and 20 %: one
     assert "after 2 s at rest, against the plant's at the path's start: within 10 % on 2 of 2 draws" in text
     assert "3.3 ± 4.7 (6.7) %" in text

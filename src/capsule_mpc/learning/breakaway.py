@@ -84,6 +84,9 @@ _MIN_REST_FRAMES = 5
 _BACKTRACK_FACTOR = 4.0
 #: Confidence level of the intervals.
 CONFIDENCE = 0.95
+#: A motion whose fitted start is more than this many frames before the threshold's crossing is a
+#: creep, dated by the fit (:func:`_hinge_onset`); a slip keeps the threshold's date.
+_CREEP_FRAMES = 5
 #: A tare larger than this, m, is noted: more than camera bias and mounting errors give, so the
 #: capsule may not have settled at the zero-force lead.
 TARE_NOTE_M = 2e-3
@@ -241,7 +244,37 @@ def detect_breakaway(
     onset = _onset(np.hypot(*(pos - rest).T), noise, min_move_m, noise_factor, hold_frames)
     if onset is None or onset < 1:
         return None
+    onset = _hinge_onset(t_cap, pos, rest, onset, hold_frames, max(int(seed.sum()), 1))
     return 0.5 * float(t_cap[onset - 1] + t_cap[onset]), rest, noise, threshold
+
+
+def _hinge_onset(
+    t: np.ndarray, pos: np.ndarray, rest: np.ndarray, onset: int, hold_frames: int, first: int
+) -> int:
+    """The motion's start, refined for a capsule that creeps: the frame k from which the
+    displacement along the motion is best fitted by a ramp b (t - t_k) (zero before it),
+    least squares over k from ``first`` (the pull's start) to the threshold's onset; used when it is
+    more than :data:`_CREEP_FRAMES` frames before the threshold's onset.
+
+    A capsule that slips crosses the threshold within a frame or two of its start, and the
+    threshold dates it well; one that creeps after breaking loose (weak stick-slip, a noisy camera)
+    crosses it seconds later, and dating the breakaway there would overstate the force it overcame.
+    Written by hand: a change-point search over one onset with a fixed model is a loop of small
+    least-squares fits, not a library call.
+    """
+    end = min(onset + hold_frames, len(t))
+    moved = pos[onset:end].mean(axis=0) - rest
+    if not float(np.hypot(*moved)) > 0 or onset - first < 3:
+        return onset
+    along = (pos[:end] - rest) @ (moved / float(np.hypot(*moved)))
+    best, best_k = math.inf, onset
+    for k in range(max(first, 1), onset + 1):
+        x = t[k:end] - t[k]
+        slope = float(x @ along[k:end]) / max(float(x @ x), 1e-300)
+        sse = float(along[:k] @ along[:k]) + float(np.sum((along[k:end] - slope * x) ** 2))
+        if sse < best:
+            best, best_k = sse, k
+    return best_k if onset - best_k > _CREEP_FRAMES else onset
 
 
 def _onset(
