@@ -770,6 +770,14 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "([friction.md](friction.md)). No controller runs.",
     ),
     (
+        "breakaway_hard",
+        "The learned breakaway against the plant's (`hard`)",
+        render_breakaway,
+        "The same on the `hard` preset: larger magnet and camera errors, a friction field of 15-30 %, "
+        "and rigs whose static friction is barely above their sliding friction, where the capsule "
+        "creeps off rather than slips.",
+    ),
+    (
         "friction_options_lab",
         "Static friction in the controller beyond the approach (`lab`)",
         render_ablation,
