@@ -87,6 +87,8 @@ CONFIDENCE = 0.95
 #: A motion whose fitted start is more than this many frames before the threshold's crossing is a
 #: creep, dated by the fit (:func:`_hinge_onset`); a slip keeps the threshold's date.
 _CREEP_FRAMES = 5
+#: Log time the pull starts in a breakaway run, s (the rest before it has negative times).
+PULL_START_T_S = 0.0
 #: A tare larger than this, m, is noted: more than camera bias and mounting errors give, so the
 #: capsule may not have settled at the zero-force lead.
 TARE_NOTE_M = 2e-3
@@ -200,7 +202,7 @@ def detect_breakaway(
     min_move_m: float = 1e-3,
     noise_factor: float = 6.0,
     hold_frames: int = 3,
-    pull_start_t_s: float = 0.0,
+    pull_start_t_s: float = PULL_START_T_S,
 ) -> tuple[float, np.ndarray, float, float] | None:
     """When the capsule of a breakaway run started to move, from its camera positions.
 
@@ -340,7 +342,8 @@ def breakaway_event(
     epm = np.array([np.interp(t_b, log.t_s, log.epm_m[:, k]) for k in range(3)])
     if force_fn is None:
         force_fn = capsule_force_function(scenario, force_model or scenario.force_model)
-    offset = _tare(log, rest, force_fn, float(detect.get("pull_start_t_s", 0.0))) if tare else np.zeros(2)
+    pull_start_t_s = float(detect.get("pull_start_t_s", PULL_START_T_S))
+    offset = _tare(log, rest, force_fn, pull_start_t_s) if tare else np.zeros(2)
     lead = epm[:2] - rest - offset
     force = np.asarray(force_fn(lead, epm[2]), dtype=float).ravel()
     normal = float(np.asarray(normal_force_expr(scenario, force[2]), dtype=float))
