@@ -23,7 +23,8 @@ robot``), once per friction model it is given:
     model's breakaway force, :mod:`capsule_mpc.mpc.contact`);
 ``<variant>+preload``
     the variant with ``mpc.start_preload: --preload`` (the start pre-loads the capsule to that
-    fraction of the believed breakaway, :mod:`capsule_mpc.mpc.start`); both: ``+stick+preload``.
+    fraction of the believed breakaway, arriving there fast, :mod:`capsule_mpc.mpc.start`; the
+    paper's c(v) believes the breakaway is mu0 F_N + f_s); both: ``+stick+preload``.
 
 A draw's learned model is kept in ``--work``; with ``--reuse`` a model already there is used
 instead of demonstrating and learning again. ``--merge A.json B.json --out C.json`` writes one
@@ -117,7 +118,7 @@ def variant_scenario(
     gain: float,
     cap: float,
     time_s: float,
-    preload: float = 0.9,
+    preload: float = 1.0,
     approach_fraction: float | None = None,
 ) -> Scenario:
     """The controller's scenario of one variant (the plant is drawn from the base scenario).
@@ -458,7 +459,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--draws", type=int, default=20, help="plant draws (default 20)")
     parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(DEFAULT_VARIANTS))
     parser.add_argument(
-        "--preload", type=float, default=0.9, help="+preload: mpc.start_preload, (0, 1] (0.9)"
+        "--preload", type=float, default=1.0, help="+preload: mpc.start_preload, (0, 1] (1.0)"
     )
     parser.add_argument(
         "--reuse",

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import ruckig
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
@@ -16,7 +17,7 @@ from capsule_mpc.dynamics import normal_force_expr
 from capsule_mpc.friction import FrictionBelief
 from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
 from capsule_mpc.mpc.contact import RestDetector
-from capsule_mpc.mpc.start import PRELOAD_MAX_S, StartPreload
+from capsule_mpc.mpc.start import PRELOAD_MAX_S, StartPreload, fastest_arrival_mps
 from capsule_mpc.paths import ReferencePath
 
 FRAME_S = 1 / 30
@@ -102,10 +103,46 @@ def test_every_preload_command_keeps_the_arms_limits(scenario, angle):
     on_limit = np.linalg.norm(start.target_lead_m - model_equilibrium_lead(sc)) >= lim.max_lead_m - 1e-9
     if on_limit and start.end_reason == "coupling limit":
         return  # a target on the coupling limit (the force does not get there): the EPM reaches it
-    # It got to the pre-load lead, arriving at the path's speed along the path.
+    # It got to the pre-load lead, arriving along the path at the speed it planned: at least the
+    # path's, and no faster than the limits reach from rest over the way it went.
     assert start.end_reason == "pre-loaded"
-    np.testing.assert_allclose(v[-1][0:2], sc.path.speed_mps * start.direction, atol=1e-9)
+    np.testing.assert_allclose(v[-1][0:2], start.arrival_mps * start.direction, atol=1e-9)
     assert v[-1][2] == 0.0
+    assert start.arrival_mps >= sc.path.speed_mps
+    step = np.abs(start.target_lead_m - make(sc, angle)[2][0:2])
+    for axis in range(2):
+        reach = fastest_arrival_mps(step[axis], lim.jerk_mps3, lim.accel_mps2, lim.speed_mps)
+        assert abs(v[-1][axis]) <= max(reach, sc.path.speed_mps) + 1e-9
+
+
+def _ruckig_profile(distance_m: float, arrival_mps: float, lim) -> np.ndarray:
+    """Positions of Ruckig's time-optimal profile of one axis from rest to ``distance_m`` at
+    ``arrival_mps`` (zero acceleration there), sampled every millisecond."""
+    inp = ruckig.InputParameter(1)
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
+    inp.target_position, inp.target_velocity, inp.target_acceleration = [distance_m], [arrival_mps], [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [lim.speed_mps], [lim.accel_mps2], [lim.jerk_mps3]
+    traj = ruckig.Trajectory(1)
+    assert ruckig.Ruckig(1).calculate(inp, traj) == ruckig.Result.Working
+    times = np.linspace(0.0, traj.duration, max(int(traj.duration / 1e-3), 2))
+    return np.array([traj.at_time(t)[0][0] for t in times])
+
+
+@settings(max_examples=40, deadline=None)
+@given(distance=st.floats(1e-4, 0.03))
+@example(distance=0.005)  # a typical pre-load on the lab rig
+@example(distance=0.5**3 / 5**2)  # where the acceleration just reaches its limit
+def test_the_fastest_arrival_is_the_edge_of_what_ruckig_reaches_without_a_run_up(scenario, distance):
+    lim = scenario.limits
+    fastest = fastest_arrival_mps(distance, lim.jerk_mps3, lim.accel_mps2, lim.speed_mps)
+    assert 0.0 < fastest <= lim.speed_mps
+    # Just below it, Ruckig goes straight there: forward all the way, never past the target.
+    x = _ruckig_profile(distance, 0.99 * fastest, lim)
+    assert np.all(np.diff(x) >= -1e-12) and x.max() <= distance * (1 + 1e-9)
+    if 1.05 * fastest <= lim.speed_mps:
+        # Faster than that, the axis cannot be there in time: it backs up for a run-up first.
+        x = _ruckig_profile(distance, 1.05 * fastest, lim)
+        assert x.min() < -1e-9 or x.max() > distance * (1 + 1e-9)
 
 
 def test_the_preload_ends_when_the_capsule_breaks_loose(scenario):
@@ -132,6 +169,33 @@ def test_without_start_preload_there_is_no_phase(scenario):
 
 
 def test_start_preload_is_validated(scenario):
-    for bad in (0.0, -0.5, 1.5):
-        with pytest.raises(ValidationError, match="start_preload"):
-            type(scenario.mpc).model_validate({**scenario.mpc.model_dump(), "start_preload": bad})
+    for field, bad in (("start_preload", 0.0), ("start_preload", -0.5), ("start_preload", 1.5)):
+        with pytest.raises(ValidationError, match=field):
+            type(scenario.mpc).model_validate({**scenario.mpc.model_dump(), field: bad})
+    for bad in (-0.1, 1.5):
+        with pytest.raises(ValidationError, match="start_preload_arrival"):
+            type(scenario.mpc).model_validate({**scenario.mpc.model_dump(), "start_preload_arrival": bad})
+
+
+def test_arrival_zero_arrives_at_the_paths_speed(scenario):
+    sc = preload_scenario(scenario)
+    sc = sc.model_copy(update={"mpc": sc.mpc.model_copy(update={"start_preload_arrival": 0.0})})
+    start, _, epm = make(sc)
+    assert start.arrival_speed(epm[0:2], epm[0:2] + np.array([0.005, 0.0])) == sc.path.speed_mps
+
+
+def test_the_arrival_leaves_room_to_stop_before_the_coupling_limit(scenario):
+    sc = preload_scenario(scenario)
+    start, _, epm = make(sc)
+    lead_eq, limit, lim = epm[0:2], sc.limits.max_lead_m, sc.limits
+
+    def fastest(distance: float) -> float:
+        return fastest_arrival_mps(distance, lim.jerk_mps3, lim.accel_mps2, lim.speed_mps)
+
+    far = start.arrival_speed(lead_eq, lead_eq + np.array([0.005, 0.0]))  # 20 mm of room left
+    assert far == pytest.approx(0.9 * fastest(0.005))
+    near = start.arrival_speed(lead_eq, lead_eq + np.array([limit - 0.003, 0.0]))  # 3 mm of room
+    assert near == pytest.approx(fastest(0.003))
+    assert near < far
+    on = start.arrival_speed(lead_eq, lead_eq + np.array([limit, 0.0]))
+    assert on == sc.path.speed_mps

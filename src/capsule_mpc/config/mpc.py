@@ -293,9 +293,21 @@ class MPCConfig(StrictModel):
         description=(
             "Start from rest by pre-loading: from t = 0 the EPM is driven time-optimally (within "
             "the limits) along the path's initial direction to the lead at which the believed force "
-            "is this fraction of the friction belief's breakaway force, arriving at the path's speed "
-            "(or until the camera sees the capsule break loose); then the MPC takes over. (0, 1]; "
-            "null: the MPC from the first frame."
+            "is this fraction of the friction belief's breakaway force, arriving at the speed "
+            "mpc.start_preload_arrival sets (or until the camera sees the capsule break loose); then "
+            "the MPC takes over. (0, 1]; null: the MPC from the first frame."
+        ),
+    )
+    start_preload_arrival: Number = Field(
+        0.9,
+        ge=0,
+        le=1,
+        description=(
+            "The pre-load's speed at its lead, along the path's initial direction, as a fraction of "
+            "the fastest speed the EPM can reach from rest over the pre-load's distance within "
+            "limits.speed_mps, limits.accel_mps2 and limits.jerk_mps3 (per axis, without a run-up); "
+            "never below the path's speed. 0: arrive at the path's speed (the EPM slows down before "
+            "the capsule breaks loose). [0, 1]."
         ),
     )
     compile_c: StrictBool = Field(

@@ -12,7 +12,13 @@ motion the EPM is driven time-optimally within ``limits.speed_mps``, ``limits.ac
 ``limits.jerk_mps3`` (Ruckig, position interface) along the path's initial direction û to the
 lead at which the controller's force model plus its estimated constant disturbance, along û,
 reaches that fraction of the friction belief's breakaway force after the rest so far
-(:meth:`capsule_mpc.friction.FrictionBelief.breakaway_n`), arriving there at the path's speed.
+(:meth:`capsule_mpc.friction.FrictionBelief.breakaway_n`). It arrives there still speeding up:
+at ``mpc.start_preload_arrival`` times the fastest speed the limits reach from rest over that
+distance (:func:`fastest_arrival_mps`), but no faster than it can stop before the coupling limit,
+and never below the path's speed. Arriving at the path's speed
+instead would spend the last tenth of a second slowing down while the capsule, still stuck, falls
+behind the reference; arriving fast, the EPM overshoots the lead once the capsule breaks loose,
+and the larger force makes the capsule catch up with the reference it lost while it was stuck.
 The phase ends there (pre-loaded), or earlier when the camera sees the capsule leave its rest
 position (:class:`~capsule_mpc.mpc.contact.RestDetector`), when the lead would leave the coupling
 limit (``limits.max_lead_m`` around the model's equilibrium lead), or after :data:`PRELOAD_MAX_S`;
@@ -24,6 +30,8 @@ good as the believed breakaway.
 """
 
 from __future__ import annotations
+
+import math
 
 import casadi as ca
 import numpy as np
@@ -37,10 +45,30 @@ from ..paths import ReferencePath
 from .approach import epm_ruckig
 from .contact import RestDetector
 
-__all__ = ["PRELOAD_MAX_S", "StartPreload"]
+__all__ = ["PRELOAD_MAX_S", "StartPreload", "fastest_arrival_mps"]
 
 #: Longest pre-load from t = 0, s: the MPC takes over then whatever the capsule does.
 PRELOAD_MAX_S = 1.5
+
+
+def fastest_arrival_mps(distance_m: float, jerk_mps3: float, accel_mps2: float, speed_mps: float) -> float:
+    """The highest speed an axis can have, with zero acceleration, after ``distance_m`` from rest
+    within the jerk, acceleration and speed limits, m/s (a higher target speed needs a run-up).
+
+    The fastest way to a speed v from rest is a jerk-limited S-curve: the acceleration ramps up
+    and back down at the jerk limit (a triangle while v <= a²/j, a trapezoid capped at the
+    acceleration limit a above that); it covers v * sqrt(v / j), resp. v (v / a + a / j) / 2, and
+    this inverts that closed form. Written out because Ruckig plans a given target state but does
+    not give the fastest reachable one; the tests check it against Ruckig's own profiles.
+    """
+    d = max(float(distance_m), 0.0)
+    j, a = float(jerk_mps3), float(accel_mps2)
+    if d <= a**3 / j**2:  # the acceleration never reaches its limit: d = v^(3/2) / sqrt(j)
+        v = (d * d * j) ** (1.0 / 3.0)
+    else:  # d = v^2 / (2a) + v a / (2j)
+        half = a / (2.0 * j)
+        v = a * (math.sqrt(half * half + 2.0 * d / a) - half)
+    return min(v, float(speed_mps))
 
 
 class StartPreload:
@@ -86,6 +114,7 @@ class StartPreload:
         self.speed_mps = speed
         self.active = self.fraction is not None and speed > 0
         self.target_lead_m: np.ndarray | None = None
+        self.arrival_mps = speed
         self.end_reason = ""
         self._ruckig, self._in, self._out = epm_ruckig(scenario, dt_s)
         self._state: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -119,6 +148,34 @@ class StartPreload:
             return rest_lead_m + reach * self.direction
         return rest_lead_m + brentq(excess, 0.0, reach, xtol=1e-6) * self.direction
 
+    def _fastest_along(self, distance_m: float) -> float:
+        """The fastest speed along û an EPM reaches from rest over ``distance_m`` (each axis over
+        its share, :func:`fastest_arrival_mps`), m/s; the same bounds the speed from which it can
+        stop within that distance."""
+        lim = self.scenario.limits
+        fastest = math.inf
+        for component in np.abs(self.direction):
+            if component > 1e-9:  # axis i moves component * distance and must reach component * v
+                way = component * distance_m
+                reach = fastest_arrival_mps(way, lim.jerk_mps3, lim.accel_mps2, lim.speed_mps)
+                fastest = min(fastest, reach / component)
+        return fastest
+
+    def arrival_speed(self, rest_lead_m: np.ndarray, target_lead_m: np.ndarray) -> float:
+        """The speed along û at the pre-load lead, m/s, for an EPM at rest at ``rest_lead_m`` (2,):
+        ``mpc.start_preload_arrival`` of the fastest it can reach over the way to
+        ``target_lead_m``, and no faster than it can stop from before the coupling limit
+        (``limits.max_lead_m`` around the model's equilibrium lead); never below the path's
+        speed."""
+        fraction = float(self.scenario.mpc.start_preload_arrival)
+        way = float(np.linalg.norm(target_lead_m - rest_lead_m))
+        # Distance along û from the target lead to the coupling limit's circle.
+        offset = np.asarray(target_lead_m, dtype=float) - self.lead_eq_m
+        b = float(offset @ self.direction)
+        room = -b + math.sqrt(max(b * b - float(offset @ offset) + self.scenario.limits.max_lead_m**2, 0.0))
+        speed = min(fraction * self._fastest_along(way), self._fastest_along(max(room, 0.0)))
+        return max(self.speed_mps, speed) if math.isfinite(speed) else self.speed_mps
+
     def command(
         self,
         t_s: float,
@@ -140,7 +197,9 @@ class StartPreload:
                 epm_m[0:2] - rest_pos, float(epm_m[2]), self.rest.rest_s(t_s), disturbance_xy_n
             )
             self._target_m = np.append(rest_pos + self.target_lead_m, float(epm_m[2]))
-        cruise = np.append(self.speed_mps * self.direction, 0.0)
+        if self._state is None:
+            self.arrival_mps = self.arrival_speed(epm_m[0:2] - rest_pos, self.target_lead_m)
+        cruise = np.append(self.arrival_mps * self.direction, 0.0)
         # Ruckig runs open loop on its own state from the phase's first frame (the measured EPM,
         # the command being applied): fed back its own output, every command it gives lies on one
         # jerk-limited profile; the arm's lag does not restart it.
