@@ -36,6 +36,7 @@ CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
 ABLATION_VARIANTS = {
     "none": "none (μ = 0, no drag)",
     "paper": "paper's c(v)",
+    "paper+preload": "paper's c(v), pre-load at the start",
     "learned": "learned on the draw",
     "online": "learned + online",
     "oracle": "oracle (the plant's own)",
@@ -784,6 +785,21 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "The learned model with the two optional uses of its breakaway: static friction in the MPC's "
         "prediction of a resting capsule (`mpc.stick_prediction`) and the start's pre-load to 0.9 of "
         "the believed breakaway (`mpc.start_preload: 0.9`); see [friction.md](friction.md).",
+    ),
+    (
+        "start_preload_lab",
+        "The start's pre-load (`lab`)",
+        render_ablation,
+        "The MPC with and without the start's pre-load (`mpc.start_preload: 1`, arriving at 0.9 of the "
+        "fastest speed the limits reach, `mpc.start_preload_arrival`), with the paper's c(v), whose "
+        "believed breakaway is μ0 F_N + f_s, and with the model learned on the draw, whose breakaway "
+        "is learned; see [friction.md](friction.md). Force map `lookup`, the arm in the loop.",
+    ),
+    (
+        "start_preload_hard",
+        "The start's pre-load (`hard`)",
+        render_ablation,
+        "The same on the `hard` preset.",
     ),
     (
         "dipole_vs_finite",
