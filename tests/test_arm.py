@@ -168,6 +168,17 @@ waypoint_sequences = st.lists(
 @given(seq=waypoint_sequences)
 # Found by hypothesis: Ruckig ends 6 nm short of the target; snapping onto it broke the jerk limit.
 @example(seq=[(0.25, 0.0, 0.0, 0.09375), (0.125, 0.0, 0.0, 0.09375)])
+# Found by hypothesis: Ruckig's synchronisation failed on a target a rounding inside two limits.
+@example(
+    seq=[
+        (0.36681529243473904, 0.02424798778709336, 0.023928196501220106, 0.09375),
+        (0.1685540630985797, 0.0, 4.328584527607916e-07, 0.09375),
+        (0.265625, 0.0, 0.0, 0.09375),
+        (0.0625, 0.09608230591248396, 0.015625, 0.09375),
+        (0.20293066955766473, -0.17701045722263503, -0.12999999999999998, 0.09375),
+        (0.1685540630985797, 0.0, 0.0, 0.09375),
+    ]
+)
 def test_plan_smoothing_property(limits, seq):
     t = np.cumsum([0.0] + [s[0] for s in seq])
     p = np.array([[0.0, 0.0, 0.095]] + [list(s[1:]) for s in seq])

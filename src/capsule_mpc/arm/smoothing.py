@@ -63,6 +63,10 @@ _NEGLIGIBLE_STATE_GAP = 1e-9
 _ROUNDING = (1e-12, 1e-12, 1e-9)
 #: A waypoint reached within this of its plan time counts as on time, s.
 _ON_TIME_S = 1e-9
+#: A motion Ruckig fails on is tried again with its target velocity and acceleration pulled this
+#: much further inside the limits (relative): Ruckig's synchronisation step can fail numerically
+#: on a target within rounding of a limit, and a millionth of the limit is no motion.
+_RETRY_SHRINK = (1e-6, 1e-4)
 #: Default look-ahead of plan targets, s (6 camera frames): on a rectangle at 0.02 and 0.045 m/s
 #: and a circle, with the default limits, 0.15-0.2 s gave the smallest deviation from the plan
 #: among 0-0.3 s (0.2 s: max 1.2 / 4.1 / 1.4 mm).
@@ -470,21 +474,31 @@ def _plan_segment(
     inp.current_position, inp.current_velocity, inp.current_acceleration = cur
     inp.target_position, inp.target_velocity, inp.target_acceleration = target
     inp.minimum_duration = min_duration_s if min_duration_s > 0 else None
-    try:
-        res: object = otg.calculate(inp, traj)
-    except (ruckig.RuckigError, ValueError) as exc:  # ValueError: a result the binding cannot name
-        res = exc
+    res = _calculate(otg, inp, traj)
     if res in _OK:
         return True
     gap = np.abs(np.subtract(state, target)).max()
     if gap < _NEGLIGIBLE_STATE_GAP:
         return False  # already there up to rounding: Ruckig may fail on a zero-length motion
+    for shrink in _RETRY_SHRINK:
+        inp.target_velocity = [x * (1.0 - shrink) for x in target[1]]
+        inp.target_acceleration = [x * (1.0 - shrink) for x in target[2]]
+        if _calculate(otg, inp, traj) in _OK:
+            return True
     motion = f"the motion from data row {rows[0]} to data row {rows[1]}" if rows else "the motion"
     raise SmoothingError(
         t_target_s,
         np.array(target[0]),
         f"cannot plan {motion} ({min_duration_s:.4g} s at least): {_ruckig_reason(res)}",
     )
+
+
+def _calculate(otg: ruckig.Ruckig, inp: ruckig.InputParameter, traj: ruckig.Trajectory) -> object:
+    """Ruckig's result for ``inp`` (into ``traj``), or the exception it raised instead."""
+    try:
+        return otg.calculate(inp, traj)
+    except (ruckig.RuckigError, ValueError) as exc:  # ValueError: a result the binding cannot name
+        return exc
 
 
 def _ruckig_reason(res: object) -> str:
