@@ -802,6 +802,22 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "The same on the `hard` preset.",
     ),
     (
+        "start_preload_rectangle_dipole",
+        "The start's pre-load with the point dipole (rectangle, `lab`)",
+        render_ablation,
+        "The paper's c(v) with and without the start's pre-load in the default controller "
+        "(`configs/rectangle.yaml`: the point-dipole force model), the arm in the loop. The MPC's own "
+        "start from rest is already closer with the dipole than with the force map (the first 1.5 s "
+        "of the paper's c(v) here against the section on the `lab` pre-load, draws 0-19 of the same "
+        "rigs), so the pre-load has less to gain.",
+    ),
+    (
+        "start_preload_pipe_dipole",
+        "The start's pre-load with the point dipole (pipe at 0.02 m/s, `lab`)",
+        render_ablation,
+        "The same on the pipe's centreline (`configs/pipe.yaml`).",
+    ),
+    (
         "dipole_vs_finite",
         "Point dipole against finite magnets",
         render_dipole,
