@@ -24,7 +24,11 @@ robot``), once per friction model it is given:
 ``<variant>+preload``
     the variant with ``mpc.start_preload: --preload`` (the start pre-loads the capsule to that
     fraction of the believed breakaway, arriving there fast, :mod:`capsule_mpc.mpc.start`; the
-    paper's c(v) believes the breakaway is mu0 F_N + f_s); both: ``+stick+preload``.
+    paper's c(v) believes the breakaway is mu0 F_N + f_s);
+``<variant>+sharp``
+    the variant with the MPC's friction smoothed over a narrower speed, ``mpc.friction_smoothing_eps_mps:``
+    :data:`SHARP_EPS_MPS` (its friction force then holds up closer to rest);
+suffixes combine in that order (``+stick+preload``, ``+preload+sharp``, ...).
 
 A draw's learned model is kept in ``--work``; with ``--reuse`` a model already there is used
 instead of demonstrating and learning again. ``--merge A.json B.json --out C.json`` writes one
@@ -47,6 +51,7 @@ each draw's numbers and the command, to ``--out`` (JSON).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -69,11 +74,16 @@ from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
 from capsule_mpc.sim.oracle import oracle_friction_model
 
 BASE_VARIANTS = ("none", "paper", "learned", "online", "oracle")
-#: What a variant's suffixes switch on (``+stick``, ``+preload``, in this order).
-MODIFIERS = ("stick", "preload")
+#: What a variant's suffixes switch on (``+stick``, ``+preload``, ``+sharp``, in this order).
+MODIFIERS = ("stick", "preload", "sharp")
 VARIANTS = tuple(
-    base + suffix for base in BASE_VARIANTS for suffix in ("", "+stick", "+preload", "+stick+preload")
+    base + "".join("+" + m for m in mods)
+    for base in BASE_VARIANTS
+    for k in range(len(MODIFIERS) + 1)
+    for mods in itertools.combinations(MODIFIERS, k)
 )
+#: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, m/s (the default is 0.005).
+SHARP_EPS_MPS = 0.002
 #: Variants run unless --variants says otherwise.
 DEFAULT_VARIANTS = BASE_VARIANTS
 METRICS = ("tracking_rms_mm", "cross_track_rms_mm", "start_tracking_rms_mm", "final_error_mm")
@@ -131,10 +141,12 @@ def variant_scenario(
         scenario = variant_scenario(
             base, name, learned_on_draw, oracle, gain, cap, time_s, approach_fraction=approach_fraction
         )
-        update = {
+        update: dict[str, Any] = {
             "stick_prediction": "stick" in mods,
             "start_preload": preload if "preload" in mods else None,
         }
+        if "sharp" in mods:
+            update["friction_smoothing_eps_mps"] = SHARP_EPS_MPS
         return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=update)})
     if variant == "paper":
         return base

@@ -42,6 +42,8 @@ ABLATION_VARIANTS = {
     "oracle": "oracle (the plant's own)",
     "learned+stick": "learned, static friction in the prediction",
     "learned+preload": "learned, pre-load at the start",
+    "learned+sharp": "learned, friction smoothed over 2 mm/s",
+    "learned+preload+sharp": "learned, pre-load, friction smoothed over 2 mm/s",
 }
 ABLATION_METRICS = {
     "tracking_rms_mm": "tracking RMS (mm)",
@@ -816,6 +818,29 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "The start's pre-load with the point dipole (pipe at 0.02 m/s, `lab`)",
         render_ablation,
         "The same on the pipe's centreline (`configs/pipe.yaml`).",
+    ),
+    (
+        "sharp_friction_lab",
+        "The learned friction held up closer to rest (`lab`)",
+        render_ablation,
+        "The learned model with the MPC's friction smoothed over 2 mm/s instead of 5 "
+        "(`mpc.friction_smoothing_eps_mps: 0.002`): its friction force then falls off only close to "
+        "rest, so the MPC keeps pushing a capsule that slows down near the end instead of expecting "
+        "it to coast; see [friction.md](friction.md). Force map `lookup`, the arm in the loop.",
+    ),
+    (
+        "sharp_friction_hard",
+        "The learned friction held up closer to rest (`hard`)",
+        render_ablation,
+        "The same on the `hard` preset.",
+    ),
+    (
+        "sharp_preload_lab",
+        "The learned friction with the start's pre-load and held up closer to rest (`lab`)",
+        render_ablation,
+        "Both options with the learned model (`mpc.start_preload: 1`, "
+        "`mpc.friction_smoothing_eps_mps: 0.002`) against the default controller with the paper's "
+        "c(v), on the same `lab` draws as the section on the held-up friction.",
     ),
     (
         "dipole_vs_finite",

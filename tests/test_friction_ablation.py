@@ -114,3 +114,18 @@ def test_the_approach_fraction_goes_to_the_variants_with_the_draws_static_fricti
         base, "learned+stick", model, model, 0.05, 0.1, 0.3, approach_fraction=0.85
     )
     assert stick.mpc.approach.force_fraction == 0.85 and stick.mpc.stick_prediction
+
+
+def test_variant_suffixes_combine(ablation):
+    from capsule_mpc.config import LearnedFrictionModel, load_config
+
+    base = load_config(REPO / "configs" / "rectangle_lookup.yaml")
+    model = LearnedFrictionModel(coefficients=[0.03], validity_mps=(0.005, 0.04), force_model="lookup")
+    plain = ablation.variant_scenario(base, "learned", model, model, 0.05, 0.1, 0.3)
+    both = ablation.variant_scenario(base, "learned+preload+sharp", model, model, 0.05, 0.1, 0.3, preload=0.8)
+    assert plain.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
+    assert plain.mpc.start_preload is None
+    assert both.mpc.friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
+    assert both.mpc.start_preload == 0.8
+    assert both.friction.learned == model
+    assert "learned+preload+sharp" in ablation.VARIANTS and "learned+sharp+preload" not in ablation.VARIANTS
