@@ -84,6 +84,8 @@ VARIANTS = tuple(
 )
 #: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, m/s (the default is 0.005).
 SHARP_EPS_MPS = 0.002
+#: ``mpc.start_preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
+DEFAULT_PRELOAD = 1.0
 #: Variants run unless --variants says otherwise.
 DEFAULT_VARIANTS = BASE_VARIANTS
 METRICS = ("tracking_rms_mm", "cross_track_rms_mm", "start_tracking_rms_mm", "final_error_mm")
@@ -128,7 +130,7 @@ def variant_scenario(
     gain: float,
     cap: float,
     time_s: float,
-    preload: float = 1.0,
+    preload: float = DEFAULT_PRELOAD,
     approach_fraction: float | None = None,
 ) -> Scenario:
     """The controller's scenario of one variant (the plant is drawn from the base scenario).
@@ -471,7 +473,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--draws", type=int, default=20, help="plant draws (default 20)")
     parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(DEFAULT_VARIANTS))
     parser.add_argument(
-        "--preload", type=float, default=1.0, help="+preload: mpc.start_preload, (0, 1] (1.0)"
+        "--preload",
+        type=float,
+        default=DEFAULT_PRELOAD,
+        help=f"+preload: mpc.start_preload, (0, 1] ({DEFAULT_PRELOAD})",
     )
     parser.add_argument(
         "--reuse",

@@ -60,6 +60,27 @@ def fast(scenario: Scenario) -> Scenario:
     )
 
 
+@pytest.fixture(scope="session")
+def lab_start_leg():
+    """The start from rest on one leg of the rectangle: ``configs/rectangle_lookup.yaml`` (the force
+    map in the controller, the arm in the loop) on the ``lab`` plant, uncompiled NLP functions,
+    cut off 1 s after the leg's nominal end (the start window is the first 1.5 s; the final
+    approach would otherwise go on for seconds), and the leg's reference path."""
+    from capsule_mpc.config import packaged_config_path
+    from capsule_mpc.paths import ReferencePath
+
+    base = load_config(packaged_config_path("rectangle_lookup"))
+    sc = base.model_copy(
+        update={
+            "plant": base.plant.model_copy(update={"preset": "lab"}),
+            "mpc": base.mpc.model_copy(update={"compile_c": False}),  # no C build in the default suite
+            "sim": base.sim.model_copy(update={"tail_s": 1.0}),
+        }
+    )
+    leg = ReferencePath(np.array([[-0.05, -0.03], [-0.01, -0.03]]), False, base.path.speed_mps)
+    return sc, leg
+
+
 def _failed(res):
     """``res`` as a failed solve with a NaN solution (what a broken solver returns)."""
     from capsule_mpc.mpc import SolveResult

@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from capsule_mpc import Scenario
-from capsule_mpc.config import LearnedFrictionModel, load_config, packaged_config_path
+from capsule_mpc.config import LearnedFrictionModel
 from capsule_mpc.friction import MIN_REST_S, FrictionBelief, SteadyFrictionLaw
 from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
 from capsule_mpc.mpc.approach import FinalApproach
@@ -162,23 +162,13 @@ def test_the_mpc_feeds_the_drag_growth_forward(scenario):
 LEARNED_LAB5 = Path(__file__).parent / "data" / "learned_lab5_lookup.yaml"
 
 
-def test_a_model_learned_on_the_rig_starts_the_capsule_closer_than_the_papers(lab_scenario, table):
+def test_a_model_learned_on_the_rig_starts_the_capsule_closer_than_the_papers(lab_start_leg, table):
     """The start from rest on `lab` draw 5 (one leg of the rectangle, the arm in the loop, the force
     map in the controller): the friction learned on that draw's demonstrations brings the capsule
     onto the path sooner than the paper's c(v) (over many draws: benchmarks/friction_ablation.py)."""
-    base = load_config(packaged_config_path("rectangle_lookup"))
-    base = base.model_copy(
-        update={
-            "plant": base.plant.model_copy(update={"preset": "lab"}),
-            "mpc": base.mpc.model_copy(update={"compile_c": False}),  # no C build in the default suite
-            # Cut off 1 s after the leg's nominal end (the start window is the first 1.5 s; the runs
-            # would otherwise go on for 11-17 s while the final approach brings the capsule to rest).
-            "sim": base.sim.model_copy(update={"tail_s": 1.0}),
-        }
-    )
+    base, leg = lab_start_leg
     learned = LearnedFrictionModel.model_validate(yaml.safe_load(LEARNED_LAB5.read_text()))
     with_model = base.model_copy(update={"friction": base.friction.model_copy(update={"learned": learned})})
-    leg = ReferencePath(np.array([[-0.05, -0.03], [-0.01, -0.03]]), False, base.path.speed_mps)
     start = {}
     for name, sc in (("paper", base), ("learned", with_model)):
         result = simulate(sc, "mpc", leg, 5, progress=False)
