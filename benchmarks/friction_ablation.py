@@ -28,6 +28,10 @@ robot``), once per friction model it is given:
 ``<variant>+sharp``
     the variant with the MPC's friction smoothed over a narrower speed, ``mpc.friction_smoothing_eps_mps:``
     :data:`SHARP_EPS_MPS` (its friction force then holds up closer to rest);
+``<variant>+endsharp``
+    the same narrower smoothing only once the horizon reaches the path's end,
+    ``mpc.final_friction_smoothing_eps_mps:`` :data:`SHARP_EPS_MPS` (the final stop is planned for a
+    capsule that sticks);
 suffixes combine in that order (``+stick+preload``, ``+preload+sharp``, ...).
 
 A draw's learned model is kept in ``--work``; with ``--reuse`` a model already there is used
@@ -74,15 +78,17 @@ from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
 from capsule_mpc.sim.oracle import oracle_friction_model
 
 BASE_VARIANTS = ("none", "paper", "learned", "online", "oracle")
-#: What a variant's suffixes switch on (``+stick``, ``+preload``, ``+sharp``, in this order).
-MODIFIERS = ("stick", "preload", "sharp")
+#: What a variant's suffixes switch on (``+stick``, ``+preload``, ``+sharp``, ``+endsharp``, in
+#: this order).
+MODIFIERS = ("stick", "preload", "sharp", "endsharp")
 VARIANTS = tuple(
     base + "".join("+" + m for m in mods)
     for base in BASE_VARIANTS
     for k in range(len(MODIFIERS) + 1)
     for mods in itertools.combinations(MODIFIERS, k)
 )
-#: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, m/s (the default is 0.005).
+#: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, and
+#: ``mpc.final_friction_smoothing_eps_mps`` of the ``+endsharp`` ones, m/s (the default is 0.005).
 SHARP_EPS_MPS = 0.002
 #: ``mpc.start_preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
 DEFAULT_PRELOAD = 1.0
@@ -149,6 +155,8 @@ def variant_scenario(
         }
         if "sharp" in mods:
             update["friction_smoothing_eps_mps"] = SHARP_EPS_MPS
+        if "endsharp" in mods:
+            update["final_friction_smoothing_eps_mps"] = SHARP_EPS_MPS
         return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=update)})
     if variant == "paper":
         return base

@@ -129,3 +129,7 @@ def test_variant_suffixes_combine(ablation):
     assert both.mpc.start_preload == 0.8
     assert both.friction.learned == model
     assert "learned+preload+sharp" in ablation.VARIANTS and "learned+sharp+preload" not in ablation.VARIANTS
+    end = ablation.variant_scenario(base, "learned+preload+endsharp", model, model, 0.05, 0.1, 0.3)
+    assert end.mpc.final_friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
+    assert end.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
+    assert plain.mpc.final_friction_smoothing_eps_mps is None

@@ -182,6 +182,17 @@ class MPCConfig(StrictModel):
             "eps^2)), m/s, (0, 0.01]; None: friction.smoothing_eps_mps. The plant is not affected."
         ),
     )
+    final_friction_smoothing_eps_mps: Number | None = Field(
+        None,
+        gt=0,
+        le=0.01,
+        description=(
+            "The same smoothing once the horizon reaches the path's end (the plan holds the final "
+            "stop), m/s, (0, 0.01]; None: friction_smoothing_eps_mps to the end. A narrower eps keeps "
+            "the model's friction up closer to rest, so the final stop is planned for a capsule that "
+            "sticks rather than coasts; a second solver is built for it."
+        ),
+    )
     position_tol_m: Number = Field(
         1e-3,
         gt=0,

@@ -51,7 +51,7 @@ from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 from .start import StartPreload
 
-__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "model_scenario", "safe_command"]
+__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "final_scenario", "model_scenario", "safe_command"]
 
 
 #: Time the controller's step takes besides the solve (estimation, reference, safety layer), ms:
@@ -83,6 +83,16 @@ def model_scenario(scenario: Scenario) -> Scenario:
         return scenario
     friction = scenario.friction.model_copy(update={"smoothing_eps_mps": eps})
     return scenario.model_copy(update={"friction": friction})
+
+
+def final_scenario(scenario: Scenario) -> Scenario | None:
+    """The scenario of the solver that plans the final stop (``mpc.final_friction_smoothing_eps_mps``),
+    or None when the run's solver plans it too."""
+    eps = scenario.mpc.final_friction_smoothing_eps_mps
+    if eps is None or eps == scenario.mpc.friction_smoothing_eps_mps:
+        return None
+    update = {"friction_smoothing_eps_mps": eps, "final_friction_smoothing_eps_mps": None}
+    return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=update)})
 
 
 def build_mpc_stack(scenario: Scenario) -> MPCStack:
@@ -159,9 +169,12 @@ class MPCController(Controller):
         """Build (or reuse) the problem for ``scenario`` and forget the previous run."""
         self.scenario = scenario
         self.path = path
-        self.stack = build_mpc_stack(scenario)
-        wrap = self.solver_wrapper
-        self.solver = self.stack.solver if wrap is None else wrap(self.stack.solver)
+        self._use_stack(build_mpc_stack(scenario))
+        assert self.stack is not None
+        final = final_scenario(scenario)
+        self._final_stack = None if final is None else build_mpc_stack(final)
+        # From this time on the horizon reaches the path's end.
+        self._final_from_s = path.duration_s - float(self.stack.ocp.node_times_s[-1])
         cfg = scenario.mpc
         # The frame period: the first stage of the plan, the time between commands.
         self.dt_s = self.stack.ocp.frame_s
@@ -217,6 +230,13 @@ class MPCController(Controller):
             self.start = StartPreload(
                 scenario, path, stack.force, stack.ocp.lead_eq_m, self.friction_belief, self.rest, self.dt_s
             )
+
+    def _use_stack(self, stack: MPCStack) -> None:
+        """Solve with ``stack`` from now on. The stacks of a run share the problem's layout, so the
+        plan and its multipliers warm-start either."""
+        self.stack = stack
+        wrap = self.solver_wrapper
+        self.solver = stack.solver if wrap is None else wrap(stack.solver)
 
     # ------------------------------------------------------------------ helpers
     def _reference(self, t_s: float) -> np.ndarray:
@@ -411,6 +431,9 @@ class MPCController(Controller):
         u_approach = self.approach.step(t_s, epm, self.u_prev, self.disturbance_n[0:2])
         if u_approach is not None:
             return self._approach_command(u_approach, epm)
+        final = self._final_stack
+        if final is not None and self.stack is not final and t_s >= self._final_from_s:
+            self._use_stack(final)
         x0 = np.concatenate([pos, vel, epm])
         self._drag_growth_n = self.friction_belief.drag_growth_n(self._progress_m(t_s))
         if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
