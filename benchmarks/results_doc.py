@@ -44,6 +44,9 @@ ABLATION_VARIANTS = {
     "learned+preload": "learned, pre-load at the start",
     "learned+sharp": "learned, friction smoothed over 2 mm/s",
     "learned+preload+sharp": "learned, pre-load, friction smoothed over 2 mm/s",
+    "paper+endsharp": "paper's c(v), final stop with friction smoothed over 2 mm/s",
+    "learned+endsharp": "learned, final stop with friction smoothed over 2 mm/s",
+    "learned+preload+endsharp": "learned, pre-load, final stop with friction smoothed over 2 mm/s",
 }
 ABLATION_METRICS = {
     "tracking_rms_mm": "tracking RMS (mm)",
@@ -841,6 +844,26 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "Both options with the learned model (`mpc.start_preload: 1`, "
         "`mpc.friction_smoothing_eps_mps: 0.002`) against the default controller with the paper's "
         "c(v), on the same `lab` draws as the section on the held-up friction.",
+    ),
+    (
+        "final_stop_lab",
+        "The final stop planned with the friction held up closer to rest (`lab`)",
+        render_ablation,
+        "The MPC's friction smoothed over 2 mm/s only once its horizon reaches the path's end "
+        "(`mpc.final_friction_smoothing_eps_mps: 0.002`, a second solver; the run's solver keeps "
+        "5 mm/s): the final stop is planned for a capsule that sticks rather than coasts, while the "
+        "path in between keeps the smoothing the real-time steps need; see [friction.md](friction.md). "
+        "With the paper's c(v), whose friction fades towards rest, it does harm; with the learned "
+        "model it pays. Force map `lookup`, the arm in the loop.",
+    ),
+    (
+        "final_stop_hard",
+        "The final stop planned with the friction held up closer to rest (`hard`)",
+        render_ablation,
+        "The same on the `hard` preset (the paper's c(v) without the option). Here the option ends "
+        "closer on as many draws as it ends farther and stalls more: a stick-slip lurch near the end "
+        "can carry the capsule past it, and it sticks there (traced on draw 39: 4.5 mm past the end, "
+        "where the wider smoothing's capsule still crept and was pulled back).",
     ),
     (
         "dipole_vs_finite",
