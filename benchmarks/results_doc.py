@@ -854,7 +854,8 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "5 mm/s): the final stop is planned for a capsule that sticks rather than coasts, while the "
         "path in between keeps the smoothing the real-time steps need; see [friction.md](friction.md). "
         "With the paper's c(v) it does harm (the capsule overshoots the end: 1.6-1.9 mm past it on "
-        "the five draws it harms most, traced); with the learned model it pays. Force map `lookup`, the arm in the loop.",
+        "the five draws it harms most, traced); with the learned model it pays. Force map `lookup`, "
+        "the arm in the loop.",
     ),
     (
         "final_stop_hard",
