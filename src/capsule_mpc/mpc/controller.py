@@ -8,7 +8,10 @@ Every frame:
    friction along the motion is the friction-coefficient offset of
    :mod:`capsule_mpc.mpc.adaptation` instead (the disturbance keeps the constant force);
 3. solve the NLP warm-started from the shifted previous solution (the first frame, or one
-   after the plan ran out, is solved to convergence by IPOPT);
+   after the plan ran out, is solved to convergence by IPOPT); with
+   ``mpc.final_friction_smoothing_eps_mps`` set, from the frame at which the horizon reaches the
+   path's end a second solver, whose model smooths its friction over that speed instead, takes
+   over from the same warm start (:func:`final_scenario`);
 4. if the fast step failed: accept it anyway while the rig holds the EPM (the settle phase:
    the command is 0 whatever the plan), else recover with a few SQP iterations with line
    search on the same structure (``mpc.recovery_sqp_iter``);
