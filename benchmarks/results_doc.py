@@ -858,6 +858,13 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "the arm in the loop.",
     ),
     (
+        "final_stop_lab_new_draws",
+        "The final stop and the pre-load on new `lab` draws",
+        render_ablation,
+        "The combination of the section above on 30 `lab` draws none of the earlier sections ran "
+        "(seeds 50-79; the option's ε was chosen on draws 0-19), each with friction learned on it.",
+    ),
+    (
         "final_stop_hard",
         "The final stop planned with the friction held up closer to rest (`hard`)",
         render_ablation,
