@@ -27,6 +27,9 @@ def test_the_final_solver_differs_from_the_runs_only_in_its_smoothing(fast):
     assert final_scenario(fast) is None  # unset: one solver to the end
     same = fast.mpc.friction_smoothing_eps_mps
     assert final_scenario(_with_mpc(fast, final_friction_smoothing_eps_mps=same)) is None
+    own = _with_mpc(fast, friction_smoothing_eps_mps=None)  # the model's own smoothing throughout
+    model_eps = fast.friction.smoothing_eps_mps
+    assert final_scenario(_with_mpc(own, final_friction_smoothing_eps_mps=model_eps)) is None
     sc = _with_mpc(fast, final_friction_smoothing_eps_mps=0.002)
     final = final_scenario(sc)
     assert final is not None

@@ -92,7 +92,7 @@ def final_scenario(scenario: Scenario) -> Scenario | None:
     """The scenario of the solver that plans the final stop (``mpc.final_friction_smoothing_eps_mps``),
     or None when the run's solver plans it too."""
     eps = scenario.mpc.final_friction_smoothing_eps_mps
-    if eps is None or eps == scenario.mpc.friction_smoothing_eps_mps:
+    if eps is None or eps == model_scenario(scenario).friction.smoothing_eps_mps:
         return None
     update = {"friction_smoothing_eps_mps": eps, "final_friction_smoothing_eps_mps": None}
     return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=update)})
