@@ -47,6 +47,8 @@ ABLATION_VARIANTS = {
     "paper+endsharp": "paper's c(v), final stop with friction smoothed over 2 mm/s",
     "learned+endsharp": "learned, final stop with friction smoothed over 2 mm/s",
     "learned+preload+endsharp": "learned, pre-load, final stop with friction smoothed over 2 mm/s",
+    "oracle+preload": "oracle, pre-load at the start",
+    "oracle+preload+endsharp": "oracle, pre-load, final stop with friction smoothed over 2 mm/s",
 }
 ABLATION_METRICS = {
     "tracking_rms_mm": "tracking RMS (mm)",
@@ -872,6 +874,14 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "closer on as many draws as it ends farther and stalls more: a stick-slip lurch near the end "
         "can carry the capsule past it, and it sticks there (traced on draw 39: 4.5 mm past the end, "
         "where the wider smoothing's capsule still crept and was pulled back).",
+    ),
+    (
+        "oracle_options_lab",
+        "The plant's own friction with the same options (`lab`)",
+        render_ablation,
+        "The learned model with the pre-load and the final stop against the plant's own friction "
+        "(an oracle no real rig gives: its steady law and breakaway at the path's start) with the "
+        "same two options: what a perfect friction model would add to this controller on these rigs.",
     ),
     (
         "dipole_vs_finite",
