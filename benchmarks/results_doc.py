@@ -884,6 +884,15 @@ SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...
         "same two options: what a perfect friction model would add to this controller on these rigs.",
     ),
     (
+        "oracle_options_hard",
+        "The plant's own friction with the pre-load (`hard`)",
+        render_ablation,
+        "The plant's own friction, alone and with the start's pre-load, against the paper's c(v) on "
+        "the `hard` preset (the final stop stays off: it does not pay on these rigs, section above). "
+        "The learned model's figures on the same draws are in the section on the start's pre-load "
+        "(`hard`).",
+    ),
+    (
         "dipole_vs_finite",
         "Point dipole against finite magnets",
         render_dipole,
