@@ -50,6 +50,8 @@ from pathlib import Path
 from .atomic import ENCODING, recording_writes, write_text_atomic
 from .errors import ConfigError, OutputError
 from .interrupt import exit_status
+from .overwrite import refuse_overwrite, resolved, shown_path
+from .previous_run import JOURNAL_NAME, Backup, recover, set_aside
 
 __all__ = [
     "LOCK_NAME",
@@ -236,21 +238,13 @@ def _remove_files(folder: Path, rels: Sequence[str]) -> None:
             parent.rmdir()
 
 
-def shown_path(path: str | Path) -> str:
-    """``path`` for a one-line message: ``''`` for an empty one, a very long one shortened."""
-    text = str(path)
-    if not text:
-        return "''"
-    return text if len(text) <= 100 else f"{text[:60]}...{text[-20:]} ({len(text)} characters)"
-
-
 def _holds(folder: Path, path: Path) -> bool:
     """Whether ``path`` is ``folder`` or lies inside it (both resolved)."""
     return path == folder or folder in path.parents
 
 
-def _misplaced(folder: Path, shown: str, inputs: Mapping[str, str | Path | None]) -> str | None:
-    """Why ``folder`` (resolved) must not take a command's outputs, or None."""
+def _misplaced(folder: Path, shown: str) -> str | None:
+    """Why ``folder`` (resolved) must not take a command's outputs, or None (its inputs aside)."""
     cwd = Path.cwd().resolve()
     if folder == cwd:
         return f"--out: {shown} is the working directory; give the outputs a folder of their own"
@@ -259,12 +253,6 @@ def _misplaced(folder: Path, shown: str, inputs: Mapping[str, str | Path | None]
     package = Path(__file__).resolve().parent  # this package's own folder
     if _holds(package, folder):
         return f"--out: {shown} is in the capsule_mpc package ({package}); write the outputs elsewhere"
-    for option, given in inputs.items():
-        if given is not None and str(given) and _holds(folder, Path(given).resolve()):
-            return (
-                f"--out: {shown} holds {option} {given}, an input of this command, which it could remove "
-                "or overwrite; give another folder"
-            )
     return None
 
 
@@ -297,8 +285,14 @@ def _unlisted_outputs(folder: Path, listed: Sequence[str]) -> list[str]:
     return found
 
 
-def _prepare(path: str | Path, inputs: Mapping[str, str | Path | None]) -> tuple[Path, bool]:
-    """Check and create the folder; (the folder, whether this call created it).
+def _prepare(
+    path: str | Path,
+    inputs: Mapping[str, str | Path | None],
+    files: Mapping[str, str | Path | None],
+) -> tuple[Path, bool]:
+    """Check the folder and the command's other output ``files`` against its ``inputs``
+    (:func:`capsule_mpc.overwrite.refuse_overwrite`) and create the folder; (the folder, whether
+    this call created it).
 
     Raises
     ------
@@ -307,11 +301,14 @@ def _prepare(path: str | Path, inputs: Mapping[str, str | Path | None]) -> tuple
     """
     folder, shown = Path(path), shown_path(path)
     try:
+        real = resolved(folder, "--out")
         if folder.exists() and not folder.is_dir():
             raise OutputError(f"--out: {shown} exists and is not a folder")
-        problem = _misplaced(folder.resolve(), shown, inputs)
+        problem = _misplaced(real, shown)
         if problem:
             raise OutputError(problem)
+        outputs = {"--out": (path, True), **{o: (f, False) for o, f in files.items()}}
+        refuse_overwrite(outputs, inputs)
         created = not folder.exists()
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -372,6 +369,7 @@ def output_folder(
     refusals: tuple[type[BaseException], ...] = (ConfigError,),
     resume: bool = False,
     inputs: Mapping[str, str | Path | None] | None = None,
+    files: Mapping[str, str | Path | None] | None = None,
 ) -> Iterator[OutputFolder]:
     """Prepare ``path`` for ``command``'s outputs and yield it; see the module docstring.
 
@@ -396,7 +394,11 @@ def output_folder(
         that are still there as well as those written now.
     inputs : mapping of str to path, optional
         The command's input files by option (``{"--config": ..., "--waypoints": ...}``; None
-        for an option not given): a folder holding one is refused.
+        for an option not given, ``--config`` standing for its whole ``base:`` chain): a folder
+        holding one is refused, as is one of ``files`` that is one.
+    files : mapping of str to path, optional
+        The command's output files outside the folder by option (``{"--mcap": ...}``), checked
+        against ``inputs`` with the folder before anything is written.
 
     Yields
     ------
@@ -408,42 +410,86 @@ def output_folder(
     OutputError
         ``path`` cannot or must not be used (module docstring), or another command holds its lock.
     """
-    folder, created = _prepare(path, inputs or {})
+    folder, created = _prepare(path, inputs or {}, files or {})
     lock = _acquire_lock(folder, command)
     try:
+        shown = shown_path(path)
+        recover(folder, shown, lambda line: print(f"capsule-mpc {command}: warning: {line}", file=sys.stderr))
         if replace_previous and not resume and not created:
-            _check_unlisted(folder, shown_path(path))
-        if replace_previous:
-            _remove_files(folder, _listed(folder))
+            _check_unlisted(folder, shown)
         kept = _listed(folder) if resume else []
-        started = time.time()
-        handle = OutputFolder(folder)
-        outcome: tuple[str, int] | None = ("failed", _EXIT_ERROR)
-        written: list[str] = []
-        try:
-            with recording_writes(folder) as files:
-                try:
-                    yield handle
-                    outcome = ("complete" if handle.status == 0 else "failed", handle.status)
-                except KeyboardInterrupt as exc:
-                    outcome = ("interrupted", exit_status(exc))
-                    raise
-                except refusals:
-                    # Bad input found after the folder was prepared: leave nothing behind.
-                    _remove_files(folder, _relative(folder, files))
-                    if replace_previous:  # the previous run's files are gone: its manifest too
-                        (folder / MANIFEST_NAME).unlink(missing_ok=True)
-                    outcome = None
-                    raise
-                except BaseException:  # an error the command did not handle here
-                    outcome = ("failed", handle.status or _EXIT_ERROR)
-                    raise
-                finally:
-                    written = _relative(folder, files) if outcome is not None else []
-        finally:
-            if outcome is not None:
-                _write_manifest(folder, command, argv, started, outcome, written, kept)
+        backup = set_aside(folder, _listed(folder), shown) if replace_previous else None
+        yield from _run_in(folder, command, argv, refusals, backup, kept)
     finally:
+        (folder / JOURNAL_NAME).unlink(missing_ok=True)
         lock.unlink(missing_ok=True)
         if created and folder.is_dir() and not any(folder.iterdir()):
             folder.rmdir()
+
+
+def _run_in(
+    folder: Path,
+    command: str,
+    argv: Sequence[str] | None,
+    refusals: tuple[type[BaseException], ...],
+    backup: Backup | None,
+    kept: list[str],
+) -> Iterator[OutputFolder]:
+    """Yield the folder to the command and record how it ended: a manifest, and the previous run
+    (``backup``) dropped when the new one replaces it, else put back (module docstring)."""
+    started = time.time()
+    handle = OutputFolder(folder)
+    outcome: tuple[str, int] | None = None  # None: refused, or a file could not be written
+    crashed = False
+    written: list[str] = []
+    try:
+        with recording_writes(folder, journal=folder / JOURNAL_NAME) as files:
+            try:
+                yield handle
+                outcome = ("complete" if handle.status == 0 else "failed", handle.status)
+            except KeyboardInterrupt as exc:
+                outcome = ("interrupted", exit_status(exc))
+                raise
+            except (*refusals, OSError):
+                # Bad input found after the folder was prepared, or a file that could not be
+                # written (a full disk): leave nothing of this run behind.
+                raise
+            except BaseException:  # an error the command did not handle here
+                outcome, crashed = ("failed", handle.status or _EXIT_ERROR), True
+                raise
+            finally:
+                written = _relative(folder, files)
+    finally:
+        record = (started, outcome, written, kept)
+        _settle(folder, command, argv, record, None if crashed and backup is None else backup, crashed)
+
+
+def _settle(
+    folder: Path,
+    command: str,
+    argv: Sequence[str] | None,
+    record: tuple[float, tuple[str, int] | None, list[str], list[str]],
+    backup: Backup | None,
+    crashed: bool,
+) -> None:
+    """Keep the new run (its manifest written, the previous run dropped), or put the previous run
+    back and remove the new run's files: after bad input, a write that failed, a crash, or a stop
+    before anything was written (a crash in a folder without a previous run keeps its files)."""
+    started, outcome, written, kept = record
+    keep = outcome is not None and (outcome[0] == "complete" or bool(written))
+    if not keep or (crashed and backup is not None):
+        if backup is not None:
+            backup.restore(written)
+        elif outcome is None:
+            _remove_files(folder, written)
+        return
+    try:
+        _write_manifest(folder, command, argv, started, outcome, written, kept)  # type: ignore[arg-type]
+    except OSError:
+        if backup is not None:
+            backup.restore(written)
+        else:
+            _remove_files(folder, written)
+        raise
+    if backup is not None:
+        backup.discard()

@@ -101,6 +101,14 @@ def _run(argv: Sequence[str] | None) -> int:
     return status
 
 
+def os_error_text(exc: OSError) -> str:
+    """One line for an operating system's error that stopped a command: why, and on which file."""
+    lines = str(exc).splitlines()
+    reason = exc.strerror or (lines[0] if lines else type(exc).__name__)
+    where = f": {exc.filename}" if exc.filename else ""
+    return f"stopped: {reason}{where}"
+
+
 def _tolerate_encoding(streams: Sequence[object]) -> None:
     """Print what a locale's encoding cannot show (``±`` under ``LC_ALL=C``) as escapes, rather
     than fail on it; the files are UTF-8 whatever the locale."""
@@ -119,6 +127,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"capsule-mpc: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a file that could not be written (a full disk) or read meanwhile
+        print(f"capsule-mpc: {os_error_text(exc)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as exc:
         status = exit_status(exc)
         by = "" if status == EXIT_INTERRUPTED else f" by {signal.Signals(status - 128).name}"

@@ -30,6 +30,7 @@ from typing import Any
 
 from ..nodes import DEFAULT_ENDPOINT, DEFAULT_PREFIX
 from ..outputs import output_folder
+from ..overwrite import refuse_overwrite
 from ..telemetry.options import add_telemetry_arguments
 from .arguments import input_files, seed
 
@@ -224,10 +225,11 @@ def run(args: argparse.Namespace) -> int:
     if bad is not None:
         print(f"capsule-mpc rig serve: {bad}", file=sys.stderr)
         return 2
+    inputs = input_files(args, "--config", "--waypoints", "--ur-calibration")
     if args.out is None:
+        refuse_overwrite({"--mcap": (args.mcap, False)}, inputs)
         return _serve(args, None, calibration)
-    inputs = input_files(args, "--config", "--waypoints", "--mcap", "--ur-calibration")
-    with output_folder(args.out, "rig serve", inputs=inputs) as folder:
+    with output_folder(args.out, "rig serve", inputs=inputs, files={"--mcap": args.mcap}) as folder:
         folder.status = _serve(args, folder.path, calibration)
     return folder.status
 

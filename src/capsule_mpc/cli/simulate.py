@@ -82,8 +82,9 @@ def run(args: argparse.Namespace) -> int:
     work = runs.run_workload(args.controller, want_arm)
     scenario, path, meta = runs.prepare_run(args.config, args.waypoints, args.speed, args.plant, work)
     run_seed = scenario.sim.seed if args.seed is None else args.seed
-    inputs = input_files(args, "--config", "--waypoints", "--mcap")
-    with output_folder(args.out, "simulate", inputs=inputs) as folder, contextlib.ExitStack() as stack:
+    inputs = input_files(args, "--config", "--waypoints")
+    mcap = {"--mcap": args.mcap}
+    with output_folder(args.out, "simulate", inputs=inputs, files=mcap) as folder, contextlib.ExitStack() as stack:
         telemetry = telemetry_observers(folder.path, mcap=args.mcap, no_mcap=args.no_mcap, live=args.live)
         for tel in map(stack.enter_context, telemetry):
             if tel.live_url:
