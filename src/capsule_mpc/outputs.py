@@ -185,8 +185,11 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def _acquire_lock(folder: Path, command: str) -> Path:
+def _acquire_lock(folder: Path, command: str) -> tuple[Path, int | None]:
+    """Take the folder's lock: (the lock file, the process that held it and no longer runs, or
+    None)."""
     lock = folder / LOCK_NAME
+    stale: int | None = None
     info = {"pid": os.getpid(), "host": socket.gethostname(), "command": command, "since": time.time()}
     for _ in range(2):
         try:
@@ -198,11 +201,7 @@ def _acquire_lock(folder: Path, command: str) -> Path:
             except (OSError, ValueError, KeyError, TypeError):
                 held, pid, host = {}, -1, ""
             if host == socket.gethostname() and pid > 0 and not _pid_alive(pid):
-                print(
-                    f"capsule-mpc {command}: warning: --out: {folder} was locked by process {pid}, which "
-                    "no longer runs; taking the lock",
-                    file=sys.stderr,
-                )
+                stale = pid
                 lock.unlink(missing_ok=True)
                 continue
             who = f"process {pid} on {host} ({held.get('command', '?')})" if held else "another command"
@@ -214,8 +213,21 @@ def _acquire_lock(folder: Path, command: str) -> Path:
             raise OutputError(f"--out: cannot write into {folder}: {exc.strerror}") from None
         with os.fdopen(fd, "w", encoding=ENCODING) as fh:
             json.dump(info, fh)
-        return lock
+        return lock, stale
     raise OutputError(f"--out: could not take the lock {lock}")  # pragma: no cover - a race lost twice
+
+
+def _say_recovered(command: str, folder: Path, stale: int | None, done: str) -> None:
+    """One line on stderr for a lock taken over from a process that no longer runs, and what was
+    cleaned up after a killed command (``done``)."""
+    if stale is not None:
+        text = f"{folder} was locked by process {stale}, which no longer runs; taking the lock"
+    elif done:
+        text = f"{folder}: a command was killed while writing here"
+    else:
+        return
+    done = f"; {done}" if done else ""
+    print(f"capsule-mpc {command}: warning: --out: {text}{done}", file=sys.stderr)
 
 
 def _inside(folder: Path, rel: str) -> Path | None:
@@ -411,10 +423,10 @@ def output_folder(
         ``path`` cannot or must not be used (module docstring), or another command holds its lock.
     """
     folder, created = _prepare(path, inputs or {}, files or {})
-    lock = _acquire_lock(folder, command)
+    lock, stale = _acquire_lock(folder, command)
     try:
         shown = shown_path(path)
-        recover(folder, shown, lambda line: print(f"capsule-mpc {command}: warning: {line}", file=sys.stderr))
+        _say_recovered(command, folder, stale, recover(folder))
         if replace_previous and not resume and not created:
             _check_unlisted(folder, shown)
         kept = _listed(folder) if resume else []
@@ -439,6 +451,7 @@ def _run_in(
     (``backup``) dropped when the new one replaces it, else put back (module docstring)."""
     started = time.time()
     handle = OutputFolder(folder)
+    stopped_by: tuple[type[BaseException], ...] = (*refusals, OSError)
     outcome: tuple[str, int] | None = None  # None: refused, or a file could not be written
     crashed = False
     written: list[str] = []
@@ -450,7 +463,7 @@ def _run_in(
             except KeyboardInterrupt as exc:
                 outcome = ("interrupted", exit_status(exc))
                 raise
-            except (*refusals, OSError):
+            except stopped_by:
                 # Bad input found after the folder was prepared, or a file that could not be
                 # written (a full disk): leave nothing of this run behind.
                 raise

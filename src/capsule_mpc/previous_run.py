@@ -25,7 +25,7 @@ import os
 import re
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from .atomic import ENCODING, write_text_atomic
@@ -185,26 +185,25 @@ def _manifest_of_killed(folder: Path, written: list[str]) -> None:
     write_text_atomic(folder / _MANIFEST, json.dumps(manifest, indent=2) + "\n")
 
 
-def recover(folder: Path, shown: str, warn: Callable[[str], None]) -> None:
-    """Clean up after a command killed while it wrote into ``folder`` (module docstring); ``warn``
-    gets one line saying what was done. Call it holding the folder's lock."""
+def recover(folder: Path) -> str:
+    """Clean up after a command killed while it wrote into ``folder`` (module docstring); what was
+    done, for one line ("" for nothing). Call it holding the folder's lock."""
     folder = folder.resolve()
-    journal = read_journal(folder)
-    written = [r for r in journal if r != _MANIFEST and (p := _inside(folder, r)) is not None and p.is_file()]
+    written = [
+        r
+        for r in read_journal(folder)
+        if r != _MANIFEST and (p := _inside(folder, r)) is not None and p.is_file()
+    ]
     said: list[str] = []
     backup_path = folder / BACKUP_NAME
     if backup_path.is_dir():
         moved = sorted(p.relative_to(backup_path).as_posix() for p in backup_path.rglob("*") if p.is_file())
         Backup(folder, moved).restore(written)
-        said.append(
-            f"restored the previous run ({len(moved)} files), removing the {len(written)} files of "
-            "the killed one"
-        )
+        removing = f", removing the {len(written)} files the killed one wrote" if written else ""
+        said.append(f"restored the previous run ({len(moved)} files){removing}")
     elif written:
         _manifest_of_killed(folder, written)
-        said.append(
-            f"listed the {len(written)} complete files of the killed run in a manifest saying interrupted"
-        )
+        said.append(f"listed the {len(written)} complete files it wrote in a manifest saying interrupted")
     (folder / JOURNAL_NAME).unlink(missing_ok=True)
     stale = _stale_temporaries(folder)
     for path in stale:
@@ -212,6 +211,5 @@ def recover(folder: Path, shown: str, warn: Callable[[str], None]) -> None:
     if stale:
         names = ", ".join(p.relative_to(folder).as_posix() for p in stale[:3])
         more = f" and {len(stale) - 3} more" if len(stale) > 3 else ""
-        said.append(f"removed the unfinished temporary files {names}{more} (unreadable)")
-    if said:
-        warn(f"--out: {shown}: a command writing here was killed; " + "; ".join(said))
+        said.append(f"removed its unfinished {names}{more} (a file cut short cannot be read)")
+    return "; ".join(said)

@@ -96,6 +96,8 @@ class Telemetry(Observer):
         self.host = host
         self.publisher: RunPublisher | None = None
         self._faults_seen = 0
+        self._frames = 0
+        self._t_s = math.nan
 
     @property
     def port(self) -> int | None:
@@ -159,6 +161,8 @@ class Telemetry(Observer):
         if self._robot is not None:
             q, dq = loop.actuator.q_rad.tolist(), loop.actuator.dq_radps.tolist()  # type: ignore[attr-defined]
         pub.frame(frame.row, estimate_xy=estimate, q=q, dq=dq, prediction=frame.prediction)
+        self._frames += 1
+        self._t_s = frame.t_s
         injector = loop.injector
         if injector is not None and len(injector.events) > self._faults_seen:
             for ev in injector.events[self._faults_seen :]:
@@ -190,7 +194,22 @@ class Telemetry(Observer):
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        self.close(complete=exc_type is None)
+        if isinstance(exc, KeyboardInterrupt):
+            self.interrupt(str(exc) or "SIGINT")
+        else:
+            self.close(complete=exc_type is None)
+
+    def interrupt(self, signal_name: str) -> None:
+        """End a run a signal stopped: the MCAP file, with an end event saying so, is closed and
+        kept (complete and readable) if at least one frame was recorded, else removed; the live
+        server stops."""
+        pub = self.publisher
+        if pub is None or self._frames == 0:
+            self.close(complete=False)
+            return
+        text = f"run interrupted by {signal_name} after {self._frames} frames"
+        pub.end(self._t_s, LogLevel.Warning, text, finish=False)
+        self.close(complete=True)
 
 
 def telemetry_observers(
