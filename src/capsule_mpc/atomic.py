@@ -75,7 +75,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     The temporary name keeps the suffix of ``path`` (NumPy and matplotlib infer the format
     from it) and lies in the same folder (same file system, so the rename is atomic). The
     parent folder is created. On an exception the temporary file is removed and ``path``
-    is left untouched. The written file is reported to the :func:`recording_writes` blocks
+    is left untouched (an ``OSError`` that names no file is raised again naming ``path``). The
+    written file is reported to the :func:`recording_writes` blocks
     that cover it.
     """
     target = Path(path)
@@ -85,6 +86,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         yield tmp
         tmp.replace(target)
         _record(target)
+    except OSError as exc:
+        if exc.filename is None:  # e.g. a full disk on a write: say which file
+            raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from exc
+        raise
     finally:
         tmp.unlink(missing_ok=True)
 

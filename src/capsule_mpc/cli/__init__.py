@@ -21,6 +21,7 @@ import os
 import signal
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from ..errors import ConfigError, PlanError
 from ..interrupt import TERMINATING_SIGNALS, exit_status, interruptible
@@ -60,9 +61,17 @@ def package_version() -> str:
         return __version__
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are one line on stderr (``<prog>: error: <message>``) and
+    exit status 2, as every other refusal of bad input (``--help`` shows the usage)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with every registered command."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="capsule-mpc",
         description=(
             "Plan and control a magnetically actuated tethered capsule endoscope. Exit status: 0 "

@@ -89,7 +89,7 @@ def register(sub: Any) -> None:
         "--seed",
         type=seed,
         default=None,
-        help="random seed, an integer >= 0 (default: sim.seed of the config)",
+        help="random seed, an integer in [0, 2**63 - 1] (default: sim.seed of the config)",
     )
     p.add_argument(
         "--out",

@@ -16,7 +16,7 @@ from ..experiments import compare as comparison
 from ..experiments.compare import check_controllers
 from ..experiments.runs import prepare_run
 from ..outputs import output_folder
-from .arguments import add_run_arguments, input_files, run_count
+from .arguments import add_run_arguments, input_files, refuse_seed_overflow, run_count
 
 __all__ = ["register", "run"]
 
@@ -53,6 +53,10 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Compare the controllers; exit status 1 if any controller failed on a seed, 2 on bad input."""
+    overflow = refuse_seed_overflow(args.seed, args.runs, 0)
+    if overflow:
+        print(f"capsule-mpc compare: {overflow}", file=sys.stderr)
+        return 2
     names = check_controllers(args.controllers)
     scenario, path, meta = prepare_run(
         args.config, args.waypoints, args.speed, args.plant, comparison.run_figures(names, args.runs)

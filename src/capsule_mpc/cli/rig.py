@@ -128,7 +128,12 @@ def register(sub: Any) -> None:
         default=None,
         help="plant preset (overrides plant.preset)",
     )
-    p.add_argument("--seed", type=seed, default=None, help="random seed, an integer >= 0 (default: sim.seed)")
+    p.add_argument(
+        "--seed",
+        type=seed,
+        default=None,
+        help="random seed, an integer in [0, 2**63 - 1] (default: sim.seed)",
+    )
     p.add_argument(
         "--backend",
         choices=("sim", "ur5"),

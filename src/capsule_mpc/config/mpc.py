@@ -10,6 +10,10 @@ from ._fields import Integer, Number, StrictModel
 
 __all__ = ["AdaptationConfig", "ApproachConfig", "MPCConfig"]
 
+#: Smallest tracking tolerance, in its field's unit: its weight 1/tol^2 stays a finite double
+#: (1e18), where a subnormal tolerance would make it infinite and the solve NaN.
+MIN_TOLERANCE = 1e-9
+
 
 class AdaptationConfig(StrictModel):
     """Online friction adaptation (``capsule_mpc.mpc.adaptation``): an offset on the model's
@@ -195,39 +199,43 @@ class MPCConfig(StrictModel):
     )
     position_tol_m: Number = Field(
         1e-3,
-        gt=0,
+        ge=MIN_TOLERANCE,
         description=(
             "Tracking tolerance along the path (and of the whole error where the reference stands "
-            "still), m, > 0: the error divided by this is one cost unit."
+            "still), m, >= 1e-9: the error divided by this is one cost unit."
         ),
     )
     lateral_tol_m: Number = Field(
         2e-4,
-        gt=0,
+        ge=MIN_TOLERANCE,
         description=(
-            "Tracking tolerance across the path (cross-track), m, > 0; smaller than position_tol_m so "
+            "Tracking tolerance across the path (cross-track), m, >= 1e-9; smaller than position_tol_m so "
             "the capsule rather lags than cuts a corner."
         ),
     )
     velocity_tol_mps: Number = Field(
-        0.01, gt=0, description="Capsule velocity tracking tolerance, m/s, > 0 (weight 1/tol^2)."
+        0.01,
+        ge=MIN_TOLERANCE,
+        description="Capsule velocity tracking tolerance, m/s, >= 1e-9 (weight 1/tol^2).",
     )
     input_tol_mps: Number = Field(
-        0.05, gt=0, description="Tolerance of the EPM velocity's deviation from the feed-forward, m/s, > 0."
+        0.05,
+        ge=MIN_TOLERANCE,
+        description="Tolerance of the EPM velocity's deviation from the feed-forward, m/s, >= 1e-9.",
     )
     input_rate_tol_mps: Number = Field(
         0.004,
-        gt=0,
+        ge=MIN_TOLERANCE,
         description=(
-            "Tolerance of the EPM velocity change per prediction step, m/s, > 0; scale it with "
+            "Tolerance of the EPM velocity change per prediction step, m/s, >= 1e-9; scale it with "
             "sqrt(step) to keep its weight per unit time."
         ),
     )
     input_jerk_tol_mps2: Number | None = Field(
         0.02,
-        gt=0,
+        ge=MIN_TOLERANCE,
         description=(
-            "Tolerance of the change of the EPM acceleration from one step to the next, m/s^2, > 0: a "
+            "Tolerance of the change of the EPM acceleration from one step to the next, m/s^2, >= 1e-9: a "
             "cost smoothing commands below limits.jerk_mps3; None: no such cost."
         ),
     )
