@@ -84,17 +84,19 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def _expanded(inputs: Mapping[str, Given | Iterable[Given]]) -> list[tuple[str, Path, Path]]:
-    """(option, path as given, resolved path) of every input file or folder; ``--config`` with its
-    ``base:`` chain."""
-    found: list[tuple[str, Path, Path]] = []
+def _expanded(inputs: Mapping[str, Given | Iterable[Given]]) -> list[tuple[str, Path]]:
+    """(how a message names it, resolved path) of every input file or folder; ``--config`` with
+    its ``base:`` chain."""
+    found: list[tuple[str, Path]] = []
     for option, given in inputs.items():
         many = [given] if given is None or isinstance(given, str | Path) else list(given)
         for one in many:
             if one is None or not str(one):
                 continue
             paths = config_files(one) if option == "--config" else [Path(one)]
-            found.extend((option, p, resolved(p, option)) for p in paths)
+            for i, path in enumerate(paths):
+                label = f"{option} {one}" if i == 0 else f"{path}, the base: of {option} {one}"
+                found.append((label, resolved(path, option)))
     return found
 
 
@@ -129,12 +131,12 @@ def refuse_overwrite(
         if given is None or not str(given):
             continue
         out = resolved(given, option)
-        for in_option, in_given, source in sources:
+        for label, source in sources:
             if not _clash(out, is_folder, source):
                 continue
             verb = "holds" if is_folder and out != source else "is"
             harm = "could remove or overwrite" if is_folder else "would overwrite"
             raise OutputError(
-                f"{option}: {shown_path(given)} {verb} {in_option} {in_given}, an input of this command, "
+                f"{option}: {shown_path(given)} {verb} {label}, an input of this command, "
                 f"which it {harm}; give another {'folder' if is_folder else 'file'}"
             )
