@@ -159,7 +159,7 @@ def register(sub: Any) -> None:
         "(default 120)",
     )
     p.add_argument("--out", default=None, help="output folder (created); default: write nothing")
-    add_telemetry_arguments(p)
+    add_telemetry_arguments(p, realtime_option=False)
     p.set_defaults(func=run)
 
 

@@ -10,7 +10,7 @@ from typing import Any
 
 from foxglove.messages import LogLevel
 
-from ..errors import ConfigError
+from ..errors import ConfigError, library_error
 from ..estimation import CapsuleEstimator
 from ..interfaces import Controller
 from ..sim import ClosedLoop, Frame, Observer
@@ -107,7 +107,10 @@ class Telemetry(Observer):
     @property
     def live_url(self) -> str | None:
         """The live server's address for Foxglove's "Open connection" (None when not live)."""
-        return None if self.port is None else f"ws://{self.host}:{self.port}"
+        if self.port is None:
+            return None
+        host = f"[{self.host}]" if ":" in self.host else self.host  # an IPv6 address (RFC 3986)
+        return f"ws://{host}:{self.port}"
 
     def _asset(self, uri: str) -> bytes | None:
         """The live server's assets: the arm's meshes (none before a robot-arm run starts)."""
@@ -236,4 +239,6 @@ def telemetry_observers(
     try:
         return [Telemetry(mcap_path, address is not None, host=host, port=port)]
     except RuntimeError as exc:  # foxglove's server could not bind
-        raise ConfigError(f"--live: cannot serve on {host}:{port}: {exc}") from None
+        shown = f"[{host}]" if ":" in host else host
+        reason = library_error(exc).removeprefix("FoxgloveError: ")
+        raise ConfigError(f"--live: cannot serve on {shown}:{port}: {reason}") from None
