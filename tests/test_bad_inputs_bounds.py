@@ -300,7 +300,8 @@ CASES = [
     Case(
         "demonstrate-seed-not-a-number",
         ["demonstrate", "--seed", "abc", "--out", "{out}"],
-        r"^capsule-mpc demonstrate: error: argument --seed: must be an integer in \[0, 2\*\*63 - 1\], got 'abc'$",
+        r"^capsule-mpc demonstrate: error: argument --seed: must be an integer in \[0, 2\*\*63 - 1\], "
+        r"got 'abc'$",
         parse=True,
     ),
     Case(

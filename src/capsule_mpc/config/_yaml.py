@@ -217,6 +217,12 @@ _RANGE_TEXT = {
 }
 
 
+#: A number written with a unit (``"20 mm/s"``, ``"20g"``, ``"5 %"``).
+_WITH_UNIT = re.compile(
+    r"^\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*[A-Za-z\u00b5\u00b0%][\w/^*. \u00b5\u00b0%-]*$"
+)
+
+
 def _field_description(model: Any, loc: tuple[Any, ...]) -> str | None:
     """The description of the field at ``loc`` in ``model`` (its unit and range), or None."""
     for part in loc:
@@ -253,8 +259,10 @@ def _format_errors(exc: ValidationError, where: str, model: Any = None) -> str:
             lines.append(msg if loc == "<top>" else f"{loc}: {msg}")
         else:
             lines.append(f"{loc}: {msg}, got {_shown(err.get('input'))}")
-            wrong_type = msg.startswith(("must be a number", "must be an integer"))
-            about = _field_description(model, tuple(err["loc"])) if wrong_type else None
+            unit_typed = msg.startswith(("must be a number", "must be an integer")) and bool(
+                _WITH_UNIT.match(str(err.get("input")))
+            )
+            about = _field_description(model, tuple(err["loc"])) if unit_typed else None
             if about:  # a unit written into the value ("20 mm/s"): say the field's unit and range
                 lines[-1] += f" (write the number alone: {about})"
     return f"invalid {where}:\n  " + "\n  ".join(lines)
