@@ -243,8 +243,9 @@ def _format_errors(exc: ValidationError, where: str, model: Any = None) -> str:
         loc = cut(".".join(str(p) for p in err["loc"]), _MAX_SHOWN) or "<top>"
         bound = _RANGE_TEXT.get(err["type"])
         if bound is not None:
-            msg = f"{bound[0]} {err.get('ctx', {}).get(bound[1])!s:.12}".replace(".0 ", " ")
-            msg = msg.removesuffix(".0")
+            limit = err.get("ctx", {}).get(bound[1])
+            shown = f"{limit:.12g}" if isinstance(limit, float) else f"{limit!s:.30}"  # an int in full
+            msg = f"{bound[0]} {shown}"
         elif err["type"] == "extra_forbidden":
             msg = "unknown key (not a field of this section)"
         elif err["type"] == "missing":
