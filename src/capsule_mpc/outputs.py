@@ -7,8 +7,10 @@ A command that writes into ``--out`` enters :func:`output_folder`, which
    * a path that is a file, or that cannot be created or written (e.g. a name too long);
    * the working directory (``--out .`` or ``--out ''``) or a folder holding it, and a folder in
      the ``capsule_mpc`` package: outputs belong in a folder of their own;
-   * a folder holding one of the command's input files (``--config``, ``--waypoints``,
-     ``--plan``): the command would remove or overwrite its own input;
+   * a folder that is or holds one of the command's inputs, or another output of the command
+     that is one (:func:`capsule_mpc.overwrite.refuse_overwrite`: ``--config`` and its ``base:``
+     chain, ``--waypoints``, ``--plan``; ``--mcap``): the command would remove or overwrite its
+     own input;
    * a folder holding files named like the package's outputs (:data:`OUTPUT_NAMES`: an older
      run's ``predictions.npz``, a ``config.yaml`` of one's own) that no manifest there lists:
      they are not the package's to remove, and the new run would overwrite them or leave them
@@ -17,9 +19,14 @@ A command that writes into ``--out`` enters :func:`output_folder`, which
 
 2. takes a lock file (``.capsule-mpc.lock``, created exclusively): a second command into the same
    folder is refused while the first runs; a lock left by a process that no longer exists on
-   this host is taken over, with a one-line warning on stderr;
-3. removes what the previous command there produced, as listed in its manifest, so a folder never
-   mixes the outputs of two runs (files the user put there are never touched);
+   this host is taken over, and what that killed process left is cleaned up
+   (:func:`capsule_mpc.previous_run.recover`), with a one-line warning on stderr;
+3. sets aside what the previous command there produced, as listed in its manifest
+   (:func:`capsule_mpc.previous_run.set_aside`; refused before any work if a file cannot be
+   moved), so a folder never mixes the outputs of two runs (files the user put there are never
+   touched); the previous run is dropped once the new one has written something, and put back
+   exactly as it was otherwise (nothing written, bad input found late, a file that could not be
+   written, a crash);
 4. on exit writes ``manifest.json``: the command, its arguments, the start and end times, how it
    ended (``status``: ``complete`` when its exit status is 0, else ``failed`` or
    ``interrupted``), its exit status (``exit_status``: the one the command set on the
@@ -28,8 +35,9 @@ A command that writes into ``--out`` enters :func:`output_folder`, which
    else creates in the folder meanwhile is never claimed, nor removed by the next command (a
    command that failed or was interrupted before writing anything leaves no manifest);
 5. if the command refused its input (:class:`~capsule_mpc.config.ConfigError`, or the command's
-   own refusals) after the folder was prepared, removes what it wrote and the folder too if it
-   created it: bad input leaves no output.
+   own refusals) after the folder was prepared, or a file could not be written (an ``OSError``,
+   e.g. a full disk), removes what it wrote and the folder too if it created it: bad input leaves
+   no output, and a failed write no half-written folder.
 
 Single files are written atomically (:mod:`capsule_mpc.atomic`), so an interrupted command leaves
 complete files only, and the manifest says it was interrupted.

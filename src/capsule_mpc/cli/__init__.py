@@ -4,10 +4,12 @@ Exit status of every command: 0 on success, 1 when the work failed (the command 
 bad input (a config, file or option; the message names it), 128 + the signal's number when a
 signal stopped it: 130 on Ctrl-C (``capsule-mpc: interrupted`` on stderr), 143 on SIGTERM and 129
 on SIGHUP (``capsule-mpc: interrupted by SIGTERM``). An interrupted command stops at once, even
-inside a CasADi solve (:mod:`capsule_mpc.interrupt`), and records nothing for the work in progress
-(an interrupted solve is never reported as a failed one); the files it had written are complete
-(every file is replaced atomically), its output folder's manifest says ``interrupted`` and its
-worker processes are stopped.
+inside a CasADi solve (:mod:`capsule_mpc.interrupt`); an interrupted solve is never reported as a
+failed one. The files it had written are complete (every file is replaced atomically), a closed
+loop it ran keeps its log so far and a finalised MCAP (``simulate``, ``rig serve``), its output
+folder's manifest says ``interrupted`` and its worker processes are stopped. Every error is one
+line: argparse's (no usage), and an ``OSError`` that stopped the work (exit 1, e.g. a full disk:
+the file named, nothing half-written left).
 """
 
 from __future__ import annotations
