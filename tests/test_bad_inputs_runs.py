@@ -237,6 +237,31 @@ def test_a_run_stopped_before_its_first_frame_in_a_new_folder_leaves_nothing(tmp
     assert not (tmp_path / "new").exists()
 
 
+def test_a_stopped_compare_keeps_the_logs_of_its_seeds_runs(tmp_path, capsys, monkeypatch):
+    def frame_end(self, loop, frame):
+        if loop.name == "paper_0.8v" and self.frames >= STOPPED_AFTER:
+            raise Interrupted(signal.SIGTERM)
+
+    monkeypatch.setattr(PartialRun, "frame_end", frame_end)
+    (tmp_path / "W.csv").write_text(SHORT_PATH)
+    argv = _simulate(tmp_path / "C")
+    argv[argv.index("simulate")] = "compare"
+    argv[argv.index("--controller")] = "--controllers"
+    argv.insert(argv.index("follow") + 1, "paper_0.8v")
+    assert main(argv) == 143
+    assert _lines(capsys.readouterr().err) == ["capsule-mpc: interrupted by SIGTERM"]
+    manifest = read_manifest(tmp_path / "C")
+    assert manifest["status"] == "interrupted"
+    assert manifest["files"] == [
+        f"{c}/{f}" for c in ("follow", "paper_0.8v") for f in ("config.yaml", "log.csv", "run.mcap")
+    ]
+    assert len(read_log(tmp_path / "C" / "paper_0.8v" / "log.csv")["t_s"]) == STOPPED_AFTER
+    assert len(read_log(tmp_path / "C" / "follow" / "log.csv")["t_s"]) > STOPPED_AFTER  # it had finished
+    for controller in ("follow", "paper_0.8v"):
+        with (tmp_path / "C" / controller / "run.mcap").open("rb") as fh:
+            assert make_reader(fh).get_summary() is not None
+
+
 # -- a killed command ---------------------------------------------------------------------------
 
 KILLED = textwrap.dedent(

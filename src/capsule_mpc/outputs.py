@@ -45,6 +45,7 @@ complete files only, and the manifest says it was interrupted.
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import json
 import os
@@ -443,8 +444,15 @@ def output_folder(
     finally:
         (folder / JOURNAL_NAME).unlink(missing_ok=True)
         lock.unlink(missing_ok=True)
-        if created and folder.is_dir() and not any(folder.iterdir()):
-            folder.rmdir()
+        if created:
+            _remove_empty(folder)
+
+
+def _remove_empty(folder: Path) -> None:
+    """Remove ``folder`` (which this command created) if it holds only empty folders."""
+    for here, _dirs, _files in sorted(os.walk(folder), key=lambda w: len(w[0]), reverse=True):
+        with contextlib.suppress(OSError):  # not empty
+            Path(here).rmdir()
 
 
 def _run_in(

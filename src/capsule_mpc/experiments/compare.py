@@ -66,6 +66,7 @@ from ..plots import plot_errors, plot_metrics, plot_trajectories
 from ..sim import CapsulePlant, Observer, RunResult, draw_plant_truth, simulate, write_run
 from ..telemetry.observer import Telemetry
 from ..telemetry.options import MCAP_NAME
+from ..telemetry.partial import PartialRun
 from .inputs import refuse_repeats
 from .runs import PREDICTION_FIGURE, write_prediction_figure
 
@@ -377,18 +378,21 @@ class RunLogs:
     (:func:`run_folder`, :data:`MCAP_NAME`).
 
     A log is kept when :meth:`keep` is called once its run's files are written; the others (a run
-    that raised, or all of them when the seed is interrupted) are removed on exit with the folders
-    made for them, so an unrecorded run leaves nothing behind.
+    that raised) are removed on exit with the folders made for them, so an unrecorded run leaves
+    nothing behind. When a signal stops the seed, each of its runs keeps its log so far and its
+    finalised MCAP (:class:`~capsule_mpc.telemetry.partial.PartialRun`).
     """
 
     def __init__(self, base: Path) -> None:
         self.base = base
         self.logs: dict[str, Telemetry] = {}
+        self.partial: dict[str, PartialRun] = {}
 
     def observers(self, name: str) -> list[Observer]:
-        """The observers of controller ``name``'s run: its MCAP log."""
+        """The observers of controller ``name``'s run: its MCAP log and what a stopped run keeps."""
         log = self.logs[name] = Telemetry(run_folder(self.base, name) / MCAP_NAME, hold=True)
-        return [log]
+        partial = self.partial[name] = PartialRun()
+        return [log, partial]
 
     def keep(self, name: str) -> None:
         """Close ``name``'s log into its run folder."""
@@ -397,8 +401,13 @@ class RunLogs:
     def __enter__(self) -> RunLogs:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, *exc: Any) -> None:
         for name, log in self.logs.items():
+            if isinstance(exc[1], KeyboardInterrupt) and self.partial[name].write(
+                run_folder(self.base, name)
+            ):
+                log.__exit__(*exc)  # the MCAP so far, finalised
+                continue
             log.close(complete=False)
             with contextlib.suppress(OSError):  # refused unless empty: the folder only held the log
                 run_folder(self.base, name).rmdir()

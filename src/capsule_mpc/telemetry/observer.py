@@ -98,6 +98,7 @@ class Telemetry(Observer):
         self._faults_seen = 0
         self._frames = 0
         self._t_s = math.nan
+        self._ended = False
 
     @property
     def port(self) -> int | None:
@@ -183,6 +184,7 @@ class Telemetry(Observer):
         if pub is None:
             return
         rms = metrics.get("tracking_rms_mm", math.nan)
+        self._ended = True
         text = f"run ended: {metrics.get('outcome', '')}; tracking RMS {rms:.2f} mm"
         pub.end(loop.k * loop.dt, end_level(loop.flags.outcome), text, finish=not self.hold)
 
@@ -204,11 +206,11 @@ class Telemetry(Observer):
 
     def interrupt(self, signal_name: str) -> None:
         """End a run a signal stopped: the MCAP file, with an end event saying so, is closed and
-        kept (complete and readable) if at least one frame was recorded, else removed; the live
-        server stops."""
+        kept (complete and readable) if at least one frame was recorded, else removed (a run that
+        had ended keeps its file as it is); the live server stops."""
         pub = self.publisher
-        if pub is None or self._frames == 0:
-            self.close(complete=False)
+        if pub is None or self._frames == 0 or self._ended:  # an ended run's file is complete
+            self.close(complete=self._ended)
             return
         text = f"run interrupted by {signal_name} after {self._frames} frames"
         pub.end(self._t_s, LogLevel.Warning, text, finish=False)
