@@ -77,6 +77,10 @@ def _loop(tmp: Path) -> None:
     (tmp / "loop").symlink_to("loop")
 
 
+def _config_named_json(tmp: Path) -> None:
+    (tmp / "C.json").write_text(CONFIG)
+
+
 def _base_in_out(tmp: Path) -> None:
     (tmp / "O").mkdir()
     (tmp / "O" / "B.yaml").write_text(BASE)
@@ -166,6 +170,12 @@ CASES = [
         _simulate("--out", "O", "--mcap", "loop/x.mcap"),
         ["--mcap: loop/x.mcap cannot be resolved"],
         _loop,
+    ),
+    Case(
+        "bench-out-over-its-config",
+        ["bench", "--config", "C.json", "--out", "C.json", "--frames", "1"],
+        ["--out: C.json is --config C.json, an input of this command, which it would overwrite"],
+        _config_named_json,
     ),
     Case(
         "rig-serve-mcap-over-waypoints",
