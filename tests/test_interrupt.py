@@ -318,7 +318,7 @@ def test_plan_interrupted_while_its_nlp_is_built_exits_at_once(tmp_path):
     assert not out.exists()
 
 
-def test_compare_interrupted_in_the_planner_stage_records_nothing(tmp_path):
+def test_compare_interrupted_in_the_planner_stage_records_no_result_but_keeps_the_finished_log(tmp_path):
     (tmp_path / "wp.csv").write_text(SHORT_PATH)
     out = tmp_path / "cmp"
     args = [
@@ -338,7 +338,11 @@ def test_compare_interrupted_in_the_planner_stage_records_nothing(tmp_path):
     assert _ends_with_the_message(_last_lines(err))
     assert "failed" not in err and "error" not in stdout.lower()
     assert stdout == ""  # no table: no result, failed or not, was recorded
-    assert sorted(p.relative_to(out) for p in out.rglob("*")) == []  # the follow run was not written either
+    # the follow run, which had ended, keeps its log and MCAP; the plan, stopped before its first
+    # frame, leaves nothing; the manifest says interrupted
+    files = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
+    assert files == ["follow/config.yaml", "follow/log.csv", "follow/run.mcap", "manifest.json"]
+    assert json.loads((out / "manifest.json").read_text())["status"] == "interrupted"
 
 
 def _alive(procs: list) -> list:
