@@ -331,3 +331,24 @@ def test_log_export_refuses_a_log_cut_at_a_row_boundary(old, capsys):
     err = _lines(capsys.readouterr().err)
     assert len(err) == 1 and f"{old / 'log.csv'}: covers " in err[0] and "the log is cut short" in err[0], err
     assert snapshot(old.parent) == before
+
+
+def test_the_mcap_writers_reports_of_a_full_disk_become_one_error_naming_the_file(tmp_path, capsys):
+    import logging
+
+    import foxglove
+
+    from capsule_mpc.telemetry.sinks import ChannelSpec, Sinks
+
+    sinks = Sinks(tmp_path / "run.mcap")
+    schema = foxglove.Schema(name="note", encoding="jsonschema", data=b"{}")
+    sinks.open([ChannelSpec("/note", schema, "json")])
+    report = 'error logging message: McapError(Io(Os { code: 28, kind: StorageFull, message: "No space" }))'
+    for _ in range(100):  # what the SDK says for each message it cannot write
+        logging.getLogger("foxglove.log_sink_set").warning(report)
+    with pytest.raises(OSError, match="No space left on device") as info:
+        sinks.log("/note", b"{}", 0)
+    assert info.value.errno == errno.ENOSPC and info.value.filename == str(tmp_path / "run.mcap")
+    with pytest.raises(OSError):
+        sinks.close()
+    assert capsys.readouterr().err == "" and list(tmp_path.iterdir()) == []
