@@ -270,7 +270,8 @@ KILLED = textwrap.dedent(
     from capsule_mpc.atomic import atomic_path, write_text_atomic
     from capsule_mpc.outputs import output_folder
     with output_folder(sys.argv[1], "simulate"):
-        write_text_atomic(os.path.join(sys.argv[1], "log.csv"), "t_s\\n0.0\\n")
+        if sys.argv[2] == "wrote":
+            write_text_atomic(os.path.join(sys.argv[1], "log.csv"), "t_s\\n0.0\\n")
         with atomic_path(os.path.join(sys.argv[1], "run.mcap")) as tmp:
             tmp.write_bytes(b"\\x89MCAP0\\r\\n half a file")
             os.kill(os.getpid(), signal.SIGKILL)
@@ -278,46 +279,56 @@ KILLED = textwrap.dedent(
 )
 
 
-def _kill_while_writing(folder: Path) -> int:
-    """A command killed (SIGKILL) while it writes into ``folder``; its process id."""
+def _kill_while_writing(folder: Path, wrote: bool) -> int:
+    """A command killed (SIGKILL) while it writes into ``folder`` (after writing ``log.csv`` if
+    ``wrote``, with an MCAP half written); its process id."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    child = subprocess.Popen([sys.executable, "-c", KILLED, str(folder)], env=env)
+    argv = [sys.executable, "-c", KILLED, str(folder), "wrote" if wrote else "nothing"]
+    child = subprocess.Popen(argv, env=env)
     assert child.wait(timeout=60) == -signal.SIGKILL
     return child.pid
 
 
-def test_the_next_command_restores_the_run_a_killed_one_was_replacing_and_says_so_once(old, capsys):
+def _refused_in(folder: Path) -> None:
+    """A command into ``folder`` that refuses its input: the folder is left as recovered."""
+    with pytest.raises(ConfigError), output_folder(folder, "simulate"):
+        raise ConfigError("refused")
+
+
+def test_a_killed_command_that_wrote_nothing_leaves_the_previous_run_exactly(old, capsys):
     before = snapshot(old.parent)
-    pid = _kill_while_writing(old)
+    pid = _kill_while_writing(old, wrote=False)
     assert (old / LOCK_NAME).exists() and (old / f".run.tmp{pid}.mcap").exists()
-    with pytest.raises(ConfigError), output_folder(old, "simulate"):
-        raise ConfigError("refused: the folder is left as it was")
-    err = _lines(capsys.readouterr().err)
-    assert err == [
+    _refused_in(old)
+    assert _lines(capsys.readouterr().err) == [
         f"capsule-mpc simulate: warning: --out: {old} was locked by process {pid}, which no longer runs; "
-        f"taking the lock; restored the previous run ({len(before) - 1} files), removing the 1 files the "
-        f"killed one wrote; removed its unfinished .run.tmp{pid}.mcap (a file cut short cannot be read)"
+        f"taking the lock; restored the previous run ({len(before) - 1} files); removed its unfinished "
+        f".run.tmp{pid}.mcap (a file cut short cannot be read)"
     ]
     assert snapshot(old.parent) == before
-    with output_folder(old, "simulate"):  # nothing left to say
-        pass
-    assert capsys.readouterr().err == ""
+    _refused_in(old)
+    assert capsys.readouterr().err == ""  # said once
 
 
-def test_the_next_command_lists_what_a_killed_one_wrote_in_a_new_folder(tmp_path, capsys):
-    out = tmp_path / "R"
-    pid = _kill_while_writing(out)
-    with pytest.raises(ConfigError), output_folder(out, "simulate"):
-        raise ConfigError("refused")
+@pytest.mark.parametrize("previous", [True, False], ids=["replacing-a-run", "new-folder"])
+def test_a_killed_command_keeps_what_it_wrote_as_a_stopped_one(old, capsys, previous):
+    if not previous:
+        shutil.rmtree(old)
+    pid = _kill_while_writing(old, wrote=True)
+    _refused_in(old)
     err = _lines(capsys.readouterr().err)
-    assert len(err) == 1 and "listed the 1 complete files it wrote in a manifest saying interrupted" in err[0]
-    manifest = json.loads((out / MANIFEST_NAME).read_text())
+    assert len(err) == 1, err
+    assert "listed the 1 complete files it wrote in a manifest saying interrupted" in err[0]
+    assert ("dropped the previous run it was replacing" in err[0]) == previous
+    assert f"removed its unfinished .run.tmp{pid}.mcap" in err[0]
+    manifest = json.loads((old / MANIFEST_NAME).read_text())
     assert (manifest["status"], manifest["exit_status"], manifest["files"]) == (
         "interrupted",
         137,
         ["log.csv"],
     )
-    assert not (out / f".run.tmp{pid}.mcap").exists()
+    assert sorted(p.name for p in old.iterdir()) == ["log.csv", MANIFEST_NAME]
+    assert (old / "log.csv").read_text() == "t_s\n0.0\n"
 
 
 # -- log export of a cut log --------------------------------------------------------------------

@@ -11,9 +11,10 @@ stopped before it wrote anything).
 
 While a command runs, every file it writes is appended to :data:`JOURNAL_NAME`. A command killed
 outright (SIGKILL, a power cut) cannot clean up: the next command into the folder calls
-:func:`recover` once it holds the folder's lock, which restores the previous run (the killed run's
-files removed) or, without one, lists the killed run's files in a manifest saying
-``interrupted``; and removes the temporary files (``.<name>.tmp<PID>.<suffix>``) of processes that
+:func:`recover` once it holds the folder's lock, which ends the killed run as a stopped one: the
+complete files it wrote are listed in a manifest saying ``interrupted`` (a sweep resumes from
+them) and the previous run it was replacing is dropped, or, if it wrote nothing, the previous run
+is put back; and it removes the temporary files (``.<name>.tmp<PID>.<suffix>``) of processes that
 no longer run, such as the unfinished MCAP of a killed run, which has no index and cannot be read
 back. It says what it did in one line.
 """
@@ -196,14 +197,19 @@ def recover(folder: Path) -> str:
     ]
     said: list[str] = []
     backup_path = folder / BACKUP_NAME
+    backup = None
     if backup_path.is_dir():
         moved = sorted(p.relative_to(backup_path).as_posix() for p in backup_path.rglob("*") if p.is_file())
-        Backup(folder, moved).restore(written)
-        removing = f", removing the {len(written)} files the killed one wrote" if written else ""
-        said.append(f"restored the previous run ({len(moved)} files){removing}")
-    elif written:
+        backup = Backup(folder, moved)
+    if written:  # as a stopped run: it keeps what it wrote, and replaced the previous run
         _manifest_of_killed(folder, written)
         said.append(f"listed the {len(written)} complete files it wrote in a manifest saying interrupted")
+        if backup is not None:
+            backup.discard()
+            said.append(f"dropped the previous run it was replacing ({len(backup.moved)} files)")
+    elif backup is not None:  # it wrote nothing: the previous run stays
+        backup.restore()
+        said.append(f"restored the previous run ({len(backup.moved)} files)")
     (folder / JOURNAL_NAME).unlink(missing_ok=True)
     stale = _stale_temporaries(folder)
     for path in stale:
