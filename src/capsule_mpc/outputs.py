@@ -490,7 +490,7 @@ def _run_in(
                 written = _relative(folder, files)
     finally:
         record = (started, outcome, written, kept)
-        _settle(folder, command, argv, record, None if crashed and backup is None else backup, crashed)
+        _settle(folder, command, argv, record, backup, crashed)
 
 
 def _settle(
@@ -505,15 +505,14 @@ def _settle(
     back and remove the new run's files: after bad input, a write that failed, a crash, or a stop
     before anything was written (a crash in a folder without a previous run keeps its files)."""
     started, outcome, written, kept = record
-    keep = outcome is not None and (outcome[0] == "complete" or bool(written))
-    if not keep or (crashed and backup is not None):
+    if outcome is None or not (outcome[0] == "complete" or written) or (crashed and backup is not None):
         if backup is not None:
             backup.restore(written)
         elif outcome is None:
             _remove_files(folder, written)
         return
     try:
-        _write_manifest(folder, command, argv, started, outcome, written, kept)  # type: ignore[arg-type]
+        _write_manifest(folder, command, argv, started, outcome, written, kept)
     except OSError:
         if backup is not None:
             backup.restore(written)
