@@ -14,7 +14,7 @@ import yaml
 from capsule_mpc import ConfigError, dump_config, load_config
 from capsule_mpc.cli.reference import iter_config_fields
 from capsule_mpc.config import config_from_dict, packaged_config_path
-from capsule_mpc.config._loader import MOVED_KEYS
+from capsule_mpc.config._loader import MOVED_KEYS, REMOVED_KEYS
 from capsule_mpc.experiments.info import scenario_figures
 from capsule_mpc.path_reach import check_epm_height
 from capsule_mpc.path_reach import format_mm as _mm
@@ -125,13 +125,23 @@ def test_every_moved_key_names_a_field():
 
 def test_the_nested_mpc_sections_load_and_round_trip(tmp_path):
     path = tmp_path / "c.yaml"
-    path.write_text("base: paper\nmpc:\n  approach:\n    speed_mps: 0.002\n  adaptation:\n    mode: rls\n")
+    path.write_text("base: paper\nmpc:\n  approach:\n    speed_mps: 0.002\n")
     s = load_config(path)
-    assert s.mpc.approach.speed_mps == 0.002 and s.mpc.adaptation.mode == "rls"
-    assert s.mpc.approach.max_attempts == 3 and s.mpc.adaptation.time_s == 0.3  # the others default
+    assert s.mpc.approach.speed_mps == 0.002
+    assert s.mpc.approach.max_attempts == 3  # the others default
     dumped = dump_config(s)
-    assert "approach_" not in dumped and "friction_adaptation" not in dumped
+    assert "approach_" not in dumped
     assert load_config(_write(tmp_path, yaml.safe_load(dumped))).model_dump() == s.model_dump()
+
+
+@pytest.mark.parametrize("old", sorted(REMOVED_KEYS))
+def test_a_removed_key_is_refused_naming_it_and_where_its_measurement_is(tmp_path, old):
+    section, key = old.split(".")
+    path = _write(tmp_path, {"base": "paper", section: {key: 1}})
+    with pytest.raises(ConfigError, match=rf"{re.escape(old)}: removed \(docs/friction.md"):
+        load_config(path)
+    fields = {row[0] for row in iter_config_fields()}
+    assert old not in fields
 
 
 def test_base_inheritance_overrides_only_given_fields(tmp_path):

@@ -40,7 +40,7 @@ from .friction import (
     LearnedRig,
     RateStateConfig,
 )
-from .mpc import AdaptationConfig, ApproachConfig, MPCConfig
+from .mpc import ApproachConfig, MPCConfig
 from .plant import PLANT_FIXED, PLANT_PRESET_RANGES, FrictionPatchConfig, PlantConfig
 from .rig import (
     CameraConfig,
@@ -60,7 +60,6 @@ __all__ = [
     "PAPER_C_VALIDITY_MPS",
     "PLANT_FIXED",
     "PLANT_PRESET_RANGES",
-    "AdaptationConfig",
     "ApproachConfig",
     "ArmConfig",
     "CameraConfig",

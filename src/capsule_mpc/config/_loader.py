@@ -16,6 +16,7 @@ from .scenario import Scenario
 
 __all__ = [
     "MOVED_KEYS",
+    "REMOVED_KEYS",
     "check_learned_force_model",
     "config_from_dict",
     "dump_config",
@@ -42,25 +43,43 @@ MOVED_KEYS: dict[str, str] = {
             "observe_s",
         )
     },
-    "mpc.friction_adaptation": "mpc.adaptation.mode",
-    "mpc.friction_adaptation_time_s": "mpc.adaptation.time_s",
-    "mpc.friction_offset_min": "mpc.adaptation.offset_min",
-    "mpc.friction_offset_max": "mpc.adaptation.offset_max",
-    "mpc.friction_offset_prior_std": "mpc.adaptation.offset_prior_std",
-    "mpc.friction_adaptation_min_speed_mps": "mpc.adaptation.min_speed_mps",
 }
 
 
+#: Keys that were removed, by their old path, with where the measurement that removed them is: a
+#: file or mapping that still uses one is refused naming it.
+REMOVED_KEYS: dict[str, str] = {
+    **{
+        f"mpc.{name}": "docs/friction.md, removed options"
+        for name in (
+            "stick_prediction",
+            "adaptation",
+            "friction_adaptation",
+            "friction_adaptation_time_s",
+            "friction_offset_min",
+            "friction_offset_max",
+            "friction_offset_prior_std",
+            "friction_adaptation_min_speed_mps",
+            "final_friction_smoothing_eps_mps",
+        )
+    },
+}
+
+
+def _has_key(data: dict[str, Any], dotted: str) -> bool:
+    """Whether the nested mapping ``data`` has the key at the dotted path ``dotted``."""
+    *sections, key = dotted.split(".")
+    node: Any = data
+    for section in sections:
+        node = node.get(section) if isinstance(node, dict) else None
+    return isinstance(node, dict) and key in node
+
+
 def _validate_scenario(data: dict[str, Any], where: str) -> Scenario:
-    """:func:`validate` a scenario mapping, first refusing every key of :data:`MOVED_KEYS` it uses."""
-    moved = []
-    for old, new in MOVED_KEYS.items():
-        *sections, key = old.split(".")
-        node: Any = data
-        for section in sections:
-            node = node.get(section) if isinstance(node, dict) else None
-        if isinstance(node, dict) and key in node:
-            moved.append(f"{old}: moved to {new}")
+    """:func:`validate` a scenario mapping, first refusing every key of :data:`MOVED_KEYS` and
+    :data:`REMOVED_KEYS` it uses."""
+    moved = [f"{old}: moved to {new}" for old, new in MOVED_KEYS.items() if _has_key(data, old)]
+    moved += [f"{old}: removed ({why})" for old, why in REMOVED_KEYS.items() if _has_key(data, old)]
     if moved:
         raise ConfigError(f"invalid {where}:\n  " + "\n  ".join(moved))
     scenario: Scenario = validate(Scenario, data, where)

@@ -8,57 +8,7 @@ from pydantic import Field, StrictBool
 
 from ._fields import Integer, Number, StrictModel
 
-__all__ = ["AdaptationConfig", "ApproachConfig", "MPCConfig"]
-
-
-class AdaptationConfig(StrictModel):
-    """Online friction adaptation (``capsule_mpc.mpc.adaptation``): an offset on the model's
-    friction coefficient, estimated in closed loop."""
-
-    mode: Literal["off", "rls"] = Field(
-        "off",
-        description=(
-            "off: the force-disturbance estimator takes the friction the model gets wrong; rls: "
-            "recursive least squares with forgetting of a friction-coefficient offset replaces it."
-        ),
-    )
-    time_s: Number = Field(
-        0.3,
-        gt=0,
-        le=60,
-        description=(
-            "rls: forgetting time constant, s, (0, 60]; the forgetting factor per frame is exp(-dt / this)."
-        ),
-    )
-    offset_min: Number = Field(
-        -0.2,
-        ge=-1,
-        le=0,
-        description="rls: lower bound of the friction-coefficient offset, dimensionless, [-1, 0].",
-    )
-    offset_max: Number = Field(
-        0.5,
-        gt=0,
-        le=2,
-        description="rls: upper bound of the friction-coefficient offset, dimensionless, (0, 2].",
-    )
-    offset_prior_std: Number = Field(
-        0.1,
-        gt=0,
-        le=1,
-        description=(
-            "rls: prior standard deviation of the offset, and the cap of its standard deviation, (0, 1]."
-        ),
-    )
-    min_speed_mps: Number = Field(
-        0.003,
-        gt=0,
-        le=0.05,
-        description=(
-            "rls: the estimate learns only on frames where the estimated capsule speed is at least "
-            "this on the frame and the one before, m/s, (0, 0.05]."
-        ),
-    )
+__all__ = ["ApproachConfig", "MPCConfig"]
 
 
 class ApproachConfig(StrictModel):
@@ -182,17 +132,6 @@ class MPCConfig(StrictModel):
             "eps^2)), m/s, (0, 0.01]; None: friction.smoothing_eps_mps. The plant is not affected."
         ),
     )
-    final_friction_smoothing_eps_mps: Number | None = Field(
-        None,
-        gt=0,
-        le=0.01,
-        description=(
-            "The same smoothing once the horizon reaches the path's end (the plan holds the final "
-            "stop), m/s, (0, 0.01]; None: friction_smoothing_eps_mps to the end. A narrower eps keeps "
-            "the model's friction up closer to rest, so the final stop is planned for a capsule that "
-            "sticks rather than coasts; a second solver is built for it."
-        ),
-    )
     position_tol_m: Number = Field(
         1e-3,
         gt=0,
@@ -278,24 +217,10 @@ class MPCConfig(StrictModel):
             "against the path."
         ),
     )
-    adaptation: AdaptationConfig = Field(
-        default_factory=AdaptationConfig,
-        description="Online friction adaptation (capsule_mpc.mpc.adaptation).",
-    )
     estimator_accel_std_mps2: Number = Field(
         0.3,
         gt=0,
         description="Kalman filter process noise: capsule acceleration standard deviation, m/s^2, > 0.",
-    )
-    stick_prediction: StrictBool = Field(
-        False,
-        description=(
-            "Predict static friction: while the camera sees the capsule at rest, the stages up to "
-            "the first at which the model's force on it exceeds the friction belief's breakaway "
-            "force (healed over the rest so far) get that breakaway force, less the model's friction "
-            "at rest, against the motion; the later ones slide. Off: the prediction slides whenever "
-            "a force acts."
-        ),
     )
     start_preload: Number | None = Field(
         None,

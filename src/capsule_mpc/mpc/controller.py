@@ -4,14 +4,9 @@ Every frame:
 
 1. fuse the camera frame in the Kalman filter, predict over the latency;
 2. update the force-disturbance estimate (offset-free MPC): the velocity the
-   last plan predicted for now vs the estimate; with ``mpc.adaptation.mode: rls`` the
-   friction along the motion is the friction-coefficient offset of
-   :mod:`capsule_mpc.mpc.adaptation` instead (the disturbance keeps the constant force);
+   last plan predicted for now vs the estimate;
 3. solve the NLP warm-started from the shifted previous solution (the first frame, or one
-   after the plan ran out, is solved to convergence by IPOPT); with
-   ``mpc.final_friction_smoothing_eps_mps`` set, from the frame at which the horizon reaches the
-   path's end a second solver, whose model smooths its friction over that speed instead, takes
-   over from the same warm start (:func:`final_scenario`);
+   after the plan ran out, is solved to convergence by IPOPT);
 4. if the fast step failed: accept it anyway while the rig holds the EPM (the settle phase:
    the command is 0 whatever the plan), else recover with a few SQP iterations with line
    search on the same structure (``mpc.recovery_sqp_iter``);
@@ -46,15 +41,14 @@ from ..magnetics import cache_directory, capsule_force_function, model_equilibri
 from ..paths import ReferencePath
 from ..planner import cached_plan
 from ..safety import safe_command
-from .adaptation import FrictionOffsetRLS, friction_regression
 from .approach import FinalApproach
-from .contact import ContactModes, RestDetector
+from .contact import RestDetector
 from .grid import prediction_steps_s
 from .problem import N_DIST, OCP, build_ocp
 from .solver import MPCSolver, SolveResult
 from .start import StartPreload
 
-__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "final_scenario", "model_scenario", "safe_command"]
+__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "model_scenario", "safe_command"]
 
 
 #: Time the controller's step takes besides the solve (estimation, reference, safety layer), ms:
@@ -86,16 +80,6 @@ def model_scenario(scenario: Scenario) -> Scenario:
         return scenario
     friction = scenario.friction.model_copy(update={"smoothing_eps_mps": eps})
     return scenario.model_copy(update={"friction": friction})
-
-
-def final_scenario(scenario: Scenario) -> Scenario | None:
-    """The scenario of the solver that plans the final stop (``mpc.final_friction_smoothing_eps_mps``),
-    or None when the run's solver plans it too."""
-    eps = scenario.mpc.final_friction_smoothing_eps_mps
-    if eps is None or eps == model_scenario(scenario).friction.smoothing_eps_mps:
-        return None
-    update = {"friction_smoothing_eps_mps": eps, "final_friction_smoothing_eps_mps": None}
-    return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=update)})
 
 
 def build_mpc_stack(scenario: Scenario) -> MPCStack:
@@ -174,10 +158,6 @@ class MPCController(Controller):
         self.path = path
         self._use_stack(build_mpc_stack(scenario))
         assert self.stack is not None
-        final = final_scenario(scenario)
-        self._final_stack = None if final is None else build_mpc_stack(final)
-        # From this time on the horizon reaches the path's end.
-        self._final_from_s = path.duration_s - float(self.stack.ocp.node_times_s[-1])
         cfg = scenario.mpc
         # The frame period: the first stage of the plan, the time between commands.
         self.dt_s = self.stack.ocp.frame_s
@@ -186,9 +166,6 @@ class MPCController(Controller):
         self.disturbance_n = np.zeros(N_DIST)
         self.friction_belief = FrictionBelief.from_scenario(scenario)
         self._drag_growth_n = 0.0
-        self.friction_rls = (
-            FrictionOffsetRLS(cfg.adaptation, self.dt_s) if cfg.adaptation.mode == "rls" else None
-        )
         self.u_prev = np.zeros(3)
         self.slope_prev = np.zeros(3)  # the last command's change over its frame, m/s^2
         self.plan: _Plan | None = None
@@ -219,17 +196,13 @@ class MPCController(Controller):
         self._static_parts(scenario, path)
 
     def _static_parts(self, scenario: Scenario, path: ReferencePath) -> None:
-        """The parts that use static friction, each only when configured: the rest detector they
-        share, the prediction's contact modes and the start's pre-load."""
+        """The start's pre-load and its rest detector, only when configured."""
         cfg, stack = scenario.mpc, self.stack
         assert stack is not None
-        used = cfg.stick_prediction or cfg.start_preload is not None
+        used = cfg.start_preload is not None
         self.rest = RestDetector(scenario.camera.noise_std_m, _MOVING_MPS) if used else None
-        self.contact = self.start = None
-        if self.rest is not None and cfg.stick_prediction:
-            times = stack.ocp.node_times_s[1:]
-            self.contact = ContactModes(stack.model, self.friction_belief, times, self.rest)
-        if self.rest is not None and cfg.start_preload is not None:
+        self.start = None
+        if self.rest is not None:
             self.start = StartPreload(
                 scenario, path, stack.force, stack.ocp.lead_eq_m, self.friction_belief, self.rest, self.dt_s
             )
@@ -280,31 +253,14 @@ class MPCController(Controller):
             # sliding friction nor a steady force -- learn nothing from a stuck capsule.
             return
         if speed > _MOVING_MPS:
-            # Along the motion: extra friction (opposes v), unless the friction adaptation has it;
-            # across it: a constant force.
+            # Along the motion: extra friction (opposes v); across it: a constant force.
             v_hat = v_pred / speed
             along = float(innov @ v_hat)
-            if self.friction_rls is None:
-                d[2] -= along
+            d[2] -= along
             d[0:2] += innov - along * v_hat
         else:
             d[0:2] += innov
         self.disturbance_n = np.clip(d, -cfg.disturbance_max_n, cfg.disturbance_max_n)
-
-    def _update_friction(self, t_s: float, state: np.ndarray) -> None:
-        """``mpc.adaptation.mode: rls``: fuse this frame's velocity innovation along the motion
-        if the capsule slides (see :mod:`capsule_mpc.mpc.adaptation`)."""
-        rls = self.friction_rls
-        if rls is None:
-            return
-        vel = state[2:4]
-        ref_speed = float(np.linalg.norm(self.path.velocity(np.array([t_s]))[0])) if t_s >= 0 else 0.0
-        if not rls.sliding(t_s, state[0:2], vel, ref_speed) or self.plan is None:
-            return
-        model = self.stack.model  # type: ignore[union-attr]
-        x_pred = self.plan.state((self.plan.age + 1) * self.dt_s)
-        y_n, phi_n = friction_regression(model, x_pred, vel, rls.offset, self.dt_s)
-        rls.update(y_n, phi_n)
 
     def _calibrate_rest_offset(self, t_s: float, epm: np.ndarray, meas: Measurement) -> None:
         """Settle phase: where the capsule rests under the still EPM tells the model's force bias.
@@ -348,26 +304,6 @@ class MPCController(Controller):
         held = np.tile(self.u_prev[:, None], (1, n))
         return ocp.pack_variables(np.tile(x0[:, None], (1, n)), held, np.zeros((2, n)), x0, self.u_prev)
 
-    def _contact_modes(
-        self, t_s: float, x0: np.ndarray, ref: np.ndarray, guess: np.ndarray | None
-    ) -> np.ndarray | None:
-        """``mpc.stick_prediction``: the stages static friction holds the capsule in
-        (:mod:`.contact`), the EPM where the shifted plan ``guess`` puts it. Where that plan (or
-        no plan) breaks the capsule loose at no stage, the EPM moved by the reference's
-        feed-forward instead: a plan in which nothing the EPM does moves the capsule gives the
-        solver no reason to move the EPM."""
-        if self.contact is None:
-            return None
-        ocp = self.stack.ocp  # type: ignore[union-attr]
-        if guess is not None:
-            epm = ocp.unpack(guess)[0][4:7]
-            static = self.contact.static_n(t_s, epm, self.disturbance_n[0:2], self._progress_m)
-            if self.contact.breakaway_stage < ocp.horizon:
-                return static
-        moved = np.cumsum(ref[4:6] * ocp.steps_s, axis=1)
-        epm = np.vstack([x0[4:6, None] + moved, np.full((1, ocp.horizon), x0[6])])
-        return self.contact.static_n(t_s, epm, self.disturbance_n[0:2], self._progress_m)
-
     def _solve(
         self, t_s: float, x0: np.ndarray, ref: np.ndarray, held: bool
     ) -> tuple[SolveResult, StepOutcome]:
@@ -376,14 +312,12 @@ class MPCController(Controller):
         stack = self.stack
         assert stack is not None
         solver = self.solver
-        offset = 0.0 if self.friction_rls is None else self.friction_rls.offset
         # The model's drag grows with the tether paid out: its growth so far joins the estimated
         # extra friction (both oppose the motion), a feed-forward the estimator need not learn.
         dist = self.disturbance_n + np.array([0.0, 0.0, self._drag_growth_n])
         plan = self.plan
         guess = None if plan is None else stack.ocp.shift(plan.w)
-        static = self._contact_modes(t_s, x0, ref, guess)
-        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, dist, offset, self.slope_prev, static)
+        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, dist, self.slope_prev)
         if plan is None or guess is None:
             return solver.solve_converged(p, self._initial_guess(x0)), StepOutcome.SOLVED
         res = solver.solve(p, guess, plan.lam_x, plan.lam_g)
@@ -434,14 +368,10 @@ class MPCController(Controller):
         u_approach = self.approach.step(t_s, epm, self.u_prev, self.disturbance_n[0:2])
         if u_approach is not None:
             return self._approach_command(u_approach, epm)
-        final = self._final_stack
-        if final is not None and self.stack is not final and t_s >= self._final_from_s:
-            self._use_stack(final)
         x0 = np.concatenate([pos, vel, epm])
         self._drag_growth_n = self.friction_belief.drag_growth_n(self._progress_m(t_s))
         if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
             self._update_disturbance(vel)
-            self._update_friction(t_s, x0)
         res, outcome = self._solve(t_s, x0, self._reference(t_s), held=t_s < 0)
         if res.success and not np.all(np.isfinite(res.w)):  # a solver that says so is not trusted
             res = replace(res, success=False, status=f"non-finite solution ({res.status})")
@@ -459,10 +389,6 @@ class MPCController(Controller):
                 "disturbance_friction_n": float(self.disturbance_n[2]),
             },
         )
-        if self.friction_rls is not None:
-            stats.extra.update(self.friction_rls.as_stats())
-        if self.contact is not None:
-            stats.extra["breakaway_stage"] = float(self.contact.breakaway_stage)
         if not accepted:
             stats.extra["measurement_rejected"] = 1.0
         if res.success:

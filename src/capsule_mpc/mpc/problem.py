@@ -30,20 +30,12 @@ function of one stage's ``(x_k, u_k)`` only, so the Gauss-Newton Hessian is bloc
   stretches the horizon at the same N (e.g. 20 ms stages in a 100 Hz loop); ``dt`` above is the
   stage's own step.
 
-Parameters ``p = (x_0, ref, u_prev, s_prev, d, dmu, static)``: the estimated current state (7), the
-reference window (capsule position and velocity at stages 1..N, and the EPM velocity feed-forward
-for inputs 0..N-1: the path's velocity, or an offline plan's EPM velocity), the command being
-applied (3) and its slope (3), the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a
-constant force (N) plus an extra friction force (N) that opposes the capsule's motion -- the model's
-friction is the part of the mismatch that turns with the motion, so it must not be a fixed vector --
-and last the friction-coefficient offset ``dmu`` of :mod:`capsule_mpc.mpc.adaptation` (the model's
-friction force becomes ``(mu(v) + dmu) F_N + f_s``; with ``mpc.adaptation.mode: off`` the parameter
-is unused), and the static friction of stages 0..N-1 (``static``, N forces >= 0, N; with
-``mpc.stick_prediction`` the static friction a resting capsule must overcome beyond the model's
-sliding friction at rest, against the motion, in the stages :mod:`capsule_mpc.mpc.contact` predicts
-it still rests; it acts through the same smoothed direction as the model's friction, so a force
-below it creeps the capsule slowly and the plan sees that more force moves it; without
-``mpc.stick_prediction`` the parameters are unused).
+Parameters ``p = (x_0, ref, u_prev, s_prev, d)``: the estimated current state (7), the reference
+window (capsule position and velocity at stages 1..N, and the EPM velocity feed-forward for inputs
+0..N-1: the path's velocity, or an offline plan's EPM velocity), the command being applied (3) and
+its slope (3), and the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a constant force (N)
+plus an extra friction force (N) that opposes the capsule's motion -- the model's friction is the
+part of the mismatch that turns with the motion, so it must not be a fixed vector.
 
 The objective is a sum of squares ``0.5 |R(w, p)|^2`` plus a linear slack penalty; stage k's
 residuals weigh the state ``x_{k+1}`` against the reference at stage k+1, the command ``c_{k+1}``
@@ -71,12 +63,10 @@ __all__ = [
     "FN_SCALE",
     "INPUT_SCALE",
     "N_DIST",
-    "N_FRICTION",
     "N_INPUT",
     "N_PATH",
     "N_REF",
     "N_STATE",
-    "N_STICK_PER_STAGE",
     "OCP",
     "STATE_SCALE",
     "S_SCALE",
@@ -91,10 +81,6 @@ __all__ = [
 N_REF = 6
 #: Disturbance parameters: constant force (x, y) and extra friction magnitude, N.
 N_DIST = 3
-#: Friction parameters after the disturbance: the friction-coefficient offset dmu.
-N_FRICTION = 1
-#: Static-friction parameters per stage after the friction ones (N; 0: the capsule slides).
-N_STICK_PER_STAGE = 1
 #: Model state (p, v, e, h) and EPM velocity sizes (see :mod:`capsule_mpc.dynamics`).
 _NX_MODEL, _NU_MODEL = 7, 3
 #: Stage state: the model state, the command applied and its slope (13); stage input: dc, v_next,
@@ -242,27 +228,14 @@ class OCP:
         ref: np.ndarray,
         u_prev: np.ndarray,
         disturbance_n: np.ndarray,
-        friction_offset: float = 0.0,
         slope_prev: np.ndarray | None = None,
-        static_n: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3), the
-        friction-coefficient offset (dimensionless; 0: the model's friction), the slope of the
-        command being applied (3, m/s^2: its change from the one before, per frame; default 0) and
-        the static friction of each stage beyond the sliding one (N values, N; default 0: every
-        stage slides)."""
+        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3) and
+        the slope of the command being applied (3, m/s^2: its change from the one before, per
+        frame; default 0)."""
         slope = np.zeros(_NU_MODEL) if slope_prev is None else np.ravel(slope_prev)
-        modes = np.zeros(self.horizon) if static_n is None else np.ravel(static_n).astype(float)
         return np.concatenate(
-            [
-                np.ravel(x0),
-                np.ravel(ref, order="F"),
-                np.ravel(u_prev),
-                slope,
-                np.ravel(disturbance_n),
-                [float(friction_offset)],
-                modes,
-            ]
+            [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), slope, np.ravel(disturbance_n)]
         )
 
     def pack_variables(
@@ -500,13 +473,12 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     steps = np.full(n, float(dt_s))
     steps[0] = dt_s if frame_s is None else frame_s
     n_w = _STAGE * n + N_STATE
-    n_p = _NX_MODEL + N_REF * n + 2 * _NU_MODEL + N_DIST + N_FRICTION + N_STICK_PER_STAGE * n
+    n_p = _NX_MODEL + N_REF * n + 2 * _NU_MODEL + N_DIST
     w = ca.MX.sym("w", n_w)
     p = ca.MX.sym("p", n_p)
     ref = ca.reshape(p[_NX_MODEL : _NX_MODEL + N_REF * n], N_REF, n)
     i_dist = _NX_MODEL + N_REF * n + 2 * _NU_MODEL
-    dist, mu_offset = p[i_dist : i_dist + N_DIST], p[i_dist + N_DIST]
-    static = p[i_dist + N_DIST + N_FRICTION :]
+    dist = p[i_dist : i_dist + N_DIST]
 
     mass = sc.capsule.mass_kg
     lag = servo_time_constant_s(sc.arm.servo_bandwidth_hz) or 0.0  # no servo lag: 0
@@ -526,16 +498,6 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
         v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
         acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
         lead, _force, f_n, _mu = model.outputs(m1)
-        if cfg.adaptation.mode != "off":
-            # The offset dmu on mu: friction dmu F_N against the motion (F_N taken as 0 off the
-            # plate, as in the model's own friction). Only built when used: without it the NLP is
-            # operation for operation the one without adaptation (IPOPT's first solve rounds the
-            # same), with dmu an unused parameter.
-            acc = acc - mu_offset * ca.fmax(f_n, 0) * v_hat / mass
-        if cfg.stick_prediction:
-            # Static friction of a resting stage, against the motion; only built when used, so
-            # that without it the NLP is operation for operation the one without.
-            acc = acc - static[k] * v_hat / mass
         rows += [
             x_next_var - x1 / x_scale,  # gap: the coefficient of x_{k+1} is the identity
             (m1[2:4] - xk[2:4] - h * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
