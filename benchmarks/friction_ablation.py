@@ -16,7 +16,7 @@ robot``), once per friction model it is given:
     the plant's own friction: its steady rate-and-state law as c(v) with its mu0, its tether drag
     and drag growth, its breakaway after rest -- what no real rig gives a controller, the bound.
 ``<variant>+preload``
-    the variant with ``mpc.start_preload: --preload`` (the start pre-loads the capsule to that
+    the variant with ``break_loose.preload: --preload`` (the start pre-loads the capsule to that
     fraction of the believed breakaway, arriving there fast, :mod:`capsule_mpc.mpc.start`; the
     paper's c(v) believes the breakaway is mu0 F_N + f_s);
 ``<variant>+sharp``
@@ -78,7 +78,7 @@ VARIANTS = tuple(
 )
 #: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, m/s (the default is 0.005).
 SHARP_EPS_MPS = 0.002
-#: ``mpc.start_preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
+#: ``break_loose.preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
 DEFAULT_PRELOAD = 1.0
 #: Variants run unless --variants says otherwise.
 DEFAULT_VARIANTS = BASE_VARIANTS
@@ -126,16 +126,19 @@ def variant_scenario(
 ) -> Scenario:
     """The controller's scenario of one variant (the plant is drawn from the base scenario).
 
-    ``approach_fraction`` replaces ``mpc.approach.force_fraction`` in the variants with a static
+    ``approach_fraction`` replaces ``place.approach.force_fraction`` in the variants with a static
     friction model of the draw (``learned``, ``oracle``)."""
     fr = base.friction
     if "+" in variant:
         name, *mods = variant.split("+")
         scenario = variant_scenario(base, name, learned_on_draw, oracle, approach_fraction=approach_fraction)
-        update: dict[str, Any] = {"start_preload": preload if "preload" in mods else None}
+        update: dict[str, Any] = {}
         if "sharp" in mods:
             update["friction_smoothing_eps_mps"] = SHARP_EPS_MPS
-        return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=update)})
+        loose = scenario.break_loose.model_copy(update={"preload": preload if "preload" in mods else None})
+        return scenario.model_copy(
+            update={"mpc": scenario.mpc.model_copy(update=update), "break_loose": loose}
+        )
     if variant == "paper":
         return base
     if variant == "none":
@@ -153,8 +156,10 @@ def variant_scenario(
         learned = learned_on_draw
     scenario = with_friction(base, learned)
     if approach_fraction is not None and variant in ("learned", "oracle"):
-        approach = scenario.mpc.approach.model_copy(update={"force_fraction": approach_fraction})
-        scenario = scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"approach": approach})})
+        approach = scenario.place.approach.model_copy(update={"force_fraction": approach_fraction})
+        scenario = scenario.model_copy(
+            update={"place": scenario.place.model_copy(update={"approach": approach})}
+        )
     return scenario
 
 
@@ -452,7 +457,7 @@ def main(argv: list[str] | None = None) -> int:
         "--preload",
         type=float,
         default=DEFAULT_PRELOAD,
-        help=f"+preload: mpc.start_preload, (0, 1] ({DEFAULT_PRELOAD})",
+        help=f"+preload: break_loose.preload, (0, 1] ({DEFAULT_PRELOAD})",
     )
     parser.add_argument(
         "--reuse",
@@ -481,7 +486,7 @@ def main(argv: list[str] | None = None) -> int:
         "--approach-fraction",
         type=float,
         default=None,
-        help="mpc.approach.force_fraction of the variants with the draw's static friction "
+        help="place.approach.force_fraction of the variants with the draw's static friction "
         "(learned, oracle), (0, 1) (default: the config's)",
     )
     parser.add_argument(

@@ -54,7 +54,8 @@ def fast(scenario: Scenario) -> Scenario:
     # its crawl after the path's end needs seconds past these short tails.
     return scenario.model_copy(
         update={
-            "mpc": scenario.mpc.model_copy(update={"compile_c": False, "final_approach": False}),
+            "mpc": scenario.mpc.model_copy(update={"compile_c": False}),
+            "place": scenario.place.model_copy(update={"enabled": False}),
             "sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
         }
     )

@@ -32,8 +32,12 @@ def with_mpc(scenario: Scenario, **fields: object) -> Scenario:
     return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=fields)})
 
 
+def with_place(scenario: Scenario, **fields: object) -> Scenario:
+    return scenario.model_copy(update={"place": scenario.place.model_copy(update=fields)})
+
+
 def with_approach(scenario: Scenario, **fields: object) -> Scenario:
-    return with_mpc(scenario, approach=scenario.mpc.approach.model_copy(update=fields))
+    return with_place(scenario, approach=scenario.place.approach.model_copy(update=fields))
 
 
 def make_approach(scenario: Scenario) -> FinalApproach:
@@ -150,7 +154,7 @@ def test_approach_commands_stay_within_every_limit(scenario, distance, angle, ep
 
 def test_no_approach_within_tolerance(scenario):
     approach = make_approach(scenario)
-    tol = scenario.mpc.final_tolerance_m
+    tol = scenario.place.tolerance_m
     out = drive(scenario, approach, FakeCapsule(np.array([0.3 * tol, -0.2 * tol])), 3.0)
     assert approach.phase == "done" and approach.finished and approach.attempts == 0
     assert not approach.in_control
@@ -159,19 +163,21 @@ def test_no_approach_within_tolerance(scenario):
 
 def test_gives_up_after_the_attempt_cap(scenario):
     """A capsule that lurches past the target on every crawl (to 0.9 of its error): the approach
-    halves its crawl speed after an overshoot and holds after mpc.approach.max_attempts crawls."""
+    halves its crawl speed after an overshoot and holds after place.approach.max_attempts crawls."""
     scn = with_approach(scenario, max_attempts=2)
     approach = make_approach(scn)
     capsule = FakeCapsule(np.array([0.0, 3e-3]), jump=0.9)
     out = drive(scn, approach, capsule, 25.0)
     assert approach.attempts == 2
     assert approach.phase == "gave_up" and "2 attempts" in approach.gave_up_reason
-    assert approach.speed_mps == pytest.approx(scn.mpc.approach.speed_mps / 2)  # halved once, after the first
+    assert approach.speed_mps == pytest.approx(
+        scn.place.approach.speed_mps / 2
+    )  # halved once, after the first
     assert np.all(out["cmd"][-5:] == 0)  # holding
 
 
 def test_gives_up_when_its_time_is_up(scenario):
-    """The same lurching capsule with attempts to spare: the approach stops at mpc.approach.max_s
+    """The same lurching capsule with attempts to spare: the approach stops at place.approach.max_s
     (releasing and observing the crawl under way) and holds."""
     scn = with_approach(scenario, max_attempts=20, max_s=6.0)
     approach = make_approach(scn)
@@ -183,7 +189,7 @@ def test_gives_up_when_its_time_is_up(scenario):
 
 def test_out_of_time_while_creeping_on_it_holds_the_lead(scenario):
     """A capsule creeping toward the target at 0.3 mm/s whatever the EPM does: when
-    mpc.approach.max_s is up the crawl is not released (a stopped capsule would have to break loose
+    place.approach.max_s is up the crawl is not released (a stopped capsule would have to break loose
     again) -- the approach gives up and the EPM holds."""
     scn = with_approach(scenario, max_s=3.0)
     approach = make_approach(scn)
@@ -196,8 +202,8 @@ def test_out_of_time_while_creeping_on_it_holds_the_lead(scenario):
 
 def test_camera_lost_during_a_crawl_the_approach_still_ends(scenario):
     """Every frame dropped from 3 s after the path's end (during the crawl): the crawl holds its
-    lead, is released mpc.approach.attempt_s after its last progress and the approach gives up at
-    mpc.approach.max_s;
+    lead, is released place.approach.attempt_s after its last progress and the approach gives up at
+    place.approach.max_s;
     commands stay finite."""
     scn = with_approach(scenario, max_s=8.0)
     approach = make_approach(scn)
@@ -224,7 +230,7 @@ def test_warm_up_leaves_the_approach_as_it_was(scenario):
 
 
 def test_disabled_approach_never_acts(scenario):
-    approach = make_approach(with_mpc(scenario, final_approach=False))
+    approach = make_approach(with_place(scenario, enabled=False))
     out = drive(scenario, approach, FakeCapsule(np.array([0.0, 3e-3])), 3.0)
     assert approach.finished and not approach.in_control and approach.phase == "tracking"
     assert np.all(out["cmd"] == 0)
@@ -244,7 +250,7 @@ def creep_closed_loop(
     epm = np.array([*(start + plant.equilibrium_lead_m + np.array([0.0, -push_m])), h])
     arm.reset(epm)
     plant.evaluate_forces(*epm.tolist())
-    approach = make_approach(with_mpc(scenario, final_approach=use_approach))
+    approach = make_approach(with_place(scenario, enabled=use_approach))
     rng = np.random.default_rng(3)
     ratio = round(scenario.sim.plant_rate_hz * DT)
     dt = DT / ratio
@@ -282,8 +288,8 @@ def test_stuck_capsule_is_not_lurched(scenario):
 @pytest.mark.parametrize(
     ("field", "value"),
     [
-        ("final_tolerance_m", 0.0),
-        ("final_tolerance_m", 0.01),
+        ("tolerance_m", 0.0),
+        ("tolerance_m", 0.01),
         ("approach.speed_mps", 0.0),
         ("approach.force_fraction", 1.0),
         ("approach.max_attempts", 0),
@@ -295,14 +301,14 @@ def test_stuck_capsule_is_not_lurched(scenario):
     ],
 )
 def test_approach_fields_are_validated(scenario, field, value):
-    data = scenario.mpc.model_dump()
+    data = scenario.place.model_dump()
     *sections, key = field.split(".")
     node = data
     for section in sections:
         node = node[section]
     node[key] = value
     with pytest.raises(ValidationError, match=re.escape(field)):
-        type(scenario.mpc).model_validate(data)
+        type(scenario.place).model_validate(data)
 
 
 class _Busy(Controller):
@@ -351,6 +357,7 @@ def test_mpc_brings_a_creeping_capsule_onto_the_end_of_the_lab_rectangle(lab_sce
     run = simulate(scn, ctrl, rectangle(speed_mps=0.02), seed=5)
     statuses = [s.status for s in run.step_stats]
     assert any(s == "approach: crawl" for s in statuses) and ctrl.approach.phase == "done"
+    assert ctrl.phase.value == "hold" and run.log["phase"][-1] == "hold"
     assert run.flags.completed and run.metrics["final_error_mm"] < 0.5
     cmd = np.column_stack([run.log["cmd_vx_mps"], run.log["cmd_vy_mps"], run.log["cmd_vz_mps"]])
     lim = scn.limits

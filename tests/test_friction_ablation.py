@@ -104,12 +104,12 @@ def test_the_approach_fraction_goes_to_the_variants_with_the_draws_static_fricti
         coefficients=[0.03], validity_mps=(0.005, 0.04), static_mu_1s=0.25, static_healing=0.01,
         force_model="lookup",
     )  # fmt: skip
-    default = base.mpc.approach.force_fraction
+    default = base.place.approach.force_fraction
     for variant, expected in (("paper", default), ("none", default), ("learned", 0.85), ("oracle", 0.85)):
         scenario = ablation.variant_scenario(base, variant, model, model, approach_fraction=0.85)
-        assert scenario.mpc.approach.force_fraction == expected, variant
+        assert scenario.place.approach.force_fraction == expected, variant
     preload = ablation.variant_scenario(base, "learned+preload", model, model, approach_fraction=0.85)
-    assert preload.mpc.approach.force_fraction == 0.85 and preload.mpc.start_preload is not None
+    assert preload.place.approach.force_fraction == 0.85 and preload.break_loose.preload is not None
 
 
 def test_variant_suffixes_combine(ablation):
@@ -120,8 +120,8 @@ def test_variant_suffixes_combine(ablation):
     plain = ablation.variant_scenario(base, "learned", model, model)
     both = ablation.variant_scenario(base, "learned+preload+sharp", model, model, preload=0.8)
     assert plain.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
-    assert plain.mpc.start_preload is None
+    assert plain.break_loose.preload is None
     assert both.mpc.friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
-    assert both.mpc.start_preload == 0.8
+    assert both.break_loose.preload == 0.8
     assert both.friction.learned == model
     assert "learned+preload+sharp" in ablation.VARIANTS and "learned+sharp+preload" not in ablation.VARIANTS

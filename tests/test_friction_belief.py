@@ -155,8 +155,8 @@ def test_the_mpc_feeds_the_drag_growth_forward(scenario):
     for k in range(31):  # 1 s at 30 Hz, the capsule where the reference is
         t = k / 30
         ctrl.step(t, Measurement(t, t, path.position(np.array([t]))[0]), epm)
-    assert ctrl._drag_growth_n == pytest.approx(growth * 0.02 * 1.0)
-    assert ctrl._progress_m(100.0) == pytest.approx(path.length_m)
+    assert ctrl.reference.drag_growth_n(1.0) == pytest.approx(growth * 0.02 * 1.0)
+    assert ctrl.reference.progress_m(100.0) == pytest.approx(path.length_m)
 
 
 LEARNED_LAB5 = Path(__file__).parent / "data" / "learned_lab5_lookup.yaml"

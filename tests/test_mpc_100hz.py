@@ -26,7 +26,8 @@ def _fast(scenario):
     return scenario.model_copy(
         update={
             "plant": scenario.plant.model_copy(update={"preset": "ideal"}),
-            "mpc": scenario.mpc.model_copy(update={"compile_c": False, "final_approach": False}),
+            "mpc": scenario.mpc.model_copy(update={"compile_c": False}),
+            "place": scenario.place.model_copy(update={"enabled": False}),
             "sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 3.0}),
         }
     )

@@ -118,7 +118,9 @@ class StepStats:
     """What a controller reports about one step (solvers fill in the solve fields).
 
     ``outcome`` is what happened, as a value to act on; ``status`` the same in words with the
-    solver's own detail (it goes into the run log's ``solver_status`` column).
+    solver's own detail (it goes into the run log's ``solver_status`` column); ``phase`` the
+    controller's phase at the step (the run log's ``phase`` column; empty for a controller
+    without phases).
     """
 
     solve_ms: float = math.nan
@@ -127,6 +129,7 @@ class StepStats:
     failed: bool = False
     extra: dict[str, float] = field(default_factory=dict)
     outcome: StepOutcome = StepOutcome.OK
+    phase: str = ""
 
 
 @dataclass(frozen=True)

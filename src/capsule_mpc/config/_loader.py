@@ -27,30 +27,38 @@ __all__ = [
 ]
 
 
-#: Keys that moved into a section, by their old path, with their new one: a file or mapping that
-#: still uses one is refused naming both.
+#: The final approach's settings (``place.approach``).
+_APPROACH = (
+    "speed_mps",
+    "force_fraction",
+    "max_attempts",
+    "attempt_s",
+    "max_s",
+    "backoff_m",
+    "window_s",
+    "observe_s",
+)
+#: Keys that moved, by their old path, with their new one: a file or mapping that still uses one
+#: is refused naming both.
 MOVED_KEYS: dict[str, str] = {
-    **{
-        f"mpc.approach_{name}": f"mpc.approach.{name}"
-        for name in (
-            "speed_mps",
-            "force_fraction",
-            "max_attempts",
-            "attempt_s",
-            "max_s",
-            "backoff_m",
-            "window_s",
-            "observe_s",
-        )
-    },
+    **{f"mpc.approach_{name}": f"place.approach.{name}" for name in _APPROACH},
+    **{f"mpc.approach.{name}": f"place.approach.{name}" for name in _APPROACH},
+    "mpc.final_approach": "place.enabled",
+    "mpc.final_tolerance_m": "place.tolerance_m",
+    "mpc.start_preload": "break_loose.preload",
+    "mpc.start_preload_arrival": "break_loose.arrival",
+    "mpc.start_blend_s": "break_loose.blend_s",
+    "mpc.estimator_accel_std_mps2": "estimator.accel_std_mps2",
+    "mpc.disturbance_gain": "estimator.disturbance_gain",
+    "mpc.disturbance_max_n": "estimator.disturbance_max_n",
 }
 
 
-#: Keys that were removed, by their old path, with where the measurement that removed them is: a
-#: file or mapping that still uses one is refused naming it.
+#: Keys that were removed, by their old path, with why: a file or mapping that still uses one is
+#: refused naming it.
 REMOVED_KEYS: dict[str, str] = {
     **{
-        f"mpc.{name}": "docs/friction.md, removed options"
+        f"mpc.{name}": "no measured gain; docs/friction.md, removed options"
         for name in (
             "stick_prediction",
             "adaptation",
@@ -63,6 +71,10 @@ REMOVED_KEYS: dict[str, str] = {
             "final_friction_smoothing_eps_mps",
         )
     },
+    "mpc.feedforward": "no measured gain: the path's velocity is the feed-forward",
+    "mpc.max_sqp_iter": "fixed, capsule_mpc.mpc.solver.MAX_SQP_ITER",
+    "mpc.max_ipopt_iter": "fixed, capsule_mpc.mpc.solver.MAX_IPOPT_ITER",
+    "mpc.terminal_factor": "fixed, capsule_mpc.mpc.problem.TERMINAL_FACTOR",
 }
 
 

@@ -18,34 +18,34 @@ target, watch the capsule, let go when it arrives. Phases (one :class:`FinalAppr
 
 ``tracking``
     The MPC is in control. From the path's nominal end on, once the capsule's measured speed
-    (a line fit over ``mpc.approach.window_s`` of camera frames) is below ``mpc.approach.speed_mps``:
-    within ``mpc.final_tolerance_m`` of the end it is ``done``; otherwise a *crawl* starts.
+    (a line fit over ``place.approach.window_s`` of camera frames) is below ``place.approach.speed_mps``:
+    within ``place.tolerance_m`` of the end it is ``done``; otherwise a *crawl* starts.
 ``crawl``
     The EPM moves along the direction to the target, û, fixed for the attempt, at the desired
     crawl speed ``v_d = clip(d / τ, v/4, v)`` (d the remaining distance along û, τ
-    :data:`CRAWL_TIME_CONSTANT_S`, v = ``mpc.approach.speed_mps`` halved after each overshoot)
+    :data:`CRAWL_TIME_CONSTANT_S`, v = ``place.approach.speed_mps`` halved after each overshoot)
     plus the speed error ``v_d - v̂`` (v̂ the measured speed along û): a stuck or slow capsule sees
     the lead, hence the force, grow until it moves. The lead is capped by the controller's own
     model (never the plant's truth): the model force along û (force model plus the estimated
-    constant disturbance) stays below ``mpc.approach.force_fraction`` of the model's breakaway
+    constant disturbance) stays below ``place.approach.force_fraction`` of the model's breakaway
     (:meth:`capsule_mpc.friction.FrictionBelief.breakaway_n`: the learned static friction after the
     capsule's rest so far where the model has one, else ``mu0 F_N``; plus the tether drag), and
     ``|lead - lead_eq| <= limits.max_lead_m``. The crawl ends when the capsule is about to reach
     the target (``d <= v̂ * RELEASE_LEAD_S``), has passed it, has not come closer by the
-    tolerance for ``mpc.approach.attempt_s`` (it is stuck below the cap), or when the approach's
+    tolerance for ``place.approach.attempt_s`` (it is stuck below the cap), or when the approach's
     time is up. A capsule still creeping on is never let go short of the
     target (stopped, it would have to break loose again): out of time, the EPM holds the lead.
 ``release``
     The EPM backs off along -û to the lead it had when the crawl began minus
-    ``mpc.approach.backoff_m``, and at least to the lead at which the controller believes the
+    ``place.approach.backoff_m``, and at least to the lead at which the controller believes the
     lateral force vanishes (its force model plus its estimated constant disturbance; the component
     along û), taking the force away so the capsule stops where it is (a capsule that crept under
     the lead it had before the crawl would creep on past the target).
 ``observe``
-    The EPM holds still for ``mpc.approach.observe_s``; the mean of the frames after the first
+    The EPM holds still for ``place.approach.observe_s``; the mean of the frames after the first
     :data:`OBSERVE_SETTLE_S` is where the capsule rests. Within the tolerance: ``done``. Otherwise a
     new attempt from the measured rest (a new û; the crawl speed halved if it overshot), up to
-    ``mpc.approach.max_attempts`` and ``mpc.approach.max_s`` (a crawl under way when the time is
+    ``place.approach.max_attempts`` and ``place.approach.max_s`` (a crawl under way when the time is
     up is released and observed); then, or when an attempt moved the capsule less than the
     tolerance toward the target (it is stuck below the cap, and only a breakaway lurch, far larger
     than the error, would move it), ``gave_up``: the EPM holds.
@@ -118,7 +118,7 @@ class FinalApproach:
     Parameters
     ----------
     scenario : Scenario
-        The controller's scenario (its ``mpc`` approach settings, limits and nominal friction).
+        The controller's scenario (its ``place`` settings, limits and nominal friction).
     path : ReferencePath
         The reference; the target is its last point, the approach may start at its nominal end.
     force : casadi.Function
@@ -141,9 +141,9 @@ class FinalApproach:
         dt_s: float,
         friction: FrictionBelief | None = None,
     ) -> None:
-        cfg = scenario.mpc
+        cfg = scenario.place
         self.scenario = scenario
-        self.enabled = cfg.final_approach
+        self.enabled = cfg.enabled
         self.target_m = np.asarray(path.end_m, dtype=float)
         self.path_length_m = path.length_m
         self.friction = FrictionBelief.from_scenario(scenario) if friction is None else friction
@@ -151,7 +151,7 @@ class FinalApproach:
         self.force = force
         self.lead_eq_m = np.asarray(lead_eq_m, dtype=float)
         self.dt_s = dt_s
-        self.tolerance_m = cfg.final_tolerance_m
+        self.tolerance_m = cfg.tolerance_m
         self.speed_mps = cfg.approach.speed_mps
         self.frames: deque[tuple[float, np.ndarray]] = deque()
         self.phase = "tracking"
@@ -203,7 +203,7 @@ class FinalApproach:
         if measurement.position_m is None:
             return
         self.frames.append((measurement.capture_t_s, np.asarray(measurement.position_m, dtype=float)))
-        cfg = self.scenario.mpc
+        cfg = self.scenario.place
         horizon = 2.0 * max(cfg.approach.window_s, cfg.approach.observe_s)
         while self.frames and self.frames[0][0] < measurement.capture_t_s - horizon:
             self.frames.popleft()
@@ -245,11 +245,11 @@ class FinalApproach:
     def _trigger(self, t_s: float) -> bool:
         """At the path's end: whether a crawl starts.
 
-        Once the capsule is slower than a crawl (a line fit over ``mpc.approach.window_s``): within
+        Once the capsule is slower than a crawl (a line fit over ``place.approach.window_s``): within
         the tolerance both by the line fit and by the mean of the frames, ``done`` (the MPC keeps
         the EPM); else a crawl starts toward the target.
         """
-        cfg = self.scenario.mpc
+        cfg = self.scenario.place
         fit = fit_window(self.frames, t_s, cfg.approach.window_s)
         rest = fit_window(self.frames, t_s, cfg.approach.window_s, static=True)
         if fit is None or rest is None or float(np.linalg.norm(fit.velocity_mps)) >= self.speed_mps:
@@ -274,13 +274,13 @@ class FinalApproach:
         self._capped = False
         self._best_remaining = math.inf
         self._progress_t = t_s
-        fit = fit_window(self.frames, t_s, self.scenario.mpc.approach.window_s)
+        fit = fit_window(self.frames, t_s, self.scenario.place.approach.window_s)
         capsule = self.target_m - self._dir if fit is None else fit.position_m
         self._lead_start = float((epm[:2] - capsule) @ self._dir)
 
     def _crawl(self, t_s: float, epm: np.ndarray, disturbance_xy_n: np.ndarray) -> float:
         """EPM speed along û while crawling, m/s."""
-        cfg = self.scenario.mpc
+        cfg = self.scenario.place
         fit = fit_window(self.frames, t_s, cfg.approach.window_s)
         remaining = math.nan if fit is None else float((self.target_m - fit.position_m) @ self._dir)
         speed = math.nan if fit is None else float(fit.velocity_mps @ self._dir)
@@ -290,7 +290,7 @@ class FinalApproach:
         if self._out_of_time(t_s) and progressing and remaining > 0:
             # Still creeping on toward the target: letting go would stop it short; hold the lead.
             self.phase = "gave_up"
-            self.gave_up_reason = "out of time while the capsule crept on; holding (mpc.approach.max_s)"
+            self.gave_up_reason = "out of time while the capsule crept on; holding (place.approach.max_s)"
             return 0.0
         if remaining <= max(speed, 0.0) * RELEASE_LEAD_S or not progressing or self._out_of_time(t_s):
             self._start_release(t_s, epm[2], disturbance_xy_n)
@@ -318,16 +318,16 @@ class FinalApproach:
         f = np.asarray(self.force(ahead, height_m)).ravel()
         normal_n = float(normal_force_expr(scenario, float(f[2])))
         # At rest since the crawl last moved it (or since it began), and slow over the window before.
-        rest_s = t_s - self._progress_t + scenario.mpc.approach.window_s
+        rest_s = t_s - self._progress_t + scenario.place.approach.window_s
         breakaway_n = self.friction.breakaway_n(normal_n, rest_s, self.path_length_m)
         along_n = float((f[:2] + disturbance_xy_n) @ self._dir)
-        return along_n > scenario.mpc.approach.force_fraction * breakaway_n
+        return along_n > scenario.place.approach.force_fraction * breakaway_n
 
     def _start_release(self, t_s: float, height_m: float, disturbance_xy_n: np.ndarray) -> None:
         """Enter the release: its target lead along û (see the module docstring)."""
         self.phase, self._phase_t0 = "release", t_s
         zero = self.zero_force_lead(height_m, disturbance_xy_n)
-        backoff = self._lead_start - self.scenario.mpc.approach.backoff_m
+        backoff = self._lead_start - self.scenario.place.approach.backoff_m
         self._release_lead = min(backoff, float(zero @ self._dir))
 
     def zero_force_lead(self, height_m: float, disturbance_xy_n: np.ndarray) -> np.ndarray:
@@ -347,7 +347,7 @@ class FinalApproach:
 
     def _release(self, t_s: float, epm: np.ndarray) -> float:
         """EPM speed along û while backing off, m/s (<= 0)."""
-        cfg = self.scenario.mpc
+        cfg = self.scenario.place
         fit = fit_window(self.frames, t_s, cfg.approach.window_s)
         capsule = fit.position_m if fit is not None else self.target_m
         excess = float((epm[:2] - capsule) @ self._dir) - self._release_lead
@@ -358,14 +358,14 @@ class FinalApproach:
         return -min(excess / (4.0 * self.dt_s), limit)
 
     def _observe_step(self, t_s: float, epm: np.ndarray) -> None:
-        cfg = self.scenario.mpc
+        cfg = self.scenario.place
         if t_s - self._phase_t0 < cfg.approach.observe_s:
             return
         fit = fit_window(self.frames, t_s, cfg.approach.observe_s - OBSERVE_SETTLE_S, static=True)
         if fit is None:  # every frame dropped: keep watching while there is time
             if self._out_of_time(t_s):
                 self.phase = "gave_up"
-                self.gave_up_reason = "out of time, no camera frames (mpc.approach.max_s)"
+                self.gave_up_reason = "out of time, no camera frames (place.approach.max_s)"
             return
         err = self.target_m - fit.position_m
         if float(np.linalg.norm(err)) <= self.tolerance_m:
@@ -373,7 +373,7 @@ class FinalApproach:
             return
         if self._out_of_time(t_s):
             self.phase = "gave_up"
-            self.gave_up_reason = f"out of time after {t_s - self._start_s:.1f} s (mpc.approach.max_s)"
+            self.gave_up_reason = f"out of time after {t_s - self._start_s:.1f} s (place.approach.max_s)"
             return
         progress = float(fit.position_m @ self._dir) - self._progress0
         if progress < self.tolerance_m:
@@ -383,7 +383,7 @@ class FinalApproach:
             return
         if self.attempts >= cfg.approach.max_attempts:
             self.phase = "gave_up"
-            self.gave_up_reason = f"{self.attempts} attempts (mpc.approach.max_attempts)"
+            self.gave_up_reason = f"{self.attempts} attempts (place.approach.max_attempts)"
             return
         if float(err @ self._dir) < 0:  # passed the target: crawl slower next time
             self.speed_mps *= 0.5
@@ -391,8 +391,8 @@ class FinalApproach:
         self._start_crawl(t_s, epm)
 
     def _out_of_time(self, t_s: float) -> bool:
-        """Whether the approach has used its time (``mpc.approach.max_s`` from its first crawl)."""
-        return t_s - self._start_s >= self.scenario.mpc.approach.max_s
+        """Whether the approach has used its time (``place.approach.max_s`` from its first crawl)."""
+        return t_s - self._start_s >= self.scenario.place.approach.max_s
 
     def _limit(self, u: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
         """One frame of Ruckig's velocity control from ``u_prev`` (and the acceleration it left)

@@ -71,6 +71,7 @@ __all__ = [
     "STATE_SCALE",
     "S_SCALE",
     "TANGENT_EPS_MPS",
+    "TERMINAL_FACTOR",
     "U_SCALE",
     "X_SCALE",
     "build_ocp",
@@ -91,6 +92,10 @@ N_INPUT = _NU_MODEL + 2 + n_slacks + 1
 N_PATH = 11
 #: Stage-state columns of the command's slope (the EPM acceleration of the step that ends there).
 _SLOPE = slice(_NX_MODEL + _NU_MODEL, N_STATE)
+#: Factor on the last stage's tracking weights (the terminal cost): a plan that ends on the
+#: reference is preferred to one that is closer earlier, as in an LQR's terminal weight; the value
+#: the controller was tuned with on the rectangle.
+TERMINAL_FACTOR = 3.0
 #: Scale of the command's slope (EPM acceleration), m/s^2, and of the jerk rows, m/s^3.
 A_SCALE = np.array([0.1, 0.1, 0.1])
 J_SCALE = 1.0
@@ -510,7 +515,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
             jerk + sj / J_SCALE,  # >= -J frame
             jerk - sj / J_SCALE,  # <= J frame
         ]
-        weight = cfg.terminal_factor if k == n - 1 else 1.0
+        weight = TERMINAL_FACTOR if k == n - 1 else 1.0
         residuals += _stage_residuals(cfg, weight, ref[:, k], m1, c1, dc, sk, sj, jerk, dt_s / h)
 
     res = ca.vertcat(*residuals)

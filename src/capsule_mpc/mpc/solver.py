@@ -8,7 +8,7 @@
   buffer interface (:class:`FastCall`: NumPy arrays in and out, no DM conversion), without
   option dicts or ``stats()`` on the frame.
 * ``sqp`` -- the same step iterated with a backtracking line search on the l1 merit function
-  (:meth:`MPCSolver.sqp`), to convergence (``mpc.max_sqp_iter``). The controller also uses a
+  (:meth:`MPCSolver.sqp`), to convergence (:data:`MAX_SQP_ITER`). The controller also uses a
   few of these iterations to recover a frame whose RTI step failed.
 * ``ipopt`` -- interior point, primal-dual warm start; also the converged solve of the first
   frame of the SQP schemes (from a cold start RTI can diverge).
@@ -42,6 +42,8 @@ from .problem import N_REF, N_STATE, OCP, STATE_SCALE, U_SCALE, X_SCALE
 
 __all__ = [
     "HPIPM_OPTIONS",
+    "MAX_IPOPT_ITER",
+    "MAX_SQP_ITER",
     "MAX_STEP_VIOLATION",
     "QP_SOLVERS",
     "FastCall",
@@ -61,6 +63,13 @@ __all__ = [
 #: stopping) routinely leaves a few units, which the next frames absorb; tens of units mean the
 #: linearisation broke down, and the step is rejected (measured on the pipe at 5-45 mm/s).
 MAX_STEP_VIOLATION = 20.0
+#: Iteration cap of the sqp scheme's solve to convergence (a frame's recovery has its own, far
+#: smaller, ``mpc.recovery_sqp_iter``): SQP with a line search converges in a handful of
+#: iterations from a warm start; the cap only bounds a pathological solve.
+MAX_SQP_ITER = 30
+#: Iteration cap of IPOPT's solves (the first frame's cold solve, the ipopt scheme): IPOPT's own
+#: cap is 3000; a cold start of this problem converges in tens of iterations.
+MAX_IPOPT_ITER = 200
 #: IPOPT statuses that give a usable (if not fully converged) point.
 _IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded"}
 #: QP solvers the SQP schemes can use on the stage-wise layout.
@@ -477,8 +486,8 @@ class MPCSolver:
         self,
         ocp: OCP,
         scheme: str,
-        max_sqp_iter: int = 30,
-        max_ipopt_iter: int = 200,
+        max_sqp_iter: int = MAX_SQP_ITER,
+        max_ipopt_iter: int = MAX_IPOPT_ITER,
         compile_dir: Path | None = None,
         qpsol: str = "hpipm",
     ) -> None:

@@ -7,13 +7,13 @@ force moves the capsule, so the capsule sits stuck for a few tenths of a second 
 builds up, then lurches. What an operator does instead: pull the magnet ahead briskly until the
 capsule is about to go.
 
-With ``mpc.start_preload`` (a fraction of the believed breakaway), from the first frame of
+With ``break_loose.preload`` (a fraction of the believed breakaway), from the first frame of
 motion the EPM is driven time-optimally within ``limits.speed_mps``, ``limits.accel_mps2`` and
 ``limits.jerk_mps3`` (Ruckig, position interface) along the path's initial direction û to the
 lead at which the controller's force model plus its estimated constant disturbance, along û,
 reaches that fraction of the friction belief's breakaway force after the rest so far
 (:meth:`capsule_mpc.friction.FrictionBelief.breakaway_n`). It arrives there still speeding up:
-at ``mpc.start_preload_arrival`` times the fastest speed the limits reach from rest over that
+at ``break_loose.arrival`` times the fastest speed the limits reach from rest over that
 distance (:func:`fastest_arrival_mps`), but no faster than it can stop before the coupling limit,
 and never below the path's speed. Arriving at the path's speed
 instead would spend the last tenth of a second slowing down while the capsule, still stuck, falls
@@ -77,7 +77,7 @@ class StartPreload:
     Parameters
     ----------
     scenario : Scenario
-        The controller's scenario (``mpc.start_preload``, the limits).
+        The controller's scenario (``break_loose.preload``, the limits).
     path : ReferencePath
         The reference; û is its direction at the start, the speed its nominal speed.
     force : casadi.Function
@@ -103,7 +103,7 @@ class StartPreload:
         dt_s: float,
     ) -> None:
         self.scenario = scenario
-        self.fraction = scenario.mpc.start_preload
+        self.fraction = scenario.break_loose.preload
         self.force = force
         self.lead_eq_m = np.asarray(lead_eq_m, dtype=float)
         self.belief = belief
@@ -163,11 +163,11 @@ class StartPreload:
 
     def arrival_speed(self, rest_lead_m: np.ndarray, target_lead_m: np.ndarray) -> float:
         """The speed along û at the pre-load lead, m/s, for an EPM at rest at ``rest_lead_m`` (2,):
-        ``mpc.start_preload_arrival`` of the fastest it can reach over the way to
+        ``break_loose.arrival`` of the fastest it can reach over the way to
         ``target_lead_m``, and no faster than it can stop from before the coupling limit
         (``limits.max_lead_m`` around the model's equilibrium lead); never below the path's
         speed."""
-        fraction = float(self.scenario.mpc.start_preload_arrival)
+        fraction = float(self.scenario.break_loose.arrival)
         way = float(np.linalg.norm(target_lead_m - rest_lead_m))
         # Distance along û from the target lead to the coupling limit's circle.
         offset = np.asarray(target_lead_m, dtype=float) - self.lead_eq_m

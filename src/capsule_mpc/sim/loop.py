@@ -595,7 +595,7 @@ class ClosedLoop:
         row["meas_capture_t_s"], row["controller_ms"] = meas.capture_t_s, (c1 - c0) * 1e3
         row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), self.cmd_applied.tolist()))
         row["solve_ms"], row["solver_status"] = stats.solve_ms, stats.status
-        row["solver_failed"] = int(stats.failed)
+        row["solver_failed"], row["phase"] = int(stats.failed), stats.phase
         self.log.add(row)
         for obs in self.observers:
             obs.frame_end(self, frame)
@@ -612,7 +612,7 @@ class ClosedLoop:
         flags.failure, flags.failure_t_s = plant.failure, frame.t_s
         row = frame.row
         row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), self.cmd_applied.tolist()))
-        row["solver_status"], row["solver_failed"] = "", 0
+        row["solver_status"], row["solver_failed"], row["phase"] = "", 0, ""
         self.log.add(row)
         self.predictions.append(None)
         self.done = True
