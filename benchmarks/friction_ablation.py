@@ -122,16 +122,12 @@ def variant_scenario(
     learned_on_draw: LearnedFrictionModel | None,
     oracle: LearnedFrictionModel,
     preload: float = DEFAULT_PRELOAD,
-    approach_fraction: float | None = None,
 ) -> Scenario:
-    """The controller's scenario of one variant (the plant is drawn from the base scenario).
-
-    ``approach_fraction`` replaces ``place.approach.force_fraction`` in the variants with a static
-    friction model of the draw (``learned``, ``oracle``)."""
+    """The controller's scenario of one variant (the plant is drawn from the base scenario)."""
     fr = base.friction
     if "+" in variant:
         name, *mods = variant.split("+")
-        scenario = variant_scenario(base, name, learned_on_draw, oracle, approach_fraction=approach_fraction)
+        scenario = variant_scenario(base, name, learned_on_draw, oracle)
         update: dict[str, Any] = {}
         if "sharp" in mods:
             update["friction_smoothing_eps_mps"] = SHARP_EPS_MPS
@@ -154,13 +150,7 @@ def variant_scenario(
     else:
         assert learned_on_draw is not None
         learned = learned_on_draw
-    scenario = with_friction(base, learned)
-    if approach_fraction is not None and variant in ("learned", "oracle"):
-        approach = scenario.place.approach.model_copy(update={"force_fraction": approach_fraction})
-        scenario = scenario.model_copy(
-            update={"place": scenario.place.model_copy(update={"approach": approach})}
-        )
-    return scenario
+    return with_friction(base, learned)
 
 
 def learn_on_draw(
@@ -262,7 +252,6 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
             learned,
             oracle,
             args.preload,
-            args.approach_fraction,
         )
         plant = CapsulePlant(base, truth=draw_plant_truth(base, seed))  # truth from the base: the same rig
         results[variant] = simulate(scenario, "mpc", path, seed, progress=False, plant=plant)
@@ -400,7 +389,6 @@ def _report(
         "draws_done": len(draws),
         "draws_failed": failed,
         "preload_fraction": args.preload,
-        "approach_fraction": args.approach_fraction,
         "demonstration_speeds_mps": args.speeds,
         "summary": summarise(draws, args.variants, args.final_tol) if draws else {},
         "draws": draws,
@@ -482,13 +470,6 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json"
     )
     parser.add_argument("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
-    parser.add_argument(
-        "--approach-fraction",
-        type=float,
-        default=None,
-        help="place.approach.force_fraction of the variants with the draw's static friction "
-        "(learned, oracle), (0, 1) (default: the config's)",
-    )
     parser.add_argument(
         "--learn-only",
         action="store_true",

@@ -107,8 +107,8 @@ class StepOutcome(enum.Enum):
     FAILED = "failed"
     #: No measurement has arrived yet: the command is zero.
     NO_MEASUREMENT = "no_measurement"
-    #: The final approach's crawl gave the command (no solve).
-    APPROACH = "approach"
+    #: A placement move gave the command (no solve).
+    PLACE = "place"
     #: The controller returned no valid command; the loop sent a stop.
     INVALID = "invalid"
 
@@ -170,6 +170,12 @@ class Controller(ABC):
         still applies).
         """
         return True
+
+    @property
+    def gave_up(self) -> str:
+        """Why the controller gave up on the run's end (e.g. a placement out of moves); empty if it
+        did not. A run it gave up on fails."""
+        return ""
 
 
 class Actuator(ABC):

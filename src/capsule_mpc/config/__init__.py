@@ -42,7 +42,7 @@ from .friction import (
     RateStateConfig,
 )
 from .mpc import MPCConfig
-from .phases import ApproachConfig, BreakLooseConfig, EstimatorConfig, PlaceConfig
+from .phases import BreakLooseConfig, EstimatorConfig, PlaceConfig
 from .plant import PLANT_FIXED, PLANT_PRESET_RANGES, FrictionPatchConfig, PlantConfig
 from .rig import (
     CameraConfig,
@@ -62,7 +62,6 @@ __all__ = [
     "PAPER_C_VALIDITY_MPS",
     "PLANT_FIXED",
     "PLANT_PRESET_RANGES",
-    "ApproachConfig",
     "ArmConfig",
     "BreakLooseConfig",
     "CameraConfig",

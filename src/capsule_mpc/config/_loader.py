@@ -27,23 +27,9 @@ __all__ = [
 ]
 
 
-#: The final approach's settings (``place.approach``).
-_APPROACH = (
-    "speed_mps",
-    "force_fraction",
-    "max_attempts",
-    "attempt_s",
-    "max_s",
-    "backoff_m",
-    "window_s",
-    "observe_s",
-)
 #: Keys that moved, by their old path, with their new one: a file or mapping that still uses one
 #: is refused naming both.
 MOVED_KEYS: dict[str, str] = {
-    **{f"mpc.approach_{name}": f"place.approach.{name}" for name in _APPROACH},
-    **{f"mpc.approach.{name}": f"place.approach.{name}" for name in _APPROACH},
-    "mpc.final_approach": "place.enabled",
     "mpc.final_tolerance_m": "place.tolerance_m",
     "mpc.start_preload": "break_loose.preload",
     "mpc.start_preload_arrival": "break_loose.arrival",
@@ -72,6 +58,10 @@ REMOVED_KEYS: dict[str, str] = {
         )
     },
     "mpc.feedforward": "no measured gain: the path's velocity is the feed-forward",
+    "mpc.final_approach": "replaced by the placement moves (place); place.max_moves: 0 switches them off",
+    "mpc.approach": "replaced by the placement moves (place)",
+    "place.enabled": "place.max_moves: 0 switches the placement off",
+    "place.approach": "replaced by the placement moves (place)",
     "mpc.max_sqp_iter": "fixed, capsule_mpc.mpc.solver.MAX_SQP_ITER",
     "mpc.max_ipopt_iter": "fixed, capsule_mpc.mpc.solver.MAX_IPOPT_ITER",
     "mpc.terminal_factor": "fixed, capsule_mpc.mpc.problem.TERMINAL_FACTOR",

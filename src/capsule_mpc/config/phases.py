@@ -3,11 +3,11 @@ start's break-loose, and the placement at the path's end (:mod:`capsule_mpc.mpc.
 
 from __future__ import annotations
 
-from pydantic import Field, StrictBool
+from pydantic import Field
 
 from ._fields import Integer, Number, StrictModel
 
-__all__ = ["ApproachConfig", "BreakLooseConfig", "EstimatorConfig", "PlaceConfig"]
+__all__ = ["BreakLooseConfig", "EstimatorConfig", "PlaceConfig"]
 
 
 class EstimatorConfig(StrictModel):
@@ -70,98 +70,31 @@ class BreakLooseConfig(StrictModel):
     )
 
 
-class ApproachConfig(StrictModel):
-    """The final approach (``capsule_mpc.mpc.approach``), the placement phase's producer: after the
-    path's nominal end, crawl the capsule onto the final waypoint when the MPC left it short of (or
-    past) it."""
-
-    speed_mps: Number = Field(
-        1.5e-3,
-        gt=0,
-        le=0.01,
-        description=(
-            "Crawl speed, m/s, (0, 0.01]; halved after an overshoot. The approach starts only once "
-            "the capsule is slower than this."
-        ),
-    )
-    force_fraction: Number = Field(
-        0.6,
-        gt=0,
-        lt=1,
-        description=(
-            "Cap of the crawl's lateral force (with the estimated disturbance), as a fraction of the "
-            "model's breakaway force after the capsule's rest, (0, 1)."
-        ),
-    )
-    max_attempts: Integer = Field(
-        3, ge=1, le=20, description="Crawls tried before the approach holds, [1, 20]."
-    )
-    attempt_s: Number = Field(
-        4.0,
-        gt=0,
-        le=60,
-        description=(
-            "A crawl ends when the capsule has not come closer to the final waypoint by "
-            "place.tolerance_m for this long, s, (0, 60]."
-        ),
-    )
-    max_s: Number = Field(
-        12.0,
-        gt=0,
-        le=300,
-        description=(
-            "Time the approach may take from its first crawl, s, (0, 300]; then it releases, "
-            "observes and holds."
-        ),
-    )
-    backoff_m: Number = Field(
-        2e-3,
-        ge=0,
-        le=0.01,
-        description=(
-            "After a crawl the EPM backs off to the lead it had when the crawl began, minus this, m, "
-            "[0, 0.01]."
-        ),
-    )
-    window_s: Number = Field(
-        1.0,
-        gt=0,
-        le=5,
-        description=(
-            "Span of camera frames a line is fitted to for the capsule's position and speed, s, (0, 5]."
-        ),
-    )
-    observe_s: Number = Field(
-        1.0,
-        gt=0.3,
-        le=10,
-        description=(
-            "The EPM holds this long after a crawl before the capsule's rest is judged (on the "
-            "frames after the first 0.3 s), s, (0.3, 10]."
-        ),
-    )
-
-
 class PlaceConfig(StrictModel):
-    """The placement at the path's end (the ``PLACE`` phase)."""
+    """The placement after the path (the ``PLACE`` phase, ``capsule_mpc.mpc.place``): moves that
+    bring the capsule to rest on the path's last point."""
 
-    enabled: StrictBool = Field(
-        True,
-        description=(
-            "Run the final approach (place.approach) after the path's nominal end: a crawl below "
-            "breakaway that brings the capsule within place.tolerance_m of the final waypoint; off: "
-            "the MPC keeps the path's end."
-        ),
-    )
     tolerance_m: Number = Field(
-        3e-4,
+        1.5e-4,
         gt=0,
         le=0.005,
         description=(
-            "Distance to the final waypoint within which the capsule counts as arrived, m, (0, "
-            "0.005]; judged on the mean of the frames of an observation (place.approach.observe_s)."
+            "The capsule is placed when the mean of the camera's frames at rest is this close to the "
+            "path's last point, m, (0, 0.005]."
         ),
     )
-    approach: ApproachConfig = Field(
-        default_factory=ApproachConfig, description="The final approach (capsule_mpc.mpc.approach)."
+    max_moves: Integer = Field(
+        5,
+        ge=0,
+        le=50,
+        description=(
+            "Placement moves before the controller gives up (the run then fails with the reason), "
+            "[0, 50]; 0: no placement, the MPC holds the path's end."
+        ),
+    )
+    approach_speed_mps: Number = Field(
+        0.04,
+        gt=0,
+        le=0.1,
+        description="EPM speed of a move's last segment onto the target, m/s, (0, 0.1].",
     )

@@ -8,7 +8,7 @@ Every frame:
 2. the supervisor (:mod:`.supervisor`) applies the events of time and asks the phase's producer
    (:mod:`.phases`) for the command: ``SETTLE`` (t < 0) and ``SLIDE`` the sliding MPC
    (:mod:`.slide`), ``BREAK_LOOSE`` the start's pre-load (:mod:`.start`), ``PLACE`` and after it
-   ``HOLD`` or ``FAILED`` the final approach (:mod:`.approach`), adapted in :mod:`.producers`;
+   ``HOLD`` or ``FAILED`` the placement moves (:mod:`.place`);
 3. the safety filter (:func:`capsule_mpc.safety.safe_command`) enforces speed, acceleration,
    jerk and workspace limits on the command actually sent, and counts any clipping.
 
@@ -33,12 +33,12 @@ from ..interfaces import Command, Controller, Measurement, StepOutcome, StepStat
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
 from ..safety import safe_command
-from .approach import FinalApproach
 from .estimator import StateEstimator
 from .grid import prediction_steps_s
 from .phases import TERMINAL, FrameContext, Phase, PhaseProducer
+from .place import PlacementProducer
 from .problem import OCP, build_ocp
-from .producers import ApproachPlace, PreloadBreakLoose
+from .producers import PreloadBreakLoose
 from .reference import SlideReference
 from .slide import Plan, SettleProducer, SlideProducer
 from .solver import MPCSolver
@@ -141,12 +141,9 @@ class MPCController(Controller):
             start = StartPreload(
                 scenario, path, stack.force, stack.ocp.lead_eq_m, self.friction_belief, rest, self.dt_s
             )
-        self.approach = FinalApproach(
-            scenario, path, stack.force, stack.ocp.lead_eq_m, self.dt_s, self.friction_belief
+        self.placement = place = PlacementProducer(
+            scenario, self.slide, stack.force, stack.ocp.lead_eq_m, self.friction_belief, path.length_m
         )
-        if self.approach.enabled:
-            self.approach.warm_up(scenario.plate.epm_height_m)
-        place = ApproachPlace(self.approach, self.slide)
         return {
             Phase.SETTLE: SettleProducer(self.slide),
             Phase.BREAK_LOOSE: PreloadBreakLoose(start, self.slide),
@@ -213,9 +210,18 @@ class MPCController(Controller):
 
     @property
     def finished(self) -> bool:
-        """Whether the placement is over (done or given up) or off (``place.enabled``); until then
-        the run does not end at rest."""
-        return not self.scenario.place.enabled or self.supervisor.phase in TERMINAL
+        """Whether the placement is over (done or given up) or off (``place.max_moves: 0``); until
+        then the run does not end at rest."""
+        return self.scenario.place.max_moves == 0 or self.supervisor.phase in TERMINAL
+
+    @property
+    def gave_up(self) -> str:
+        """The placement's reason when it gave up (the ``FAILED`` phase), else empty."""
+        if self.supervisor.phase is not Phase.FAILED:
+            return ""
+        return next(
+            (tr.reason for tr in reversed(self.supervisor.transitions) if tr.after is Phase.FAILED), ""
+        )
 
     def _emit(self, u: np.ndarray, epm: np.ndarray, stats: StepStats, hold: bool = False) -> Command:
         """Send ``u`` through the safety filter; ``hold``: the settle phase (t < 0), in which the

@@ -1,25 +1,19 @@
-"""The producers of the phases around the sliding MPC: the start's pre-load (``BREAK_LOOSE``) and
-the final approach (``PLACE``, and ``HOLD`` / ``FAILED`` after it), adapted to
-:class:`~capsule_mpc.mpc.phases.PhaseProducer`.
-
-Both keep the sliding MPC at hand: the pre-load lets it solve every frame (so its plan is warm when
-it takes over) and sends its own command instead; the final approach leaves the MPC in command
-until it starts a crawl, and after one keeps the EPM still itself.
+"""The producer of the phase before the sliding MPC: the start's pre-load (``BREAK_LOOSE``),
+adapted to :class:`~capsule_mpc.mpc.phases.PhaseProducer`. It keeps the sliding MPC at hand: the
+MPC solves every frame of the pre-load (so its plan is warm when it takes over) and the pre-load
+sends its own command instead. (``PLACE`` and after it ``HOLD`` / ``FAILED``:
+:class:`capsule_mpc.mpc.place.PlacementProducer`.)
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
-import numpy as np
-
-from ..interfaces import StepOutcome, StepStats
-from .approach import FinalApproach
 from .phases import Event, FrameContext, PhaseOutput
 from .slide import SlideProducer
 from .start import StartPreload
 
-__all__ = ["ApproachPlace", "PreloadBreakLoose"]
+__all__ = ["PreloadBreakLoose"]
 
 
 class PreloadBreakLoose:
@@ -55,53 +49,3 @@ class PreloadBreakLoose:
         assert out.stats is not None
         out.stats.extra["start_preload"] = 1.0
         return replace(out, command=u)
-
-
-class ApproachPlace:
-    """``PLACE``, ``HOLD`` and ``FAILED`` by the final approach (:mod:`.approach`).
-
-    Until the approach starts a crawl the sliding MPC commands (the path's end stands still in its
-    reference); from the first crawl on the approach does, the MPC's plan dropped, and after it
-    ended (done or given up) it keeps the EPM still. ``DONE`` and ``GAVE_UP`` are raised once, at
-    the frame the approach ends.
-
-    Parameters
-    ----------
-    approach : FinalApproach
-        The run's final approach.
-    slide : SlideProducer
-        The sliding MPC.
-    """
-
-    def __init__(self, approach: FinalApproach, slide: SlideProducer) -> None:
-        self.approach = approach
-        self.slide = slide
-        self._ended = False
-
-    def observe(self, ctx: FrameContext) -> None:
-        """Keep the camera frame (the approach fits lines to the recent ones)."""
-        self.approach.observe(ctx.measurement)
-
-    def _event(self) -> tuple[Event | None, str]:
-        phase = self.approach.phase
-        if self._ended or phase not in ("done", "gave_up"):
-            return None, ""
-        self._ended = True
-        if phase == "done":
-            return Event.DONE, "within place.tolerance_m of the target"
-        return Event.GAVE_UP, self.approach.gave_up_reason
-
-    def produce(self, ctx: FrameContext) -> PhaseOutput:
-        """The approach's command, or the MPC's while the approach leaves it in command."""
-        approach = self.approach
-        u = approach.step(ctx.t_s, ctx.epm_m, ctx.u_prev_mps, ctx.disturbance_n[0:2])
-        event, reason = self._event()
-        if u is None:
-            return replace(self.slide.produce(ctx), event=event, reason=reason)
-        self.slide.drop_plan()
-        stats = StepStats(
-            status=f"approach: {approach.phase}",
-            extra={"approach_attempts": float(approach.attempts)},
-            outcome=StepOutcome.APPROACH,
-        )
-        return PhaseOutput(np.asarray(u, dtype=float), stats, event, reason)

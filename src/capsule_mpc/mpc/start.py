@@ -42,10 +42,9 @@ from ..config import Scenario
 from ..dynamics import normal_force_expr
 from ..friction import FrictionBelief
 from ..paths import ReferencePath
-from .approach import epm_ruckig
 from .contact import RestDetector
 
-__all__ = ["PRELOAD_MAX_S", "StartPreload", "fastest_arrival_mps"]
+__all__ = ["PRELOAD_MAX_S", "StartPreload", "epm_ruckig", "fastest_arrival_mps"]
 
 #: Longest pre-load from t = 0, s: the MPC takes over then whatever the capsule does.
 PRELOAD_MAX_S = 1.5
@@ -69,6 +68,22 @@ def fastest_arrival_mps(distance_m: float, jerk_mps3: float, accel_mps2: float, 
         half = a / (2.0 * j)
         v = a * (math.sqrt(half * half + 2.0 * d / a) - half)
     return min(v, float(speed_mps))
+
+
+def epm_ruckig(
+    scenario: Scenario, dt_s: float
+) -> tuple[ruckig.Ruckig, ruckig.InputParameter, ruckig.OutputParameter]:
+    """Ruckig for the EPM's three axes at the frame period ``dt_s``, within ``limits.speed_mps``,
+    ``limits.accel_mps2`` and ``limits.jerk_mps3`` per axis, each axis on its own time-optimal
+    profile (synchronised, a millimetre's correction on one axis would stretch the motion on the
+    others); the position interface unless the caller sets another."""
+    lim = scenario.limits
+    inp = ruckig.InputParameter(3)
+    inp.synchronization = ruckig.Synchronization.No
+    inp.max_velocity = [lim.speed_mps] * 3
+    inp.max_acceleration = [lim.accel_mps2] * 3
+    inp.max_jerk = [lim.jerk_mps3] * 3
+    return ruckig.Ruckig(3, dt_s), inp, ruckig.OutputParameter(3)
 
 
 class StartPreload:

@@ -112,6 +112,7 @@ from ..interfaces import (
     make_actuator,
     make_controller,
 )
+from ..metrics import end_metrics
 from ..paths import ReferencePath
 from .actuation import SimpleArm
 from .columns import INT_COLUMNS, LOG_COLUMNS, STR_COLUMNS
@@ -601,6 +602,7 @@ class ClosedLoop:
             obs.frame_end(self, frame)
         if self._at_rest_after_end(t, ctrl.finished):
             self.flags.at_rest = self.done = True
+            self.flags.gave_up = ctrl.gave_up
         elif j >= self.last_frame:
             self.flags.timed_out = self.done = True
         return frame
@@ -631,6 +633,9 @@ class ClosedLoop:
         limits = self.actuator.limit_counts()
         metrics.update(limits)
         stats = self.step_stats
+        bias = np.array([self.truth.camera_bias_x_m, self.truth.camera_bias_y_m])
+        moves = max((int(st.extra.get("placement_moves", 0)) for st in stats), default=0)
+        metrics.update(end_metrics(arrays, self.path, bias, moves, self.flags.at_rest))
         metrics["measurements_rejected"] = sum(int(st.extra.get("measurement_rejected", 0)) for st in stats)
         for obs in self.observers:
             obs.on_end(self, metrics)
