@@ -63,12 +63,11 @@ def one_move(scenario, truth, start, speed, run_up) -> tuple[np.ndarray, float]:
     try:
         move = P.plan_move(
             geo, FrictionBelief.from_scenario(scenario), rest, target, 1.0, np.zeros(2), 3.0, 0.0, 1.0,
-            height, scenario.limits.max_lead_m,
+            height, scenario.limits.max_lead_m, speed,
         )  # fmt: skip
     finally:
         P.RUN_UP_M = saved
-    speeds = (scenario.limits.speed_mps,) * (len(move.waypoints_m) - 2) + (speed,) * 2
-    traj = P._Trajectory(scenario, epm0, move.waypoints_m, speeds)
+    traj = P._Trajectory(scenario, epm0, move)
     frame_s = 1.0 / scenario.camera.rate_hz
     steps = round(frame_s * scenario.sim.plant_rate_hz)
     t, half = 0.0, None

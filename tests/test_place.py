@@ -59,9 +59,13 @@ def test_a_move_backs_off_beyond_the_breakaway_and_stops_at_the_drag_lead(
     belief = _belief(scenario)
     target = np.array([0.0, -0.03])
     rest = target + np.array([off_x, off_y])
-    move = P.plan_move(geo, belief, rest, target, direction, np.zeros(2), rest_s, 0.3, 1.0, 0.095, 0.025)
+    move = P.plan_move(
+        geo, belief, rest, target, direction, np.zeros(2), rest_s, 0.3, 1.0, 0.095, 0.025, 0.02
+    )
     d = np.array([direction, 0.0])
-    back, final, release = (np.asarray(w) for w in move.waypoints_m)
+    back, slow, final, release = (np.asarray(w) for w in move.waypoints_m)
+    np.testing.assert_allclose(final[:2] - slow[:2], P.SLOW_M * d, atol=1e-12)
+    np.testing.assert_allclose(move.arrivals_mps[1][:2], 0.02 * d, atol=1e-12)
     drag = belief.drag_n(0.3 + move.length_m - 0.0)  # bounded below by the drag before the move
     stop = float((final[:2] - target - geo.lead_eq_m) @ d)
     assert belief.drag_n(0.3) / k - 1e-9 <= stop <= drag / k + 1e-9
@@ -93,14 +97,14 @@ def test_a_target_far_ahead_needs_no_backoff(scenario: Scenario) -> None:
         0.095,
         0.025,
     )
-    assert len(move.waypoints_m) == 2  # straight to the end, then the release
+    assert len(move.waypoints_m) == 3  # straight to the end (slowing down), then the release
 
 
 def test_the_residual_moves_the_end_one_for_one(scenario: Scenario) -> None:
     geo = linear_geometry(30.0)
     args = (geo, _belief(scenario), np.array([0.0005, 0.0]), np.zeros(2), 1.0)
-    a = P.plan_move(*args, np.zeros(2), 1.0, 0.3, 1.0, 0.095, 0.025)
-    b = P.plan_move(*args, np.array([1e-3, -2e-4]), 1.0, 0.3, 1.0, 0.095, 0.025)
+    a = P.plan_move(*args, np.zeros(2), 1.0, 0.3, 1.0, 0.095, 0.025, 0.02)
+    b = P.plan_move(*args, np.array([1e-3, -2e-4]), 1.0, 0.3, 1.0, 0.095, 0.025, 0.02)
     np.testing.assert_allclose(b.final_m[:2] - a.final_m[:2], [1e-3, -2e-4], atol=1e-12)
 
 

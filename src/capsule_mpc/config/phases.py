@@ -93,8 +93,8 @@ class PlaceConfig(StrictModel):
         ),
     )
     approach_speed_mps: Number = Field(
-        0.04,
+        0.02,
         gt=0,
         le=0.1,
-        description="EPM speed of a move's last segment onto the target, m/s, (0, 0.1].",
+        description="EPM speed of a move's last millimetres onto the target, m/s, (0, 0.1].",
     )

@@ -4,10 +4,10 @@ A capsule held by static friction cannot be nudged: once the magnetic force pass
 static friction it lurches ``2 (F_static - F_sliding) / k`` (millimetres; ``k`` the coupling's
 stiffness) and below that it does not move. What the plant does reliably is *stop*: a capsule that
 slides behind the EPM along the coupling's stiff axis and is left by an EPM that stops comes to
-rest at a lead from the EPM's final position that does not depend on where it started, nor (from
-3 to 20 mm/s) on how fast it came (``benchmarks/placement_stop.py`` measures it; across the axis part of the lateral offset it
-started with remains, less after a longer run-up). So a placement
-arrives sliding, as an operator does with a sticky slide:
+rest at a lead from the EPM's final position that does not depend on where it started, the more
+so the slower it came (``benchmarks/placement_stop.py`` measures it; across the axis a part of the
+lateral offset it started with remains, less after a longer run-up). So a placement arrives
+sliding, as an operator does with a sticky slide:
 
 * **move**: along the stiff axis ``d`` (fixed for the whole placement, its sign toward the target
   from where the capsule first rested), the EPM backs off far enough to break the capsule loose
@@ -70,6 +70,12 @@ __all__ = [
 #: The back-off pulls the lead this far beyond the belief's breakaway force (a ratio): the
 #: learned breakaway was within 10 % of the plant's on every lab draw, so 25 % clears it.
 BREAKAWAY_MARGIN = 1.25
+#: Scatter of one stop's rest position along the approach, m (the camera's averaged noise and the
+#: plate's variation; 0.02-0.1 mm in benchmarks/placement_stop.py).
+STOP_SCATTER_M = 1e-4
+#: Prior scale of the tether drag's growth the belief may miss, N/m (the drag grows with the
+#: tether paid out; rigs drawn here grow by up to 0.15 N/m).
+DRIFT_PRIOR_N_PER_M = 0.1
 #: A move broke the capsule loose if a camera frame saw it this far from its rest, m (a move
 #: slides it tens of millimetres; the camera's noise is a fraction of one).
 BROKE_LOOSE_M = 3e-3
@@ -96,6 +102,12 @@ POSITION_GAIN = 4.0
 #: trajectory's end, s (the stop offset is learned from where it really stopped).
 EPM_TOL_M = 5e-5
 EPM_WAIT_S = 0.3
+#: The last part of the approach runs at ``place.approach_speed_mps``, m: where the capsule comes
+#: to rest repeated within 0.02 mm from any start at 10 mm/s, within 0.06-0.14 mm at 40 mm/s.
+SLOW_M = 4e-3
+#: Speed cap of the run-up before the slow part, m/s: where the capsule stopped repeated within
+#: 0.06-0.14 mm at 40 mm/s on lab draws (a faster run-up throws it about more).
+RUN_UP_MPS = 0.04
 #: At the end of a move the EPM steps back this far along the approach, m: the force drops below
 #: the sliding friction and the capsule stops at once instead of creeping on for seconds under
 #: the force it was dragged with (rate-and-state creep, a > b); 1 mm let it creep on some draws.
@@ -140,6 +152,11 @@ class PlaceGeometry:
     axis: np.ndarray
     along_n: Callable[[float], float]
     normal_n: float
+
+    @property
+    def stiffness_n_per_m(self) -> float:
+        """The believed coupling stiffness along the axis at ``lead_eq``, N/m."""
+        return abs(self.along_n(_FD_STEP_M) - self.along_n(-_FD_STEP_M)) / (2 * _FD_STEP_M)
 
     def offset_for(self, force_n: float, direction: float, limit_m: float) -> float:
         """Distance ``x >= 0`` (m) along ``direction * axis`` at which the believed force along it
@@ -197,6 +214,10 @@ class Move:
     ----------
     waypoints_m : tuple of numpy.ndarray (3,)
         The EPM's waypoints (x, y, height), m, one Ruckig segment each.
+    arrivals_mps : tuple of numpy.ndarray (3,)
+        The EPM's velocity at each waypoint, m/s (0 but where the approach slows down).
+    speeds_mps : tuple of float
+        Each segment's speed cap, m/s (within ``limits.speed_mps``).
     final_m : numpy.ndarray (3,)
         Where the EPM stops for the capsule to come to rest on the target, m.
     model_offset_m : numpy.ndarray (2,)
@@ -204,6 +225,8 @@ class Move:
     """
 
     waypoints_m: tuple[np.ndarray, ...]
+    arrivals_mps: tuple[np.ndarray, ...]
+    speeds_mps: tuple[float, ...]
     final_m: np.ndarray
     model_offset_m: np.ndarray
 
@@ -226,6 +249,7 @@ def plan_move(
     backoff_scale: float,
     height_m: float,
     max_lead_m: float,
+    approach_speed_mps: float,
 ) -> Move:
     """The EPM's waypoints of the next move (see the module docstring).
 
@@ -233,7 +257,8 @@ def plan_move(
     ``residual_m`` (2,) is what the stops so far showed beyond the belief's stop offset (0 before
     the first); ``rest_s`` how long the capsule has rested (its friction has healed);
     ``progress_m`` the tether paid out so far (the belief's drag grows with it);
-    ``backoff_scale`` (>= 1) lengthens the back-off after a move that did not break loose.
+    ``backoff_scale`` (>= 1) lengthens the back-off after a move that did not break loose;
+    the last :data:`SLOW_M` of the approach run at ``approach_speed_mps``.
     """
     d = direction * geometry.axis
     fn = geometry.normal_n
@@ -253,10 +278,22 @@ def plan_move(
     final_xy = np.asarray(target_m) + lead_now + model_offset + np.asarray(residual_m)
     final = np.array([*final_xy, height_m])
     release = np.array([*(final_xy - RELEASE_M * d), height_m])
+    slow = np.array([*(final_xy - SLOW_M * d), height_m])
+    arrive = np.array([*(approach_speed_mps * d), 0.0])
+    stop = np.zeros(3)
+    slow_speeds = (approach_speed_mps, approach_speed_mps)
     if single:
-        return Move((final, release), final, model_offset)
+        return Move(
+            (slow, final, release), (arrive, stop, stop), (RUN_UP_MPS, *slow_speeds), final, model_offset
+        )
     back = np.array([*(final_xy - back_len * d), height_m])
-    return Move((back, final, release), final, model_offset)
+    return Move(
+        (back, slow, final, release),
+        (stop, arrive, stop, stop),
+        (math.inf, RUN_UP_MPS, *slow_speeds),
+        final,
+        model_offset,
+    )
 
 
 @dataclass
@@ -292,21 +329,16 @@ class _Observation:
 class _Trajectory:
     """A Ruckig position trajectory through a move's waypoints, one segment after another."""
 
-    def __init__(
-        self,
-        scenario: Scenario,
-        start_m: np.ndarray,
-        waypoints: tuple[np.ndarray, ...],
-        speeds: tuple[float, ...],
-    ) -> None:
+    def __init__(self, scenario: Scenario, start_m: np.ndarray, move: Move) -> None:
         self.segments: list[ruckig.Trajectory] = []
         lim = scenario.limits
-        pos = np.asarray(start_m, dtype=float)
-        for wp, speed in zip(waypoints, speeds):
+        pos, vel = np.asarray(start_m, dtype=float), np.zeros(3)
+        for wp, arrival, cap in zip(move.waypoints_m, move.arrivals_mps, move.speeds_mps):
+            speed = min(cap, lim.speed_mps)
             inp = ruckig.InputParameter(3)
-            inp.current_position = list(pos)
-            inp.target_position = list(wp)
-            inp.max_velocity = [min(speed, lim.speed_mps)] * 3
+            inp.current_position, inp.current_velocity = list(pos), list(vel)
+            inp.target_position, inp.target_velocity = list(wp), list(arrival)
+            inp.max_velocity = [speed] * 3
             inp.max_acceleration = [lim.accel_mps2] * 3
             inp.max_jerk = [lim.jerk_mps3] * 3
             traj = ruckig.Trajectory(3)
@@ -314,7 +346,7 @@ class _Trajectory:
             if result not in (ruckig.Result.Working, ruckig.Result.Finished):
                 raise ValueError(f"placement move: Ruckig could not plan the segment ({result})")
             self.segments.append(traj)
-            pos = np.asarray(wp, dtype=float)
+            pos, vel = np.asarray(wp, dtype=float), np.asarray(arrival, dtype=float)
         self.end_m = pos
         self.duration_s = sum(s.duration for s in self.segments)
 
@@ -326,6 +358,56 @@ class _Trajectory:
                 return np.asarray(p), np.asarray(v)
             tau_s -= seg.duration
         return self.end_m, np.zeros(3)
+
+
+@dataclass
+class _Memory:
+    """What the moves of one placement taught: the stop offset beyond the belief's, and its drift.
+
+    Along the approach the residual is fitted as ``c + s (P - mean P)`` over the moves' tether paid
+    out ``P`` (the tether's drag grows with it; a belief without that growth sees the stop drift
+    move by move), the slope ``s`` held toward 0 by a prior of :data:`DRIFT_PRIOR_N_PER_M` over the
+    coupling's stiffness against a stop's scatter :data:`STOP_SCATTER_M` (ridge regression: the
+    closed form of a two-parameter Bayesian fit). Across it, each stop moves the residual by
+    :data:`ADAPT_GAIN` of what it showed.
+    """
+
+    progress_m: float
+    direction: float = 0.0
+    backoff_scale: float = 1.0
+    points: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    planned: Move | None = None
+    last_rest: np.ndarray | None = None
+    moved_m: float = 0.0  # how far the camera saw the capsule from its last rest during a move
+
+    def residual(self, axis: np.ndarray, stiffness_n_per_m: float, progress_m: float) -> np.ndarray:
+        """The residual expected at a stop after ``progress_m`` of tether (2,), m."""
+        if not self.points:
+            return np.zeros(2)
+        prog = np.array([p for p, _ in self.points])
+        res = np.array([r for _, r in self.points])
+        along = res @ axis
+        across = res - np.outer(along, axis)
+        lateral = across[0]
+        for r in across[1:]:
+            lateral = lateral + ADAPT_GAIN * (r - lateral)
+        dp = prog - prog.mean()
+        prior = (STOP_SCATTER_M * stiffness_n_per_m / DRIFT_PRIOR_N_PER_M) ** 2
+        slope = float(dp @ (along - along.mean())) / (float(dp @ dp) + prior)
+        predicted = float(along.mean()) + slope * (progress_m - float(prog.mean()))
+        return lateral + predicted * axis
+
+    def learn(self, rest_m: np.ndarray, lead_eq_m: np.ndarray) -> None:
+        """After a move: what its stop showed (slope 1 in the EPM's end), or a longer back-off if the
+        camera never saw the capsule leave its rest during the move."""
+        move = self.planned
+        if move is None:
+            return
+        if self.moved_m < BROKE_LOOSE_M:
+            self.backoff_scale *= GROWTH
+            return
+        observed = move.final_m[:2] - lead_eq_m - rest_m
+        self.points.append((self.progress_m, observed - move.model_offset_m))
 
 
 class Placement:
@@ -364,17 +446,10 @@ class Placement:
         self.moves = 0
         self.outcome = PlaceOutcome.ACTIVE
         self.reason = ""
-        self._direction = 0.0
-        self._residual: np.ndarray | None = None
-        self._model_offset = np.zeros(2)
-        self._progress_m = float(progress_m)
-        self._backoff_scale = 1.0
+        self.memory = _Memory(float(progress_m))
         self._traj: tuple[float, _Trajectory] | None = None  # (start time, trajectory)
         self._obs: _Observation | None = None
         self._rest_since_s = math.nan
-        self._last_rest: np.ndarray | None = None
-        self._moved_m = 0.0  # how far the camera saw the capsule from its last rest during a move
-        self._final_m = np.zeros(3)
 
     def start(self, t_s: float, rest_since_s: float) -> None:
         """Begin observing at ``t_s``; the capsule has rested since ``rest_since_s``."""
@@ -388,10 +463,9 @@ class Placement:
         if self.outcome is not PlaceOutcome.ACTIVE:
             return np.zeros(3)
         if self._traj is not None:
-            if position_m is not None and self._last_rest is not None:
-                self._moved_m = max(
-                    self._moved_m, float(np.linalg.norm(np.asarray(position_m) - self._last_rest))
-                )
+            mem = self.memory
+            if position_m is not None and mem.last_rest is not None:
+                mem.moved_m = max(mem.moved_m, float(np.linalg.norm(np.asarray(position_m) - mem.last_rest)))
             return self._follow(t_s, epm)
         if self._obs is None:
             self._obs = _Observation(t_s)
@@ -420,49 +494,32 @@ class Placement:
                 f"{self.moves} moves spent, {1e3 * float(np.linalg.norm(error)):.2f} mm off the target"
             )
             return
+        mem = self.memory
         if self.moves == 0:
-            along = float(error @ self.geometry.axis)
-            self._direction = 1.0 if along >= 0 else -1.0
-        else:
-            self._learn(rest_m)
+            mem.direction = 1.0 if float(error @ self.geometry.axis) >= 0 else -1.0
+        mem.learn(rest_m, self.geometry.lead_eq_m)
         if math.isnan(self._rest_since_s):
             self._rest_since_s = t_s
+        last_length = 0.0 if mem.planned is None else mem.planned.length_m
+        geo = self.geometry
         move = plan_move(
-            self.geometry,
+            geo,
             self.belief,
             rest_m,
             self.target_m,
-            self._direction,
-            np.zeros(2) if self._residual is None else self._residual,
+            mem.direction,
+            mem.residual(geo.axis, geo.stiffness_n_per_m, mem.progress_m + last_length),
             max(t_s - self._rest_since_s, 0.0),
-            self._progress_m,
-            self._backoff_scale,
+            mem.progress_m,
+            mem.backoff_scale,
             float(epm[2]),
             self.scenario.limits.max_lead_m,
-        )
-        speeds = (self.scenario.limits.speed_mps,) * (len(move.waypoints_m) - 2) + (
             cfg.approach_speed_mps,
-        ) * 2
-        self._traj = (t_s, _Trajectory(self.scenario, epm, move.waypoints_m, speeds))
-        self._last_rest = rest_m
-        self._moved_m = 0.0
-        self._final_m = move.final_m
-        self._model_offset = move.model_offset_m
-        self._progress_m += move.length_m
+        )
+        self._traj = (t_s, _Trajectory(self.scenario, epm, move))
+        mem.last_rest, mem.moved_m, mem.planned = rest_m, 0.0, move
+        mem.progress_m += move.length_m
         self.moves += 1
-
-    def _learn(self, rest_m: np.ndarray) -> None:
-        """After a move: what its stop showed (slope 1 in the EPM's end), or a longer back-off if
-        the camera never saw the capsule leave its rest during the move."""
-        if self._moved_m < BROKE_LOOSE_M:
-            self._backoff_scale *= GROWTH
-            return
-        observed = self._final_m[:2] - self.geometry.lead_eq_m - rest_m
-        residual = observed - self._model_offset
-        if self._residual is None:
-            self._residual = residual
-        else:  # a stop is one noisy reading; the rig drifts between moves (tether, plate)
-            self._residual = self._residual + ADAPT_GAIN * (residual - self._residual)
 
     def _follow(self, t_s: float, epm: np.ndarray) -> np.ndarray:
         """Follow the move's trajectory; at its end start settling and observing."""
