@@ -222,7 +222,7 @@ def test_warm_up_leaves_the_approach_as_it_was(scenario):
         if warm:
             approach.warm_up(scenario.plate.epm_height_m)
             assert approach.phase == "tracking" and approach.attempts == 0 and not approach.frames
-            assert np.array_equal(approach._accel, np.zeros(3))
+            assert np.array_equal(approach.limiter.accel, np.zeros(3))
         out = drive(scenario, approach, FakeCapsule(np.array([0.0, 3e-3]), creep_mps=2e-4), 6.0)
         runs.append((out["cmd"], approach.phase, approach.attempts))
     assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1:] == runs[1][1:]

@@ -119,8 +119,8 @@ def _cap_lead(scenario: Scenario) -> float:
     """The lead along +y (from the model's equilibrium) at which the approach's crawl stops adding force."""
     lead_eq = model_equilibrium_lead(scenario)
     approach = FinalApproach(scenario, PATH, capsule_force_function(scenario), lead_eq, 1 / 30)
-    approach._dir = np.array([0.0, 1.0])
-    approach._progress_t = 10.0
+    approach.attempt.dir = np.array([0.0, 1.0])
+    approach.attempt.progress_t = 10.0
     h = scenario.plate.epm_height_m
     for extra in np.arange(0.0, scenario.limits.max_lead_m, 1e-4):
         if approach._at_cap(10.0, lead_eq + np.array([0.0, extra]), h, np.zeros(2)):

@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -70,12 +71,15 @@ from ..friction import FrictionBelief
 from ..interfaces import Measurement
 from ..magnetics import equilibrium_lead
 from ..paths import ReferencePath
+from .belief import RigBelief
 
 __all__ = [
     "CRAWL_TIME_CONSTANT_S",
     "OBSERVE_SETTLE_S",
     "RELEASE_LEAD_S",
+    "Attempt",
     "FinalApproach",
+    "VelocityLimiter",
     "epm_ruckig",
 ]
 
@@ -112,6 +116,73 @@ def epm_ruckig(
     return ruckig.Ruckig(3, dt_s), inp, ruckig.OutputParameter(3)
 
 
+class VelocityLimiter:
+    """Ruckig's velocity control of the EPM, one frame at a time (:func:`epm_ruckig`), carrying the
+    acceleration it left from frame to frame.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        ``limits.speed_mps``, ``limits.accel_mps2`` and ``limits.jerk_mps3``.
+    dt_s : float
+        The frame period, s.
+    """
+
+    def __init__(self, scenario: Scenario, dt_s: float) -> None:
+        self.dt_s = dt_s
+        self.accel = np.zeros(3)
+        self._otg, self._in, self._out = epm_ruckig(scenario, dt_s)
+        self._in.control_interface = ruckig.ControlInterface.Velocity
+
+    def limit(self, u: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
+        """One frame of Ruckig's velocity control from ``u_prev`` (and the acceleration it left)
+        toward ``u``, within ``limits.jerk_mps3`` and ``limits.accel_mps2`` per axis; ``u_prev`` held
+        if Ruckig reports an error."""
+        inp, out = self._in, self._out
+        inp.current_velocity = list(u_prev)
+        inp.current_acceleration = list(self.accel)
+        inp.target_velocity = list(u)
+        if self._otg.update(inp, out) not in (ruckig.Result.Working, ruckig.Result.Finished):
+            self.accel = np.zeros(3)
+            return np.asarray(u_prev, dtype=float).copy()
+        self.accel = np.asarray(out.new_acceleration, dtype=float)
+        return np.asarray(out.new_velocity, dtype=float)
+
+
+@dataclass
+class Attempt:
+    """The state of one crawl-release-observe attempt of the final approach.
+
+    Attributes
+    ----------
+    dir : numpy.ndarray (2,)
+        The direction û toward the target, fixed for the attempt.
+    phase_t0 : float
+        When the current phase of the attempt began, s.
+    lead_start : float
+        The lead along û when the crawl began, m.
+    progress0 : float
+        The capsule's position along û when the attempt was aimed, m.
+    capped : bool
+        Whether the crawl reached its force cap.
+    best_remaining : float
+        The closest the capsule came to the target along û, m.
+    progress_t : float
+        When it last came closer by the tolerance, s.
+    release_lead : float
+        The lead along û the release backs off to, m.
+    """
+
+    dir: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    phase_t0: float = math.nan
+    lead_start: float = 0.0
+    progress0: float = 0.0
+    capped: bool = False
+    best_remaining: float = math.inf
+    progress_t: float = math.nan
+    release_lead: float = 0.0
+
+
 class FinalApproach:
     """The final-approach state machine of one run (see the module docstring).
 
@@ -141,34 +212,34 @@ class FinalApproach:
         dt_s: float,
         friction: FrictionBelief | None = None,
     ) -> None:
-        cfg = scenario.place
         self.scenario = scenario
-        self.enabled = cfg.enabled
-        self.target_m = np.asarray(path.end_m, dtype=float)
-        self.path_length_m = path.length_m
-        self.friction = FrictionBelief.from_scenario(scenario) if friction is None else friction
-        self.end_s = path.duration_s
-        self.force = force
-        self.lead_eq_m = np.asarray(lead_eq_m, dtype=float)
-        self.dt_s = dt_s
-        self.tolerance_m = cfg.tolerance_m
-        self.speed_mps = cfg.approach.speed_mps
+        self.path = path
+        friction = FrictionBelief.from_scenario(scenario) if friction is None else friction
+        self.model = RigBelief(force, np.asarray(lead_eq_m, dtype=float), friction)
+        self.limiter = VelocityLimiter(scenario, dt_s)
+        self.speed_mps = scenario.place.approach.speed_mps
         self.frames: deque[tuple[float, np.ndarray]] = deque()
         self.phase = "tracking"
         self.attempts = 0
         self.gave_up_reason = ""
-        self._dir = np.zeros(2)
-        self._phase_t0 = math.nan
-        self._lead_start = 0.0
-        self._progress0 = 0.0
-        self._capped = False
-        self._best_remaining = math.inf
-        self._progress_t = math.nan
-        self._release_lead = 0.0
         self._start_s = math.nan
-        self._accel = np.zeros(3)
-        self._ruckig, self._ruckig_in, self._ruckig_out = epm_ruckig(scenario, dt_s)
-        self._ruckig_in.control_interface = ruckig.ControlInterface.Velocity
+        #: The current attempt's state (direction, phase start, leads, progress).
+        self.attempt = Attempt()
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the approach runs at all (``place.enabled``)."""
+        return self.scenario.place.enabled
+
+    @property
+    def tolerance_m(self) -> float:
+        """Distance to the target within which the capsule counts as arrived (``place.tolerance_m``), m."""
+        return self.scenario.place.tolerance_m
+
+    @property
+    def target_m(self) -> np.ndarray:
+        """The target: the path's last point (2,), m."""
+        return np.asarray(self.path.end_m, dtype=float)
 
     def warm_up(self, height_m: float) -> None:
         """Run once, before the loop, the numerics the approach first reaches at the path's end: the
@@ -182,9 +253,9 @@ class FinalApproach:
         fit_window(frames, 0.4, 1.0)
         fit_window(frames, 0.4, 1.0, static=True)
         self.zero_force_lead(height_m, np.zeros(2))
-        accel = self._accel.copy()
-        self._limit(np.zeros(3), np.zeros(3))
-        self._accel = accel
+        accel = self.limiter.accel.copy()
+        self.limiter.limit(np.zeros(3), np.zeros(3))
+        self.limiter.accel = accel
 
     # ------------------------------------------------------------------ state
     @property
@@ -225,7 +296,7 @@ class FinalApproach:
         disturbance_xy_n : numpy.ndarray (2,)
             The controller's estimated constant force on the capsule, N (part of its belief).
         """
-        if not self.enabled or t_s < self.end_s:
+        if not self.enabled or t_s < self.path.duration_s:
             return None
         epm = np.asarray(epm_position_m, dtype=float)
         if self.phase == "tracking" and self._trigger(t_s):
@@ -240,7 +311,7 @@ class FinalApproach:
             if self.phase == "observe":
                 self._observe_step(t_s, epm)
             along = 0.0
-        return self._limit(along * np.array([*self._dir, 0.0]), np.asarray(u_prev, dtype=float))
+        return self.limiter.limit(along * np.array([*self.attempt.dir, 0.0]), np.asarray(u_prev, dtype=float))
 
     def _trigger(self, t_s: float) -> bool:
         """At the path's end: whether a crawl starts.
@@ -263,30 +334,30 @@ class FinalApproach:
 
     def _aim(self, position_m: np.ndarray) -> None:
         err = self.target_m - position_m
-        self._dir = err / float(np.linalg.norm(err))
-        self._progress0 = float(position_m @ self._dir)
+        self.attempt.dir = err / float(np.linalg.norm(err))
+        self.attempt.progress0 = float(position_m @ self.attempt.dir)
 
     def _start_crawl(self, t_s: float, epm: np.ndarray) -> None:
-        self.phase, self._phase_t0 = "crawl", t_s
+        self.phase, self.attempt.phase_t0 = "crawl", t_s
         if self.attempts == 0:
             self._start_s = t_s
         self.attempts += 1
-        self._capped = False
-        self._best_remaining = math.inf
-        self._progress_t = t_s
+        self.attempt.capped = False
+        self.attempt.best_remaining = math.inf
+        self.attempt.progress_t = t_s
         fit = fit_window(self.frames, t_s, self.scenario.place.approach.window_s)
-        capsule = self.target_m - self._dir if fit is None else fit.position_m
-        self._lead_start = float((epm[:2] - capsule) @ self._dir)
+        capsule = self.target_m - self.attempt.dir if fit is None else fit.position_m
+        self.attempt.lead_start = float((epm[:2] - capsule) @ self.attempt.dir)
 
     def _crawl(self, t_s: float, epm: np.ndarray, disturbance_xy_n: np.ndarray) -> float:
         """EPM speed along û while crawling, m/s."""
         cfg = self.scenario.place
         fit = fit_window(self.frames, t_s, cfg.approach.window_s)
-        remaining = math.nan if fit is None else float((self.target_m - fit.position_m) @ self._dir)
-        speed = math.nan if fit is None else float(fit.velocity_mps @ self._dir)
-        if remaining < self._best_remaining - self.tolerance_m:  # False without frames
-            self._best_remaining, self._progress_t = remaining, t_s
-        progressing = t_s - self._progress_t < cfg.approach.attempt_s
+        remaining = math.nan if fit is None else float((self.target_m - fit.position_m) @ self.attempt.dir)
+        speed = math.nan if fit is None else float(fit.velocity_mps @ self.attempt.dir)
+        if remaining < self.attempt.best_remaining - self.tolerance_m:  # False without frames
+            self.attempt.best_remaining, self.attempt.progress_t = remaining, t_s
+        progressing = t_s - self.attempt.progress_t < cfg.approach.attempt_s
         if self._out_of_time(t_s) and progressing and remaining > 0:
             # Still creeping on toward the target: letting go would stop it short; hold the lead.
             self.phase = "gave_up"
@@ -305,30 +376,30 @@ class FinalApproach:
         along = float(np.clip(along, -limit, limit))
         lead = epm[:2] - fit.position_m
         if along > 0 and self._at_cap(t_s, lead, epm[2], disturbance_xy_n):
-            self._capped = True
+            self.attempt.capped = True
             along = 0.0
         return along
 
     def _at_cap(self, t_s: float, lead_m: np.ndarray, height_m: float, disturbance_xy_n: np.ndarray) -> bool:
         """Whether more lead along û would pass the model's force cap or the coupling limit."""
         scenario = self.scenario
-        ahead = lead_m + self._dir * self.dt_s * _EPM_SPEED_FACTOR * self.speed_mps
-        if float(np.linalg.norm(ahead - self.lead_eq_m)) > scenario.limits.max_lead_m:
+        ahead = lead_m + self.attempt.dir * self.limiter.dt_s * _EPM_SPEED_FACTOR * self.speed_mps
+        if float(np.linalg.norm(ahead - self.model.lead_eq_m)) > scenario.limits.max_lead_m:
             return True
-        f = np.asarray(self.force(ahead, height_m)).ravel()
+        f = np.asarray(self.model.force(ahead, height_m)).ravel()
         normal_n = float(normal_force_expr(scenario, float(f[2])))
         # At rest since the crawl last moved it (or since it began), and slow over the window before.
-        rest_s = t_s - self._progress_t + scenario.place.approach.window_s
-        breakaway_n = self.friction.breakaway_n(normal_n, rest_s, self.path_length_m)
-        along_n = float((f[:2] + disturbance_xy_n) @ self._dir)
+        rest_s = t_s - self.attempt.progress_t + scenario.place.approach.window_s
+        breakaway_n = self.model.friction.breakaway_n(normal_n, rest_s, self.path.length_m)
+        along_n = float((f[:2] + disturbance_xy_n) @ self.attempt.dir)
         return along_n > scenario.place.approach.force_fraction * breakaway_n
 
     def _start_release(self, t_s: float, height_m: float, disturbance_xy_n: np.ndarray) -> None:
         """Enter the release: its target lead along û (see the module docstring)."""
-        self.phase, self._phase_t0 = "release", t_s
+        self.phase, self.attempt.phase_t0 = "release", t_s
         zero = self.zero_force_lead(height_m, disturbance_xy_n)
-        backoff = self._lead_start - self.scenario.place.approach.backoff_m
-        self._release_lead = min(backoff, float(zero @ self._dir))
+        backoff = self.attempt.lead_start - self.scenario.place.approach.backoff_m
+        self.attempt.release_lead = min(backoff, float(zero @ self.attempt.dir))
 
     def zero_force_lead(self, height_m: float, disturbance_xy_n: np.ndarray) -> np.ndarray:
         """The lead (2,), m, at which the controller believes the lateral force vanishes: its force
@@ -338,28 +409,29 @@ class FinalApproach:
         d = np.asarray(disturbance_xy_n, dtype=float)
         try:
             lead = equilibrium_lead(
-                lambda x: np.asarray(self.force(x, height_m)).ravel()[:2] + d, guess_m=tuple(self.lead_eq_m)
+                lambda x: np.asarray(self.model.force(x, height_m)).ravel()[:2] + d,
+                guess_m=tuple(self.model.lead_eq_m),
             )
         except RuntimeError:
-            return self.lead_eq_m.copy()
-        near = float(np.linalg.norm(lead - self.lead_eq_m)) <= self.scenario.limits.max_lead_m
-        return lead if near and bool(np.all(np.isfinite(lead))) else self.lead_eq_m.copy()
+            return self.model.lead_eq_m.copy()
+        near = float(np.linalg.norm(lead - self.model.lead_eq_m)) <= self.scenario.limits.max_lead_m
+        return lead if near and bool(np.all(np.isfinite(lead))) else self.model.lead_eq_m.copy()
 
     def _release(self, t_s: float, epm: np.ndarray) -> float:
         """EPM speed along û while backing off, m/s (<= 0)."""
         cfg = self.scenario.place
         fit = fit_window(self.frames, t_s, cfg.approach.window_s)
         capsule = fit.position_m if fit is not None else self.target_m
-        excess = float((epm[:2] - capsule) @ self._dir) - self._release_lead
+        excess = float((epm[:2] - capsule) @ self.attempt.dir) - self.attempt.release_lead
         if excess <= _RELEASE_TOL_M:
-            self.phase, self._phase_t0 = "observe", t_s
+            self.phase, self.attempt.phase_t0 = "observe", t_s
             return 0.0
         limit = _EPM_SPEED_FACTOR * self.speed_mps
-        return -min(excess / (4.0 * self.dt_s), limit)
+        return -min(excess / (4.0 * self.limiter.dt_s), limit)
 
     def _observe_step(self, t_s: float, epm: np.ndarray) -> None:
         cfg = self.scenario.place
-        if t_s - self._phase_t0 < cfg.approach.observe_s:
+        if t_s - self.attempt.phase_t0 < cfg.approach.observe_s:
             return
         fit = fit_window(self.frames, t_s, cfg.approach.observe_s - OBSERVE_SETTLE_S, static=True)
         if fit is None:  # every frame dropped: keep watching while there is time
@@ -375,17 +447,17 @@ class FinalApproach:
             self.phase = "gave_up"
             self.gave_up_reason = f"out of time after {t_s - self._start_s:.1f} s (place.approach.max_s)"
             return
-        progress = float(fit.position_m @ self._dir) - self._progress0
+        progress = float(fit.position_m @ self.attempt.dir) - self.attempt.progress0
         if progress < self.tolerance_m:
             self.phase = "gave_up"
-            cap = " (it reached the force cap)" if self._capped else ""
+            cap = " (it reached the force cap)" if self.attempt.capped else ""
             self.gave_up_reason = f"stuck: the crawl did not move the capsule{cap}"
             return
         if self.attempts >= cfg.approach.max_attempts:
             self.phase = "gave_up"
             self.gave_up_reason = f"{self.attempts} attempts (place.approach.max_attempts)"
             return
-        if float(err @ self._dir) < 0:  # passed the target: crawl slower next time
+        if float(err @ self.attempt.dir) < 0:  # passed the target: crawl slower next time
             self.speed_mps *= 0.5
         self._aim(fit.position_m)
         self._start_crawl(t_s, epm)
@@ -393,17 +465,3 @@ class FinalApproach:
     def _out_of_time(self, t_s: float) -> bool:
         """Whether the approach has used its time (``place.approach.max_s`` from its first crawl)."""
         return t_s - self._start_s >= self.scenario.place.approach.max_s
-
-    def _limit(self, u: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
-        """One frame of Ruckig's velocity control from ``u_prev`` (and the acceleration it left)
-        toward ``u``, within ``limits.jerk_mps3`` and ``limits.accel_mps2`` per axis; ``u_prev`` held
-        if Ruckig reports an error."""
-        inp, out = self._ruckig_in, self._ruckig_out
-        inp.current_velocity = list(u_prev)
-        inp.current_acceleration = list(self._accel)
-        inp.target_velocity = list(u)
-        if self._ruckig.update(inp, out) not in (ruckig.Result.Working, ruckig.Result.Finished):
-            self._accel = np.zeros(3)
-            return np.asarray(u_prev, dtype=float).copy()
-        self._accel = np.asarray(out.new_acceleration, dtype=float)
-        return np.asarray(out.new_velocity, dtype=float)
