@@ -4,7 +4,8 @@ step, and a safety filter on every command.
 Every frame:
 
 1. the estimator (:mod:`.estimator`, :attr:`MPCController.state`) fuses the camera frame in the
-   Kalman filter and predicts it over the latency; before t = 0 it collects where the capsule rests, and calibrates at t = 0;
+   Kalman filter and predicts it over the latency; before t = 0 it collects where the capsule
+   rests, and calibrates at t = 0;
 2. the supervisor (:mod:`.supervisor`) applies the events of time and asks the phase's producer
    (:mod:`.phases`) for the command: ``SETTLE`` (t < 0) and ``SLIDE`` the sliding MPC
    (:mod:`.slide`), ``BREAK_LOOSE`` the start's pre-load (:mod:`.start`), ``PLACE`` and after it
