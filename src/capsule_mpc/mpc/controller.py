@@ -10,7 +10,7 @@ Every frame:
    (:mod:`.phases`) for the command: ``SETTLE`` (t < 0) and ``SLIDE`` the sliding MPC
    (:mod:`.slide`), ``BREAK_LOOSE`` the start's pre-load (:mod:`.start`), ``PLACE`` and after it
    ``HOLD`` or ``FAILED`` the final approach (:mod:`.approach`), adapted in :mod:`.producers`;
-3. the safety filter (:func:`capsule_mpc.safety.safe_command`) enforces speed, acceleration,
+3. the safety filter (:class:`capsule_mpc.safety.SafetyFilter`) enforces speed, acceleration,
    jerk and workspace limits on the command actually sent, and counts any clipping.
 
 The frame's phase goes to the run log (:attr:`StepStats.phase`). The controller is not
@@ -34,7 +34,7 @@ from ..friction import FrictionBelief
 from ..interfaces import Command, Controller, Measurement, StepOutcome, StepStats, register_controller
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
-from ..safety import safe_command
+from ..safety import SafetyFilter, safe_command
 from .approach import FinalApproach
 from .estimator import StateEstimator
 from .grid import prediction_steps_s
@@ -127,9 +127,7 @@ class MPCController(Controller):
         self.slide = SlideProducer(
             self.solver, stack.ocp, scenario.mpc, self.state, self.reference, self.dt_s
         )
-        self.u_prev = np.zeros(3)
-        self.slope_prev = np.zeros(3)  # the last command's change over its frame, m/s^2
-        self.clipped_steps = 0
+        self.safety = SafetyFilter(scenario, self.dt_s)
         self.supervisor = Supervisor(self._producers(scenario, path, stack, belief), path.duration_s)
 
     def _producers(
@@ -200,14 +198,14 @@ class MPCController(Controller):
             resting=est.resting,
             rest_s=est.rest_s,
             epm_m=epm,
-            u_prev_mps=self.u_prev,
-            slope_prev_mps2=self.slope_prev,
+            u_prev_mps=self.safety.u_prev,
+            slope_prev_mps2=self.safety.slope_prev,
             disturbance_n=self.state.disturbance_n.copy(),
             target_m=self.approach.target_m,
         )
         phase, out = self.supervisor.step(ctx)
-        assert out.command is not None and out.stats is not None
-        stats = out.stats
+        assert out.command is not None  # the supervisor returns only an output with a command
+        stats = out.stats if out.stats is not None else StepStats()
         stats.phase = phase.value
         if not accepted:
             stats.extra["measurement_rejected"] = 1.0
@@ -222,14 +220,9 @@ class MPCController(Controller):
     def _emit(self, u: np.ndarray, epm: np.ndarray, stats: StepStats, hold: bool = False) -> Command:
         """Send ``u`` through the safety filter; ``hold``: the settle phase (t < 0), in which the
         rig keeps the EPM still whatever is commanded, so the controller sends (and assumes) 0."""
-        if hold:
-            u = np.zeros(3)
-        cmd, clipped = safe_command(u, self.u_prev, epm, self.scenario, self.dt_s, self.slope_prev)
+        cmd, clipped = self.safety.apply(np.zeros(3) if hold else u, epm)
         if clipped:
-            self.clipped_steps += 1
             stats.extra["clipped"] = 1.0
-        self.slope_prev = (cmd - self.u_prev) / self.dt_s
-        self.u_prev = cmd
         return Command(epm_velocity_mps=cmd, stats=stats)
 
     def predicted_capsule_path(self) -> np.ndarray | None:

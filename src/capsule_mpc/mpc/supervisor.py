@@ -18,6 +18,8 @@ from .phases import Event, FrameContext, Phase, PhaseOutput, PhaseProducer, Tran
 
 __all__ = ["TIME_EVENTS", "Supervisor", "Transition"]
 
+#: How many phases there are (the longest chain of pass-throughs in a frame).
+_PHASES = len(Phase)
 #: Events only the frame time raises (the supervisor itself); a producer that returns one is refused.
 TIME_EVENTS = frozenset({Event.START, Event.PATH_END})
 
@@ -50,6 +52,7 @@ class Supervisor:
         if missing:
             raise ValueError(f"producers: no producer for {', '.join(missing)}")
         self.producers = dict(producers)
+        self._distinct = list(dict.fromkeys(self.producers.values()))  # each observes once a frame
         self.path_end_s = float(path_end_s)
         self.phase = Phase.SETTLE
         self.transitions: list[Transition] = []
@@ -73,11 +76,11 @@ class Supervisor:
 
     def step(self, ctx: FrameContext) -> tuple[Phase, PhaseOutput]:
         """This frame's phase (the one whose producer gave the command) and its producer's output."""
-        for producer in dict.fromkeys(self.producers.values()):
+        for producer in self._distinct:
             producer.observe(ctx)
         while (event := self.time_event(ctx.t_s)) is not None:  # SETTLE -> BREAK_LOOSE -> PLACE at most
             self._apply(ctx.t_s, event)
-        for _ in Phase:  # a chain of pass-throughs visits each phase at most once
+        for _ in range(_PHASES):  # a chain of pass-throughs visits each phase at most once
             out = self.producers[self.phase].produce(ctx)
             if out.command is not None:
                 phase = self.phase
