@@ -46,3 +46,25 @@ def test_a_capsule_that_moves_off_stops_resting_and_rests_again_once_still(scena
     assert rested_at is not None and rested_at <= stop + REST_WINDOW_S + 2 * FRAME_S
     # The rest counts from the start of the still window, not from when it was recognised.
     assert contact.rest_s(rested_at) >= REST_WINDOW_S - 1e-9
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    speed=st.floats(0.0, 0.05),
+    frames=st.integers(4, 20),
+)
+def test_the_rest_speed_is_the_least_squares_line_of_fit_window(seed, speed, frames):
+    """The detector's closed-form slope against fit_window's least-squares line on the same frames."""
+    from collections import deque
+
+    from capsule_mpc.estimation import fit_window
+
+    rng = np.random.default_rng(seed)
+    times = 5.0 + FRAME_S * np.arange(frames) + rng.normal(0.0, 1e-3, frames)
+    pos = [np.array([speed * t, 0.5 * speed * t]) + rng.normal(0.0, 3e-4, 2) for t in times]
+    rest = RestDetector(3e-4, MOVING_MPS)
+    rest._recent = deque(zip(times.tolist(), pos, strict=True))
+    fit = fit_window(rest._recent, float(times.max()), 10.0)
+    assert fit is not None
+    assert rest._speed_mps() == pytest.approx(float(np.linalg.norm(fit.velocity_mps)), rel=1e-9, abs=1e-12)

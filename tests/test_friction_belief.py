@@ -131,7 +131,7 @@ def _backoff_m(scenario: Scenario) -> float:
     rest = target - 3e-4 * geo.axis
     belief = FrictionBelief.from_scenario(scenario)
     move = plan_move(
-        geo, belief, rest, target, 1.0, np.zeros(2), 2.0, 0.0, 1.0, h, scenario.limits.max_lead_m
+        geo, belief, rest, target, 1.0, np.zeros(2), 2.0, 0.0, 1.0, h, scenario.limits.max_lead_m, 0.02
     )
     return float((rest + geo.lead_eq_m - move.waypoints_m[0][:2]) @ geo.axis)
 

@@ -96,6 +96,7 @@ def test_a_target_far_ahead_needs_no_backoff(scenario: Scenario) -> None:
         1.0,
         0.095,
         0.025,
+        0.02,
     )
     assert len(move.waypoints_m) == 3  # straight to the end (slowing down), then the release
 

@@ -14,11 +14,12 @@ from a creeping one, so the rule is on positions:
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
 
-from ..estimation import fit_window
+from ..estimation import MIN_FIT_FRAMES
 
 __all__ = ["DEPART_FRAMES", "DEPART_MIN_M", "DEPART_NOISE_STDS", "REST_WINDOW_S", "RestDetector"]
 
@@ -93,8 +94,22 @@ class RestDetector:
             self._recent.popleft()
         if self._recent[-1][0] - self._recent[0][0] < REST_WINDOW_S - 1e-9:
             return False
-        fit = fit_window(self._recent, t_s, REST_WINDOW_S)
-        if fit is None or float(np.linalg.norm(fit.velocity_mps)) >= self.moving_mps:
+        if len(self._recent) < MIN_FIT_FRAMES or self._speed_mps() >= self.moving_mps:
             return False
         self._rest(self._recent[0][0], [p for _, p in self._recent])
         return True
+
+    def _speed_mps(self) -> float:
+        """Speed of the least-squares line through the recent positions (all within the window),
+        m/s: the slope in closed form, on Python floats (a two-parameter fit to about ten points,
+        where NumPy's and LAPACK's call overhead costs more than the sums; this runs every frame)."""
+        n = len(self._recent)
+        ts = [tc for tc, _ in self._recent]
+        xs = [float(p[0]) for _, p in self._recent]
+        ys = [float(p[1]) for _, p in self._recent]
+        tm, xm, ym = sum(ts) / n, sum(xs) / n, sum(ys) / n
+        dts = [t - tm for t in ts]
+        stt = sum(d * d for d in dts)
+        vx = sum(d * (x - xm) for d, x in zip(dts, xs, strict=True)) / stt
+        vy = sum(d * (y - ym) for d, y in zip(dts, ys, strict=True)) / stt
+        return math.hypot(vx, vy)

@@ -3,13 +3,14 @@ step, and a safety filter on every command.
 
 Every frame:
 
-1. the estimator (:mod:`.estimator`) fuses the camera frame in the Kalman filter and predicts it
-   over the latency; before t = 0 it collects where the capsule rests, and calibrates at t = 0;
+1. the estimator (:mod:`.estimator`, :attr:`MPCController.state`) fuses the camera frame in the
+   Kalman filter and predicts it over the latency; before t = 0 it collects where the capsule
+   rests, and calibrates at t = 0;
 2. the supervisor (:mod:`.supervisor`) applies the events of time and asks the phase's producer
    (:mod:`.phases`) for the command: ``SETTLE`` (t < 0) and ``SLIDE`` the sliding MPC
    (:mod:`.slide`), ``BREAK_LOOSE`` the start's pre-load (:mod:`.start`), ``PLACE`` and after it
    ``HOLD`` or ``FAILED`` the placement moves (:mod:`.place`);
-3. the safety filter (:func:`capsule_mpc.safety.safe_command`) enforces speed, acceleration,
+3. the safety filter (:class:`capsule_mpc.safety.SafetyFilter`) enforces speed, acceleration,
    jerk and workspace limits on the command actually sent, and counts any clipping.
 
 The frame's phase goes to the run log (:attr:`StepStats.phase`). The controller is not
@@ -28,11 +29,12 @@ import numpy as np
 
 from ..config import Scenario
 from ..dynamics import CapsuleModel, capsule_model
+from ..estimation import CapsuleEstimator
 from ..friction import FrictionBelief
 from ..interfaces import Command, Controller, Measurement, StepOutcome, StepStats, register_controller
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
-from ..safety import safe_command
+from ..safety import SafetyFilter, safe_command
 from .estimator import StateEstimator
 from .grid import prediction_steps_s
 from .phases import TERMINAL, FrameContext, Phase, PhaseProducer
@@ -114,35 +116,31 @@ class MPCController(Controller):
     def reset(self, scenario: Scenario, path: ReferencePath, epm_position_m: np.ndarray) -> None:
         """Build (or reuse) the problem for ``scenario`` and forget the previous run."""
         self.scenario = scenario
-        self.path = path
         stack = self.stack = build_mpc_stack(scenario)
         wrap = self.solver_wrapper
         self.solver = stack.solver if wrap is None else wrap(stack.solver)
         # The frame period: the first stage of the plan, the time between commands.
         self.dt_s = stack.ocp.frame_s
-        self.estimator = StateEstimator(scenario, stack.force, self.dt_s)
-        self.friction_belief = FrictionBelief.from_scenario(scenario)
-        self.reference = SlideReference(path, stack.ocp, scenario.break_loose.blend_s, self.friction_belief)
+        self.state = StateEstimator(scenario, stack.force, self.dt_s)
+        belief = FrictionBelief.from_scenario(scenario)
+        self.reference = SlideReference(path, stack.ocp, scenario.break_loose.blend_s, belief)
         self.slide = SlideProducer(
-            self.solver, stack.ocp, scenario.mpc, self.estimator, self.reference, self.dt_s
+            self.solver, stack.ocp, scenario.mpc, self.state, self.reference, self.dt_s
         )
-        self.u_prev = np.zeros(3)
-        self.slope_prev = np.zeros(3)  # the last command's change over its frame, m/s^2
-        self.clipped_steps = 0
-        self.supervisor = Supervisor(self._producers(scenario, path, stack), path.duration_s)
+        self.safety = SafetyFilter(scenario, self.dt_s)
+        self.target_m = np.asarray(path.end_m, dtype=float)
+        self.supervisor = Supervisor(self._producers(scenario, path, stack, belief), path.duration_s)
 
     def _producers(
-        self, scenario: Scenario, path: ReferencePath, stack: MPCStack
+        self, scenario: Scenario, path: ReferencePath, stack: MPCStack, belief: FrictionBelief
     ) -> dict[Phase, PhaseProducer]:
         """Each phase's producer for this run."""
         start = None
         if scenario.break_loose.preload is not None:
-            rest = self.estimator.rest
-            start = StartPreload(
-                scenario, path, stack.force, stack.ocp.lead_eq_m, self.friction_belief, rest, self.dt_s
-            )
+            rest = self.state.rest
+            start = StartPreload(scenario, path, stack.force, stack.ocp.lead_eq_m, belief, rest, self.dt_s)
         self.placement = place = PlacementProducer(
-            scenario, self.slide, stack.force, stack.ocp.lead_eq_m, self.friction_belief, path.length_m
+            scenario, self.slide, stack.force, stack.ocp.lead_eq_m, belief, path.length_m
         )
         return {
             Phase.SETTLE: SettleProducer(self.slide),
@@ -160,9 +158,14 @@ class MPCController(Controller):
         return self.slide.plan
 
     @property
+    def estimator(self) -> CapsuleEstimator:
+        """The Kalman filter of the estimator (:attr:`state`): position and velocity from the camera."""
+        return self.state.kalman
+
+    @property
     def disturbance_n(self) -> np.ndarray:
         """The estimated disturbance: constant force (x, y) and extra friction along the motion, N."""
-        return self.estimator.disturbance_n
+        return self.state.disturbance_n
 
     @property
     def deadline_ms(self) -> float:
@@ -177,14 +180,14 @@ class MPCController(Controller):
     def step(self, t_s: float, measurement: Measurement, epm_position_m: np.ndarray) -> Command:
         """One frame: estimate, let the phase's producer command, enforce the limits."""
         epm = np.asarray(epm_position_m, dtype=float)
-        accepted = self.estimator.fuse(measurement)
-        if not self.estimator.initialised:  # nothing seen yet: hold still
+        accepted = self.state.fuse(measurement)
+        if not self.state.initialised:  # nothing seen yet: hold still
             stats = StepStats(status="no_measurement", outcome=StepOutcome.NO_MEASUREMENT)
             stats.phase = self.supervisor.phase.value
             return self._emit(np.zeros(3), epm, stats)
         if not accepted:  # an outlier rejected by the filter's gate: the prediction stands in for it
             measurement = replace(measurement, position_m=None)
-        est = self.estimator.estimate(t_s, measurement.position_m, epm)
+        est = self.state.estimate(t_s, measurement.position_m, epm)
         if t_s >= 0:
             self.reference.start(est.position_m)
         ctx = FrameContext(
@@ -195,14 +198,14 @@ class MPCController(Controller):
             resting=est.resting,
             rest_s=est.rest_s,
             epm_m=epm,
-            u_prev_mps=self.u_prev,
-            slope_prev_mps2=self.slope_prev,
-            disturbance_n=self.estimator.disturbance_n.copy(),
-            target_m=np.asarray(self.path.end_m, dtype=float),
+            u_prev_mps=self.safety.u_prev,
+            slope_prev_mps2=self.safety.slope_prev,
+            disturbance_n=self.state.disturbance_n.copy(),
+            target_m=self.target_m,
         )
         phase, out = self.supervisor.step(ctx)
-        assert out.command is not None and out.stats is not None
-        stats = out.stats
+        assert out.command is not None  # the supervisor returns only an output with a command
+        stats = out.stats if out.stats is not None else StepStats()
         stats.phase = phase.value
         if not accepted:
             stats.extra["measurement_rejected"] = 1.0
@@ -226,14 +229,9 @@ class MPCController(Controller):
     def _emit(self, u: np.ndarray, epm: np.ndarray, stats: StepStats, hold: bool = False) -> Command:
         """Send ``u`` through the safety filter; ``hold``: the settle phase (t < 0), in which the
         rig keeps the EPM still whatever is commanded, so the controller sends (and assumes) 0."""
-        if hold:
-            u = np.zeros(3)
-        cmd, clipped = safe_command(u, self.u_prev, epm, self.scenario, self.dt_s, self.slope_prev)
+        cmd, clipped = self.safety.apply(np.zeros(3) if hold else u, epm)
         if clipped:
-            self.clipped_steps += 1
             stats.extra["clipped"] = 1.0
-        self.slope_prev = (cmd - self.u_prev) / self.dt_s
-        self.u_prev = cmd
         return Command(epm_velocity_mps=cmd, stats=stats)
 
     def predicted_capsule_path(self) -> np.ndarray | None:

@@ -26,6 +26,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ..errors import CapsuleMPCError
 from ..interfaces import Measurement, StepStats
 
 __all__ = [
@@ -80,7 +81,7 @@ TRANSITIONS: dict[tuple[Phase, Event], Phase] = {
 TERMINAL = frozenset({Phase.HOLD, Phase.FAILED})
 
 
-class TransitionRefused(ValueError):
+class TransitionRefused(CapsuleMPCError, ValueError):
     """An event the transition table has no entry for in the current phase."""
 
 

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import casadi as ca
 import numpy as np
@@ -152,13 +152,21 @@ class OCP:
     horizon: int
     dt_s: float
     lead_eq_m: np.ndarray
-    n_w: int
-    n_p: int
     steps_s: np.ndarray
-    n_x: int = N_STATE
-    n_u: int = N_INPUT
-    n_g: int = N_PATH
     lag_s: float = 0.0
+    n_x: ClassVar[int] = N_STATE
+    n_u: ClassVar[int] = N_INPUT
+    n_g: ClassVar[int] = N_PATH
+
+    @property
+    def n_w(self) -> int:
+        """Number of variables."""
+        return len(self.lbw)
+
+    @property
+    def n_p(self) -> int:
+        """Number of parameters."""
+        return int(self.nlp["p"].numel())
 
     @property
     def frame_s(self) -> float:
@@ -450,6 +458,42 @@ def _constraint_bounds(sc: Scenario, steps: np.ndarray) -> tuple[np.ndarray, np.
     return np.concatenate(lbg), np.concatenate(ubg)
 
 
+def _stage_rows(
+    model: CapsuleModel,
+    xk: ca.MX,
+    uk: ca.MX,
+    x_next_var: ca.MX,
+    dist: ca.MX,
+    h: float,
+    lag: float,
+    lead_eq_m: np.ndarray,
+) -> tuple[list[ca.MX], tuple[ca.MX, ...]]:
+    """One stage's constraint rows (gap, implicit velocity, coupling, normal force, jerk) from the
+    physical stage state ``xk`` and input ``uk`` (step ``h``, s), and the stage's parts the residuals
+    weigh: the next model state, command, command change, slacks, jerk slack and jerk."""
+    sc: Scenario = model.scenario
+    x1 = _next_state(xk, uk, h, lag)
+    m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL : _NX_MODEL + _NU_MODEL], uk[0:3], uk[5:7]
+    sj, jerk = uk[7], (uk[0:3] / h - xk[_SLOPE]) / J_SCALE
+    eps = sc.friction.smoothing_eps_mps
+    v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
+    acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / sc.capsule.mass_kg
+    lead, _force, f_n, _mu = model.outputs(m1)
+    rows = [
+        x_next_var - x1 / ca.DM(STATE_SCALE),  # gap: the coefficient of x_{k+1} is the identity
+        (m1[2:4] - xk[2:4] - h * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
+        ca.sumsqr(lead - ca.DM(lead_eq_m)) / sc.limits.max_lead_m**2 - 1 - sk[0],  # <= 0: keeps the magnet
+        (f_n + sk[1]) / FN_SCALE,  # >= F_N,min: stays on the plate
+        (f_n - sk[1]) / FN_SCALE,  # <= F_N,max: tissue-safe
+        # The slope's change (the jerk the arm must make) within the jerk limit, softened by one
+        # slack so that a start state already past it (after a braking fallback) keeps the QP
+        # feasible; the safety layer enforces the limit on the command sent.
+        jerk + sj / J_SCALE,  # >= -J frame
+        jerk - sj / J_SCALE,  # <= J frame
+    ]
+    return rows, (m1, c1, dc, sk, sj, jerk)
+
+
 def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: float | None = None) -> OCP:
     """Build the MPC's NLP for ``model`` with step ``dt_s`` in the stage-wise layout.
 
@@ -470,7 +514,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
         The NLP, its residual function and bounds.
     """
     sc: Scenario = model.scenario
-    cfg, lim = sc.mpc, sc.limits
+    cfg = sc.mpc
     n = cfg.horizon
     for name, value in (("dt_s", dt_s), ("frame_s", frame_s)):
         if value is not None and not value > 0:
@@ -485,11 +529,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     i_dist = _NX_MODEL + N_REF * n + 2 * _NU_MODEL
     dist = p[i_dist : i_dist + N_DIST]
 
-    mass = sc.capsule.mass_kg
     lag = servo_time_constant_s(sc.arm.servo_bandwidth_hz) or 0.0  # no servo lag: 0
-    eps = sc.friction.smoothing_eps_mps
-    eq_sq = lim.max_lead_m**2
-    lead_eq = ca.DM(lead_eq_m)
     x_scale, u_scale = ca.DM(STATE_SCALE), ca.DM(INPUT_SCALE)
     rows, residuals = [], []
     for k in range(n):
@@ -497,24 +537,10 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
         xk = x_scale * w[_STAGE * k : _STAGE * k + N_STATE]
         uk = u_scale * w[_STAGE * k + N_STATE : _STAGE * (k + 1)]
         x_next_var = w[_STAGE * (k + 1) : _STAGE * (k + 1) + N_STATE]
-        x1 = _next_state(xk, uk, h, lag)
-        m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL : _NX_MODEL + _NU_MODEL], uk[0:3], uk[5:7]
-        sj, jerk = uk[7], (uk[0:3] / h - xk[_SLOPE]) / J_SCALE
-        v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
-        acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
-        lead, _force, f_n, _mu = model.outputs(m1)
-        rows += [
-            x_next_var - x1 / x_scale,  # gap: the coefficient of x_{k+1} is the identity
-            (m1[2:4] - xk[2:4] - h * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
-            ca.sumsqr(lead - lead_eq) / eq_sq - 1 - sk[0],  # <= 0: capsule keeps the magnet
-            (f_n + sk[1]) / FN_SCALE,  # >= F_N,min: stays on the plate
-            (f_n - sk[1]) / FN_SCALE,  # <= F_N,max: tissue-safe
-            # The slope's change (the jerk the arm must make) within the jerk limit, softened by
-            # one slack so that a start state already past it (after a braking fallback) keeps
-            # the QP feasible; the safety layer enforces the limit on the command sent.
-            jerk + sj / J_SCALE,  # >= -J frame
-            jerk - sj / J_SCALE,  # <= J frame
-        ]
+        stage_rows, (m1, c1, dc, sk, sj, jerk) = _stage_rows(
+            model, xk, uk, x_next_var, dist, h, lag, lead_eq_m
+        )
+        rows += stage_rows
         weight = TERMINAL_FACTOR if k == n - 1 else 1.0
         residuals += _stage_residuals(cfg, weight, ref[:, k], m1, c1, dc, sk, sj, jerk, dt_s / h)
 
@@ -533,5 +559,5 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     return OCP(
         nlp={"x": w, "p": p, "f": f, "g": g}, residual=residual, slack_gradient=slack_gradient,
         lbw=lbw, ubw=ubw, lbg=lbg, ubg=ubg, horizon=n, dt_s=dt_s,
-        lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p, steps_s=steps, lag_s=lag,
+        lead_eq_m=np.asarray(lead_eq_m, dtype=float), steps_s=steps, lag_s=lag,
     )  # fmt: skip

@@ -57,7 +57,7 @@ class SlideReference:
         if t_s < 0:  # the rig holds the EPM: plan to stay at the start
             return np.vstack([self.path.position(np.zeros(n)).T, np.zeros((4, n))])
         pos, vel = self.path.position(times).T, self.path.velocity(times).T
-        if self.start_offset_m is not None:
+        if self.start_offset_m is not None and times[0] < self.blend_s:  # after the blend: the path
             pos, vel = self.join(times, pos, vel)
         return np.vstack([pos, vel, vel])
 

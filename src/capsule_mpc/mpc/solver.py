@@ -473,8 +473,6 @@ class MPCSolver:
         The problem (stage-wise layout).
     scheme : {'rti', 'sqp', 'ipopt'}
         The per-frame scheme.
-    max_sqp_iter, max_ipopt_iter : int
-        Iteration caps.
     compile_dir : Path, optional
         Compile the NLP's derivative and value functions to C and cache them here (None: run
         them in CasADi's virtual machine).
@@ -486,8 +484,6 @@ class MPCSolver:
         self,
         ocp: OCP,
         scheme: str,
-        max_sqp_iter: int = MAX_SQP_ITER,
-        max_ipopt_iter: int = MAX_IPOPT_ITER,
         compile_dir: Path | None = None,
         qpsol: str = "hpipm",
     ) -> None:
@@ -497,18 +493,17 @@ class MPCSolver:
         self.ocp = ocp
         self.scheme = scheme
         self.qpsol = qpsol
-        self.max_sqp_iter = max_sqp_iter
         self.loaded_from_cache = False
         self.compiled = False
         t0 = time.perf_counter()
         self._ipopt = _nlpsol(
-            "mpc_ipopt", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, max_ipopt_iter, e, False)
+            "mpc_ipopt", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, MAX_IPOPT_ITER, e, False)
         )
         # The primal-dual warm-started IPOPT only where it runs every frame (0.08 s to build).
         self._ipopt_warm: ca.Function | None = None
         if scheme == "ipopt":
             self._ipopt_warm = _nlpsol(
-                "mpc_ipopt_warm", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, max_ipopt_iter, e, True)
+                "mpc_ipopt_warm", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, MAX_IPOPT_ITER, e, True)
             )
         # Constant bounds converted once (converting NumPy arguments costs ~0.1 ms per call).
         self._bounds = {"lbg": ca.DM(ocp.lbg), "ubg": ca.DM(ocp.ubg)}
@@ -598,7 +593,7 @@ class MPCSolver:
     ) -> SolveResult:
         """Gauss-Newton SQP from ``w0`` with a backtracking line search on the l1 merit function
         ``f + sigma |violation|_1`` (``sigma`` above the largest QP multiplier), at most
-        ``max_iter`` iterations (default ``max_sqp_iter``). Succeeds when the last point's
+        ``max_iter`` iterations (default :data:`MAX_SQP_ITER`). Succeeds when the last point's
         violation is at most :data:`MAX_STEP_VIOLATION`; status 'converged' when the step and
         the violation are below the convergence tolerances.
 
@@ -606,7 +601,7 @@ class MPCSolver:
         end after this many ms (the first always runs). For a loop paced by the wall clock: it
         makes the result depend on the machine's speed, so simulations leave it None.
         """
-        iters = self.max_sqp_iter if max_iter is None else max_iter
+        iters = MAX_SQP_ITER if max_iter is None else max_iter
         t0 = time.perf_counter()
         w = np.asarray(w0, dtype=float)
         last = self._last_step

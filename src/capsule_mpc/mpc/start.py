@@ -42,6 +42,7 @@ from ..config import Scenario
 from ..dynamics import normal_force_expr
 from ..friction import FrictionBelief
 from ..paths import ReferencePath
+from .belief import RigBelief
 from .contact import RestDetector
 
 __all__ = ["PRELOAD_MAX_S", "StartPreload", "epm_ruckig", "fastest_arrival_mps"]
@@ -118,10 +119,7 @@ class StartPreload:
         dt_s: float,
     ) -> None:
         self.scenario = scenario
-        self.fraction = scenario.break_loose.preload
-        self.force = force
-        self.lead_eq_m = np.asarray(lead_eq_m, dtype=float)
-        self.belief = belief
+        self.model = RigBelief(force, np.asarray(lead_eq_m, dtype=float), belief)
         self.rest = rest
         velocity = np.asarray(path.velocity(np.array([0.0]))[0], dtype=float)
         speed = float(np.linalg.norm(velocity))
@@ -131,13 +129,18 @@ class StartPreload:
         self.target_lead_m: np.ndarray | None = None
         self.arrival_mps = speed
         self.end_reason = ""
-        self._ruckig, self._in, self._out = epm_ruckig(scenario, dt_s)
+        self._otg = epm_ruckig(scenario, dt_s)
         self._state: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._target_m = np.zeros(3)
 
+    @property
+    def fraction(self) -> float | None:
+        """The pre-load's fraction of the believed breakaway (``break_loose.preload``; None: off)."""
+        return self.scenario.break_loose.preload
+
     def _along(self, lead: np.ndarray, height_m: float, disturbance_xy_n: np.ndarray) -> tuple[float, float]:
         """The believed lateral force along û at ``lead`` (N) and the normal force there (N)."""
-        f = np.asarray(self.force(lead, height_m)).ravel()
+        f = np.asarray(self.model.force(lead, height_m)).ravel()
         return float((f[0:2] + disturbance_xy_n) @ self.direction), float(
             normal_force_expr(self.scenario, f[2])
         )
@@ -150,12 +153,12 @@ class StartPreload:
         coupling limit if the force does not get there."""
         d = np.asarray(disturbance_xy_n, dtype=float)
         fraction = float(self.fraction or 0.0)
-        offset = float(np.linalg.norm(rest_lead_m - self.lead_eq_m))
+        offset = float(np.linalg.norm(rest_lead_m - self.model.lead_eq_m))
         reach = max(self.scenario.limits.max_lead_m - offset, 0.0)
 
         def excess(s: float) -> float:
             along, normal = self._along(rest_lead_m + s * self.direction, height_m, d)
-            return along - fraction * self.belief.breakaway_n(normal, rest_s)
+            return along - fraction * self.model.friction.breakaway_n(normal, rest_s)
 
         if excess(0.0) >= 0.0:
             return np.asarray(rest_lead_m, dtype=float).copy()
@@ -185,7 +188,7 @@ class StartPreload:
         fraction = float(self.scenario.break_loose.arrival)
         way = float(np.linalg.norm(target_lead_m - rest_lead_m))
         # Distance along û from the target lead to the coupling limit's circle.
-        offset = np.asarray(target_lead_m, dtype=float) - self.lead_eq_m
+        offset = np.asarray(target_lead_m, dtype=float) - self.model.lead_eq_m
         b = float(offset @ self.direction)
         room = -b + math.sqrt(max(b * b - float(offset @ offset) + self.scenario.limits.max_lead_m**2, 0.0))
         speed = min(fraction * self._fastest_along(way), self._fastest_along(max(room, 0.0)))
@@ -220,12 +223,12 @@ class StartPreload:
         # jerk-limited profile; the arm's lag does not restart it.
         if self._state is None:
             self._state = (np.asarray(epm_m, dtype=float), np.asarray(u_prev, dtype=float), np.zeros(3))
-        inp, out = self._in, self._out
+        otg, inp, out = self._otg
         inp.current_position, inp.current_velocity, inp.current_acceleration = (list(x) for x in self._state)
         inp.target_position = list(self._target_m)
         inp.target_velocity = list(cruise)
         inp.target_acceleration = [0.0, 0.0, 0.0]
-        result = self._ruckig.update(inp, out)
+        result = otg.update(inp, out)
         if result == ruckig.Result.Finished:  # pre-loaded: the MPC goes on from here
             self.active, self.end_reason = False, "pre-loaded"
         elif result != ruckig.Result.Working:
@@ -245,6 +248,6 @@ class StartPreload:
         rest_pos = self.rest.rest_position_m
         assert rest_pos is not None
         lead = epm_m[0:2] - rest_pos
-        if float(np.linalg.norm(lead - self.lead_eq_m)) > self.scenario.limits.max_lead_m:
+        if float(np.linalg.norm(lead - self.model.lead_eq_m)) > self.scenario.limits.max_lead_m:
             return "coupling limit"
         return ""

@@ -229,11 +229,11 @@ class RunPublisher:
             self.event(t, LogLevel.Info, f"controller recovered: {row.get('solver_status', '')}")
         self._failing = failed
         phase = str(row.get("phase", ""))
-        if phase and phase != self._phase:
+        if phase and self._phase and phase != self._phase:  # a change (the first phase is not one)
             level = LogLevel.Warning if phase == "failed" else LogLevel.Info
             status = f" ({row.get('solver_status', '')})" if phase == "failed" else ""
-            self.event(t, level, f"phase: {self._phase or 'none'} -> {phase}{status}")
-            self._phase = phase
+            self.event(t, level, f"phase: {self._phase} -> {phase}{status}")
+        self._phase = phase or self._phase
 
     def end(
         self, t_s: float, level: LogLevel, message: str, complete: bool = True, finish: bool = True
