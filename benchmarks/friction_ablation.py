@@ -12,27 +12,17 @@ robot``), once per friction model it is given:
     learned on this draw: ``capsule-mpc demonstrate`` on the draw (the ``follow`` runs at
     ``--speeds`` on straight paths along x and y, and the breakaway experiments), then
     ``capsule-mpc learn-friction`` on those logs (the config's force model);
-``online``
-    ``learned`` plus the online update (``mpc.adaptation.mode: rls``) with the fast
-    disturbance integrator as a residual on top (``--residual-gain``, ``--residual-cap``);
 ``oracle``
     the plant's own friction: its steady rate-and-state law as c(v) with its mu0, its tether drag
     and drag growth, its breakaway after rest -- what no real rig gives a controller, the bound.
-``<variant>+stick``
-    the variant with ``mpc.stick_prediction`` (the prediction holds a resting capsule by the
-    model's breakaway force, :mod:`capsule_mpc.mpc.contact`);
 ``<variant>+preload``
-    the variant with ``mpc.start_preload: --preload`` (the start pre-loads the capsule to that
+    the variant with ``break_loose.preload: --preload`` (the start pre-loads the capsule to that
     fraction of the believed breakaway, arriving there fast, :mod:`capsule_mpc.mpc.start`; the
     paper's c(v) believes the breakaway is mu0 F_N + f_s);
 ``<variant>+sharp``
     the variant with the MPC's friction smoothed over a narrower speed, ``mpc.friction_smoothing_eps_mps:``
     :data:`SHARP_EPS_MPS` (its friction force then holds up closer to rest);
-``<variant>+endsharp``
-    the same narrower smoothing only once the horizon reaches the path's end,
-    ``mpc.final_friction_smoothing_eps_mps:`` :data:`SHARP_EPS_MPS` (the final stop is planned for a
-    capsule that sticks);
-suffixes combine in that order (``+stick+preload``, ``+preload+sharp``, ...).
+suffixes combine in that order (``+preload+sharp``).
 
 A draw's learned model is kept in ``--work``; with ``--reuse`` a model already there is used
 instead of demonstrating and learning again. ``--merge A.json B.json --out C.json`` writes one
@@ -77,20 +67,18 @@ from capsule_mpc.paths import path_from_scenario
 from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
 from capsule_mpc.sim.oracle import oracle_friction_model
 
-BASE_VARIANTS = ("none", "paper", "learned", "online", "oracle")
-#: What a variant's suffixes switch on (``+stick``, ``+preload``, ``+sharp``, ``+endsharp``, in
-#: this order).
-MODIFIERS = ("stick", "preload", "sharp", "endsharp")
+BASE_VARIANTS = ("none", "paper", "learned", "oracle")
+#: What a variant's suffixes switch on (``+preload``, ``+sharp``, in this order).
+MODIFIERS = ("preload", "sharp")
 VARIANTS = tuple(
     base + "".join("+" + m for m in mods)
     for base in BASE_VARIANTS
     for k in range(len(MODIFIERS) + 1)
     for mods in itertools.combinations(MODIFIERS, k)
 )
-#: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, and
-#: ``mpc.final_friction_smoothing_eps_mps`` of the ``+endsharp`` ones, m/s (the default is 0.005).
+#: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, m/s (the default is 0.005).
 SHARP_EPS_MPS = 0.002
-#: ``mpc.start_preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
+#: ``break_loose.preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
 DEFAULT_PRELOAD = 1.0
 #: Variants run unless --variants says otherwise.
 DEFAULT_VARIANTS = BASE_VARIANTS
@@ -133,31 +121,20 @@ def variant_scenario(
     variant: str,
     learned_on_draw: LearnedFrictionModel | None,
     oracle: LearnedFrictionModel,
-    gain: float,
-    cap: float,
-    time_s: float,
     preload: float = DEFAULT_PRELOAD,
-    approach_fraction: float | None = None,
 ) -> Scenario:
-    """The controller's scenario of one variant (the plant is drawn from the base scenario).
-
-    ``approach_fraction`` replaces ``mpc.approach.force_fraction`` in the variants with a static
-    friction model of the draw (``learned``, ``online``, ``oracle``)."""
-    fr, mpc = base.friction, base.mpc
+    """The controller's scenario of one variant (the plant is drawn from the base scenario)."""
+    fr = base.friction
     if "+" in variant:
         name, *mods = variant.split("+")
-        scenario = variant_scenario(
-            base, name, learned_on_draw, oracle, gain, cap, time_s, approach_fraction=approach_fraction
-        )
-        update: dict[str, Any] = {
-            "stick_prediction": "stick" in mods,
-            "start_preload": preload if "preload" in mods else None,
-        }
+        scenario = variant_scenario(base, name, learned_on_draw, oracle)
+        update: dict[str, Any] = {}
         if "sharp" in mods:
             update["friction_smoothing_eps_mps"] = SHARP_EPS_MPS
-        if "endsharp" in mods:
-            update["final_friction_smoothing_eps_mps"] = SHARP_EPS_MPS
-        return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=update)})
+        loose = scenario.break_loose.model_copy(update={"preload": preload if "preload" in mods else None})
+        return scenario.model_copy(
+            update={"mpc": scenario.mpc.model_copy(update=update), "break_loose": loose}
+        )
     if variant == "paper":
         return base
     if variant == "none":
@@ -173,15 +150,7 @@ def variant_scenario(
     else:
         assert learned_on_draw is not None
         learned = learned_on_draw
-    scenario = with_friction(base, learned)
-    if variant == "online":
-        adaptation = mpc.adaptation.model_copy(update={"mode": "rls", "time_s": time_s})
-        update = {"adaptation": adaptation, "disturbance_gain": gain, "disturbance_max_n": cap}
-        scenario = scenario.model_copy(update={"mpc": mpc.model_copy(update=update)})
-    if approach_fraction is not None and variant in ("learned", "online", "oracle"):
-        approach = scenario.mpc.approach.model_copy(update={"force_fraction": approach_fraction})
-        scenario = scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update={"approach": approach})})
-    return scenario
+    return with_friction(base, learned)
 
 
 def learn_on_draw(
@@ -258,7 +227,7 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
     oracle = oracle_model(base, seed)
     out: dict[str, Any] = {"seed": seed}
     learned: LearnedFrictionModel | None = None
-    if args.learn_only or {"learned", "online"} & {v.split("+")[0] for v in args.variants}:
+    if args.learn_only or "learned" in {v.split("+")[0] for v in args.variants}:
         learned, out["learning"] = learn_on_draw(args, work, base, oracle, seed)
     if args.learn_only:
         ln = out["learning"]
@@ -282,11 +251,7 @@ def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
             variant,
             learned,
             oracle,
-            args.residual_gain,
-            args.residual_cap,
-            args.online_time,
             args.preload,
-            args.approach_fraction,
         )
         plant = CapsulePlant(base, truth=draw_plant_truth(base, seed))  # truth from the base: the same rig
         results[variant] = simulate(scenario, "mpc", path, seed, progress=False, plant=plant)
@@ -423,11 +388,7 @@ def _report(
         "seeds": seeds,
         "draws_done": len(draws),
         "draws_failed": failed,
-        "residual_gain": args.residual_gain,
         "preload_fraction": args.preload,
-        "approach_fraction": args.approach_fraction,
-        "online_time_s": args.online_time,
-        "residual_cap_n": args.residual_cap,
         "demonstration_speeds_mps": args.speeds,
         "summary": summarise(draws, args.variants, args.final_tol) if draws else {},
         "draws": draws,
@@ -484,7 +445,7 @@ def main(argv: list[str] | None = None) -> int:
         "--preload",
         type=float,
         default=DEFAULT_PRELOAD,
-        help=f"+preload: mpc.start_preload, (0, 1] ({DEFAULT_PRELOAD})",
+        help=f"+preload: break_loose.preload, (0, 1] ({DEFAULT_PRELOAD})",
     )
     parser.add_argument(
         "--reuse",
@@ -499,15 +460,6 @@ def main(argv: list[str] | None = None) -> int:
         help="demonstration speeds, m/s (default 0.005 0.01 0.02 0.04)",
     )
     parser.add_argument(
-        "--residual-gain", type=float, default=0.05, help="online: mpc.disturbance_gain (0.05)"
-    )
-    parser.add_argument(
-        "--residual-cap", type=float, default=0.1, help="online: mpc.disturbance_max_n, N (0.1)"
-    )
-    parser.add_argument(
-        "--online-time", type=float, default=0.3, help="online: mpc.adaptation.time_s, s (0.3)"
-    )
-    parser.add_argument(
         "--final-tol", type=float, default=0.5, help="final error counted as reached, mm (0.5)"
     )
     parser.add_argument("--workers", type=int, default=2)
@@ -518,13 +470,6 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json"
     )
     parser.add_argument("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
-    parser.add_argument(
-        "--approach-fraction",
-        type=float,
-        default=None,
-        help="mpc.approach.force_fraction of the variants with the draw's static friction "
-        "(learned, online, oracle), (0, 1) (default: the config's)",
-    )
     parser.add_argument(
         "--learn-only",
         action="store_true",

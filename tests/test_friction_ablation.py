@@ -104,16 +104,11 @@ def test_the_approach_fraction_goes_to_the_variants_with_the_draws_static_fricti
         coefficients=[0.03], validity_mps=(0.005, 0.04), static_mu_1s=0.25, static_healing=0.01,
         force_model="lookup",
     )  # fmt: skip
-    default = base.mpc.approach.force_fraction
-    for variant, expected in (("paper", default), ("none", default), ("learned", 0.85), ("oracle", 0.85)):
-        scenario = ablation.variant_scenario(
-            base, variant, model, model, 0.05, 0.1, 0.3, approach_fraction=0.85
-        )
-        assert scenario.mpc.approach.force_fraction == expected, variant
-    stick = ablation.variant_scenario(
-        base, "learned+stick", model, model, 0.05, 0.1, 0.3, approach_fraction=0.85
-    )
-    assert stick.mpc.approach.force_fraction == 0.85 and stick.mpc.stick_prediction
+    for variant in ("paper", "none", "learned", "oracle"):
+        scenario = ablation.variant_scenario(base, variant, model, model)
+        assert scenario.place == base.place, variant
+    preload = ablation.variant_scenario(base, "learned+preload", model, model)
+    assert preload.break_loose.preload is not None
 
 
 def test_variant_suffixes_combine(ablation):
@@ -121,15 +116,11 @@ def test_variant_suffixes_combine(ablation):
 
     base = load_config(REPO / "configs" / "rectangle_lookup.yaml")
     model = LearnedFrictionModel(coefficients=[0.03], validity_mps=(0.005, 0.04), force_model="lookup")
-    plain = ablation.variant_scenario(base, "learned", model, model, 0.05, 0.1, 0.3)
-    both = ablation.variant_scenario(base, "learned+preload+sharp", model, model, 0.05, 0.1, 0.3, preload=0.8)
+    plain = ablation.variant_scenario(base, "learned", model, model)
+    both = ablation.variant_scenario(base, "learned+preload+sharp", model, model, preload=0.8)
     assert plain.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
-    assert plain.mpc.start_preload is None
+    assert plain.break_loose.preload is None
     assert both.mpc.friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
-    assert both.mpc.start_preload == 0.8
+    assert both.break_loose.preload == 0.8
     assert both.friction.learned == model
     assert "learned+preload+sharp" in ablation.VARIANTS and "learned+sharp+preload" not in ablation.VARIANTS
-    end = ablation.variant_scenario(base, "learned+preload+endsharp", model, model, 0.05, 0.1, 0.3)
-    assert end.mpc.final_friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
-    assert end.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
-    assert plain.mpc.final_friction_smoothing_eps_mps is None
