@@ -298,14 +298,16 @@ def summarise(draws: list[dict[str, Any]], variants: list[str], final_tol_mm: fl
     summary: dict[str, Any] = {}
     for v in variants:
         runs = [d["runs"][v] for d in draws]
-        entry: dict[str, Any] = {m: _spread([r[m] for r in runs]) for m in METRICS}
+        # Reports written before a metric existed lack it: summarise what every run has.
+        metrics = [m for m in METRICS if all(m in d["runs"][name] for d in draws for name in variants)]
+        entry: dict[str, Any] = {m: _spread([r[m] for r in runs]) for m in metrics}
         entry["final_within_tol"] = sum(r["final_error_mm"] <= final_tol_mm for r in runs)
         entry["stalled"] = sum(bool(r["stalled"]) for r in runs)
         entry["solver_failures"] = int(sum(r["solver_failures"] or 0 for r in runs))
         entry["arm_ok"] = sum(bool(r["arm_ok"]) for r in runs)
         if v != "paper" and "paper" in variants:
             entry["vs_paper"] = {}
-            for m in METRICS:
+            for m in metrics:
                 diff = [d["runs"][v][m] - d["runs"]["paper"][m] for d in draws]
                 base = np.mean([d["runs"]["paper"][m] for d in draws])
                 entry["vs_paper"][m] = {

@@ -209,18 +209,22 @@ def stopping_short_log():
     return line_log(t, np.column_stack([x, np.zeros(len(t))]), solve_ms=solve)
 
 
-def test_padding_holds_the_rest_position_up_to_a_common_window():
-    log = stopping_short_log()
+def test_the_window_is_the_paths_time_and_pads_a_run_that_ended_before_it():
+    log = stopping_short_log()  # on a 10 s path, logged to t = 12 s
     own = run_metrics(log, LINE, window_end_s=12.0, deadline_ms=33.0)
     common = run_metrics(log, LINE, window_end_s=20.0, deadline_ms=33.0)
-    assert common["window_end_s"] == common["motion_end_s"] == 20.0
+    assert own["window_end_s"] == common["window_end_s"] == LINE.duration_s == 10.0
+    assert common["motion_end_s"] == 20.0
     assert common["final_error_mm"] == own["final_error_mm"] == pytest.approx(10.0)
-    # 13 logged frames (t = 0..12) and 8 padded ones (t = 13..20) each holding the final 10 mm error.
-    assert own["tracking_rms_mm"] == pytest.approx(10.0 * math.sqrt(3 / 13))
-    mix = (13 * own["tracking_rms_mm"] ** 2 + 8 * common["final_error_mm"] ** 2) / 21
-    assert common["tracking_rms_mm"] == pytest.approx(math.sqrt(mix))
+    # 11 frames (t = 0..10), the last one 10 mm behind the reference: what follows is the end's.
+    assert own["tracking_rms_mm"] == common["tracking_rms_mm"] == pytest.approx(10.0 * math.sqrt(1 / 11))
     assert common["cross_track_rms_mm"] == pytest.approx(0.0, abs=1e-12)  # it never left the path
-    assert common["deadline_misses"] == own["deadline_misses"] == 13  # padding solves nothing
+    assert common["deadline_misses"] == own["deadline_misses"]
+    # A run that ended at t = 6 s (decoupled, say) is padded to the path's end, holding its last
+    # position while the reference moves on: 10, 20, 30 and 40 mm at t = 7..10.
+    early = run_metrics({k: v[:7] for k, v in log.items()}, LINE, window_end_s=20.0, deadline_ms=33.0)
+    assert early["window_end_s"] == 10.0
+    assert early["tracking_rms_mm"] == pytest.approx(math.sqrt((10**2 + 20**2 + 30**2 + 40**2) / 11))
 
 
 def test_hold_log_until_pads_at_the_frame_spacing():

@@ -65,6 +65,7 @@ __all__ = [
     "run_metrics",
     "solver_metrics",
     "stack_predictions",
+    "start_metrics",
     "tracking_errors",
 ]
 
@@ -477,3 +478,20 @@ def end_metrics(
         "placement_moves": int(placement_moves),
         "end_phase": "" if phases is None or not len(phases) else str(phases[-1]),
     }
+
+
+def start_metrics(log: Mapping[str, np.ndarray], bound_s: float) -> dict[str, Any]:
+    """When the capsule first moved after t = 0 (the plant's ``stuck`` column), against the draw's
+    arm-limited bound (:func:`capsule_mpc.sim.start_bound.breakaway_bound_s`).
+
+    Returns
+    -------
+    dict
+        ``first_motion_s`` (NaN if it never moved), ``first_motion_bound_s`` and
+        ``first_motion_ratio`` (first motion / bound; NaN without a finite, positive bound).
+    """
+    t = np.asarray(log["t_s"], dtype=float)
+    moving = (np.asarray(log["stuck"]) == 0) & (t >= 0)
+    first = float(t[moving][0]) if np.any(moving) else math.nan
+    ratio = first / bound_s if math.isfinite(bound_s) and bound_s > 0 else math.nan
+    return {"first_motion_s": first, "first_motion_bound_s": bound_s, "first_motion_ratio": ratio}

@@ -115,7 +115,7 @@ from ..interfaces import (
     make_actuator,
     make_controller,
 )
-from ..metrics import end_metrics
+from ..metrics import end_metrics, start_metrics
 from ..paths import ReferencePath
 from .actuation import SimpleArm
 from .columns import INT_COLUMNS, LOG_COLUMNS, STR_COLUMNS
@@ -133,6 +133,7 @@ from .runner import (
     start_pose,
 )
 from .sensing import Camera
+from .start_bound import breakaway_bound_s
 from .truth import PlantTruth, draw_plant_truth
 
 __all__ = ["ClosedLoop", "FaultInjection", "Frame", "Observer", "Pacer", "ProgressBar", "simulate"]
@@ -446,6 +447,14 @@ class ClosedLoop:
         plant.reset(capsule0, theta_s=theta0)
         act.reset(epm0)
         plant.evaluate_forces(*epm0.tolist())
+        # The friction heals at rest through the settle phase (theta grows by the time at rest).
+        heading = np.asarray(path.velocity(np.array([0.0]))[0], dtype=float)
+        norm = float(np.linalg.norm(heading))
+        self.start_bound_s = (
+            breakaway_bound_s(plant, epm0, capsule0, theta0 + scenario.sim.settle_s, heading / norm)
+            if norm > 0
+            else math.nan
+        )
         self.controller.solver_wrapper = (
             injector.wrap_solver if injector is not None and injector.solver_faults else None
         )
@@ -639,6 +648,7 @@ class ClosedLoop:
         bias = np.array([self.truth.camera_bias_x_m, self.truth.camera_bias_y_m])
         moves = max((int(st.extra.get("placement_moves", 0)) for st in stats), default=0)
         metrics.update(end_metrics(arrays, self.path, bias, moves, self.flags.at_rest))
+        metrics.update(start_metrics(arrays, self.start_bound_s))
         metrics["measurements_rejected"] = sum(int(st.extra.get("measurement_rejected", 0)) for st in stats)
         for obs in self.observers:
             obs.on_end(self, metrics)
