@@ -20,6 +20,7 @@ from ...budget import Workload, check_processes
 from ...config import ConfigError, Scenario
 from ...outputs import output_folder
 from ...paths import ReferencePath
+from ...sim import RunResult
 from ..compare import (
     RUNS_FOLDER,
     aggregate_runs,
@@ -28,20 +29,22 @@ from ..compare import (
     json_value,
     run_figures,
     summary_header,
+    summary_markdown,
     summary_table,
 )
-from ..runs import prepare_run
+from ..runs import PREDICTION_FIGURE, prepare_run
+from ..table import TABLE_FILE, table_from_entries, write_table
 from .results import (
     SPEC_FILE,
     check_resume,
     finished_runs,
-    summary_markdown,
     sweep_spec,
+    worst_markdown,
     worst_runs,
     worst_table,
-    write_figures,
 )
-from .tasks import Outcome, SeedTask, dask_client, run_on_dask, run_seed
+from .results import write_figures as write_figures
+from .tasks import Outcome, SeedTask, Variant, dask_client, run_on_dask, run_seed
 from .vary import VaryRange, check_vary
 
 if TYPE_CHECKING:
@@ -59,13 +62,16 @@ def sweep(
     *,
     controllers: Sequence[str] | None = None,
     vary: Sequence[VaryRange] = (),
+    variants: Sequence[Variant] = (),
     workers: int | None = None,
     client: Client | None = None,
     meta: dict[str, Any] | None = None,
     progress: bool = True,
     task: Callable[[SeedTask], dict[str, Any]] = run_seed,
+    measure: Callable[[Mapping[str, RunResult]], Mapping[str, Mapping[str, Any]]] | None = None,
+    command: str = "sweep",
 ) -> dict[str, Any]:
-    """Run a sweep into ``out`` (resuming the one there), write its runs, summary and figures.
+    """Run a campaign into ``out`` (resuming the one there), write its runs, table, summary and figures.
 
     Parameters
     ----------
@@ -81,6 +87,8 @@ def sweep(
         As for :func:`capsule_mpc.experiments.compare.compare_controllers`.
     vary : sequence of VaryRange
         Plant fields drawn from these ranges instead of the preset's (:func:`parse_vary`).
+    variants : sequence of Variant
+        The study's variants (default the scenario as given), each run by ``controllers``.
     workers : int, optional
         Worker processes of the ``LocalCluster`` started when ``client`` is None (default the CPU
         count; no more than there are runs to do).
@@ -93,6 +101,11 @@ def sweep(
         A progress bar over the runs.
     task : callable
         What runs one seed (:func:`run_seed`); must be importable by the workers.
+    measure : callable, optional
+        Entries added to a draw's runs from their results (:class:`~.tasks.SeedTask`).
+    command : str
+        ``"sweep"``, or ``"compare"``: each run's folder is written (under ``out`` for one run,
+        ``out/runs/seed_<S>/`` for several) with the first seed's figures, no resume.
 
     Returns
     -------
@@ -106,18 +119,65 @@ def sweep(
     ConfigError
         ``out`` holds a sweep with other arguments.
     """
-
     if runs < 1:
         raise ValueError(f"runs: must be an integer >= 1, got {runs}")
     out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
     names = controller_names(controllers)
     seeds = [seed + k for k in range(runs)]
-    spec = sweep_spec(scenario, path, seed, runs, names, vary)
-    check_resume(out, spec)
-    write_text_atomic(out / SPEC_FILE, json.dumps(spec, indent=2) + "\n")
-    done = finished_runs(out, seeds)
-    todo = [SeedTask(scenario, path, s, tuple(names), tuple(vary), meta) for s in seeds if s not in done]
+    compare = command == "compare"
+    done: dict[int, dict[str, Any]] = {}
+    if not compare:
+        spec = sweep_spec(scenario, path, seed, runs, names, vary, variants)
+        check_resume(out, spec)
+        write_text_atomic(out / SPEC_FILE, json.dumps(spec, indent=2) + "\n")
+        done = finished_runs(out, seeds)
+
+    def folders(s: int) -> tuple[str | None, str | None]:
+        if not compare:
+            return None, None
+        return str(out if runs == 1 else out / RUNS_FOLDER / f"seed_{s}"), str(out) if s == seed else None
+
+    todo = [
+        SeedTask(scenario, path, s, tuple(names), tuple(vary), meta, tuple(variants), *folders(s), measure)
+        for s in seeds
+        if s not in done
+    ]
+    _run(todo, out, done, runs, workers, client, progress, task)
+    per_seed = [done[s] for s in seeds]
+    write_table(table_from_entries(per_seed), out / TABLE_FILE)
+    summary = {**summary_header(meta, seed, path, runs, seeds), "controllers": aggregate_runs(per_seed)}
+    if compare and runs == 1:  # one run: its text entries (run_dir, failure, traceback) beside its metrics
+        for name, entry in summary["controllers"].items():
+            single = per_seed[0]["controllers"][name]
+            entry.update({key: value for key, value in single.items() if key not in entry})
+    firsts = [n for n in ("trajectories.png", "errors.png") if compare and (out / n).exists()]
+    figures = firsts + write_figures(out, per_seed, distributions=not compare)
+    figures += [PREDICTION_FIGURE] if compare and (out / PREDICTION_FIGURE).exists() else []
+    if not compare:
+        summary.update(plant_preset=scenario.plant.preset, vary={v.field: [v.lo, v.hi] for v in vary})
+        summary["worst"] = worst_runs(per_seed)
+    summary.update(runs=per_seed, figures=figures)
+    write_text_atomic(out / "summary.json", json.dumps(json_value(summary), indent=2) + "\n")
+    markdown = summary_markdown(command, scenario, path, summary) + (
+        "" if compare else worst_markdown(summary)
+    )
+    write_text_atomic(out / "summary.md", markdown)
+    return summary
+
+
+def _run(
+    todo: Sequence[SeedTask],
+    out: Path,
+    done: dict[int, dict[str, Any]],
+    runs: int,
+    workers: int | None,
+    client: Client | None,
+    progress: bool,
+    task: Callable[[SeedTask], dict[str, Any]],
+) -> None:
+    """Run ``todo`` on Dask, writing each draw's entry to ``runs/seed_<S>.json`` and into ``done``."""
     with ExitStack() as stack:
         outcomes: Iterable[Outcome] = ()
         if todo:
@@ -125,7 +185,7 @@ def sweep(
             client = client if client is not None else stack.enter_context(dask_client(None, local))
             outcomes = stack.enter_context(closing(run_on_dask(task, todo, client)))
         bar = stack.enter_context(
-            tqdm(total=runs, initial=len(done), desc="sweep", unit="run", disable=not progress)
+            tqdm(total=runs, initial=len(done), desc="runs", unit="draw", disable=not progress)
         )
         for finished, entry in outcomes:
             write_text_atomic(
@@ -134,20 +194,6 @@ def sweep(
             done[finished.seed] = entry
             bar.set_postfix_str(f"seed {finished.seed}")
             bar.update(1)
-    per_seed = [done[s] for s in seeds]
-    aggregated = aggregate_runs(per_seed)
-    summary = {
-        **summary_header(meta, seed, path, runs, seeds),
-        "plant_preset": scenario.plant.preset,
-        "vary": spec["vary"],
-        "controllers": aggregated,
-        "runs": per_seed,
-        "worst": worst_runs(per_seed),
-        "figures": write_figures(out, per_seed),
-    }
-    write_text_atomic(out / "summary.json", json.dumps(json_value(summary), indent=2) + "\n")
-    write_text_atomic(out / "summary.md", summary_markdown(scenario, path, seeds, summary))
-    return summary
 
 
 def local_workers(runs: int, workers: int | None, scheduler: str | None) -> int | None:
