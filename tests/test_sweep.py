@@ -71,7 +71,7 @@ def no_figures(monkeypatch):
     sweep is checked by test_cli_sweep_writes_a_file_per_run_and_compares_schema)."""
     import capsule_mpc.experiments.sweep.campaign as campaign
 
-    monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed: [])
+    monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed, **kw: [])
 
 
 def crash_on_seed_1(task: SeedTask) -> dict:
@@ -109,7 +109,7 @@ def test_controllers_get_the_nominal_scenario_only_the_plant_the_varied_value(
         seen.append((scenario, kw["plant"].truth))
         return real(scenario, name, path, seed, **kw)
 
-    monkeypatch.setattr("capsule_mpc.experiments.compare.simulate", spy)
+    monkeypatch.setattr("capsule_mpc.experiments.sweep.tasks.simulate", spy)
     task = SeedTask(quick, SHORT, LAB_SEED, ("follow",), (parse_vary(MU0),))
     entry = run_seed(task)
     (scenario, truth), varied = seen[0], entry["varied"]["mu0_scale"]
