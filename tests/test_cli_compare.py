@@ -277,9 +277,7 @@ def test_a_failed_planner_is_a_failed_row_not_a_result(tmp_path, table, rectangl
         task=planner_stops_after_2_iterations,
     )
     why = "did not converge: IPOPT returned Maximum_Iterations_Exceeded after 2 iterations"
-    row = next(
-        line for line in (out / "summary.md").read_text().splitlines() if line.startswith("| plan |")
-    )
+    row = next(line for line in (out / "summary.md").read_text().splitlines() if line.startswith("| plan |"))
     assert (
         row.startswith("| plan | failed: PlanError: plan controller: no plan to replay: the fixed plan")
         and why in row

@@ -7,14 +7,14 @@ column with no change here); ``window_end_s`` (the draw's common scoring window)
 line of a run whose controller raised, else empty); the draw's plant values as ``plant.FIELD``,
 the ``--vary`` values as ``varied.FIELD`` and whatever else was recorded about the draw. Nested
 entries are flattened with dotted names; lists are kept as JSON text. The table is written as CSV
-(``runs.csv``), read back with the same columns and types (true/false flags as booleans, a missing value as NaN).
+(``runs.csv``), read back with the same columns and types (true/false flags as booleans, a missing value as NaN, an empty text as one).
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,8 @@ TABLE_FILE = "runs.csv"
 NOMINAL = "nominal"
 #: The columns that say which run a row is.
 KEYS = ("seed", "variant", "controller")
+#: A missing value in the CSV (an empty cell is an empty text).
+_NAN = "NaN"
 #: Entries of a run kept out of the table (long text; the JSON keeps them).
 _LEFT_OUT = frozenset({"traceback"})
 
@@ -96,12 +98,8 @@ def entry_rows(entry: Mapping[str, Any]) -> list[dict[str, Any]]:
 def table_from_entries(entries: Iterable[Mapping[str, Any]]) -> pd.DataFrame:
     """The run table of draws' entries (:func:`entry_rows`), rows in the order given."""
     rows = [row for entry in entries for row in entry_rows(entry)]
-    table = pd.DataFrame(rows, columns=_columns(rows))
-    return _typed(table)
-
-
-def _columns(rows: Sequence[Mapping[str, Any]]) -> list[str]:
-    return list(dict.fromkeys(key for row in rows for key in row)) or [*KEYS, "error"]
+    columns = list(dict.fromkeys(key for row in rows for key in row)) or [*KEYS, "error"]
+    return _typed(pd.DataFrame(rows, columns=columns))
 
 
 def _typed(table: pd.DataFrame) -> pd.DataFrame:
@@ -111,18 +109,20 @@ def _typed(table: pd.DataFrame) -> pd.DataFrame:
         if len(values) and values.map(lambda v: isinstance(v, (bool, np.bool_))).all():
             table[column] = table[column].astype("boolean")
     if "error" in table:
-        table["error"] = table["error"].fillna("").astype(str)
+        table["error"] = ["" if pd.isna(e) else str(e) for e in table["error"]]
     return table
 
 
 def write_table(table: pd.DataFrame, path: str | Path) -> Path:
     """Write ``table`` as CSV (atomically); the path."""
     path = Path(path)
-    write_text_atomic(path, table.to_csv(index=False))
+    write_text_atomic(path, table.to_csv(index=False, na_rep=_NAN))
     return path
 
 
 def read_table(path: str | Path) -> pd.DataFrame:
     """A run table written by :func:`write_table`, with its flags as booleans."""
-    table = pd.read_csv(path, keep_default_na=True, dtype={"variant": str, "controller": str})
+    table = pd.read_csv(
+        path, keep_default_na=False, na_values=[_NAN], dtype={"variant": str, "controller": str}
+    )
     return _typed(table)
