@@ -5,8 +5,8 @@ the benchmarks' reports and the tables of ``docs/results.md`` -- is computed her
 ``groupby`` over the rows of the runs that finished (``error`` empty):
 
 * a numeric metric: ``mean``, ``sd`` (sample standard deviation, ddof 1; 0 for one value),
-  ``min``, ``worst`` (the largest: every metric is worse when larger) and ``n`` (finite values;
-  NaN values are left out);
+  ``min``, ``worst`` (the largest: every metric is worse when larger), ``n`` (finite values;
+  NaN values are left out) and ``sum``;
 * a true/false flag: ``count`` (runs where true) and ``n``;
 * per group ``runs`` (rows that finished) and ``failed`` (rows whose controller raised).
 
@@ -36,7 +36,7 @@ __all__ = [
 ]
 
 #: The numeric statistics of a metric, as pandas names them, and their names here.
-_STATS = {"mean": "mean", "std": "sd", "min": "min", "max": "worst", "count": "n"}
+_STATS = {"mean": "mean", "std": "sd", "min": "min", "max": "worst", "count": "n", "sum": "sum"}
 #: Columns that describe a row rather than measure it.
 _NOT_METRICS = frozenset({*KEYS, "error", "window_end_s"})
 
