@@ -138,7 +138,8 @@ def render_sweep(data: dict[str, Any]) -> list[str]:
     table = _with_final_flag(sweep_table(data))
     stats = aggregate(table, by=["controller"])
     present = list(stats.index)
-    names = [n for n in CONTROLLER_ORDER if n in present] + sorted(n for n in present if n not in CONTROLLER_ORDER)
+    others = sorted(n for n in present if n not in CONTROLLER_ORDER)
+    names = [n for n in CONTROLLER_ORDER if n in present] + others
     rows = []
     for name in names:
         st = stats.loc[name]
@@ -208,7 +209,8 @@ def render_ablation(data: dict[str, Any]) -> list[str]:
     lines = head + _table([*header, "solver failures"], rows) + _breakaway_lines(data["draws"])
     partial = sum(bool(d.get("learning", {}).get("demonstrations_failed")) for d in data["draws"])
     if partial:
-        lines += ["", f"On {partial} draws some demonstrations failed; the model was learned from those that ran."]
+        what = "some demonstrations failed; the model was learned from those that ran."
+        lines += ["", f"On {partial} draws {what}"]
     return lines
 
 
@@ -229,7 +231,7 @@ def _breakaway_lines(draws: list[dict[str, Any]]) -> list[str]:
         errors = pd.DataFrame({"check": when, "error_pct": 100 * (learned[mine] / learned[plant] - 1).abs()})
         errors["within"] = (errors["error_pct"] <= 10).astype("boolean")
         st = aggregate(errors, by=["check"]).loc[when]
-        text = mean_sd_worst(st[("error_pct", "mean")], st[("error_pct", "sd")], st[("error_pct", "worst")], 1)
+        text = mean_sd_worst(*(st[("error_pct", k)] for k in ("mean", "sd", "worst")), 1)
         lines.append(
             f"Learned breakaway friction {when}, against the plant's at the path's start: within 10 % "
             f"on {_count(st, 'within')} of {len(errors)} draws; |relative error| {text} %."
@@ -520,7 +522,7 @@ def fault_table(data: dict[str, Any]) -> pd.DataFrame:
     for run in data["per_run"]:
         for variant, suffix in (("faults", ""), ("no faults", "_no_faults")):
             metrics = {m: run[m + suffix] for m in ("tracking_rms_mm", "final_error_mm")}
-            rows.append({"seed": run["seed"], "variant": variant, "controller": "mpc", **metrics, "error": ""})
+            rows.append({"seed": run["seed"], "variant": variant, "controller": "mpc", **metrics})
     return pd.DataFrame(rows)
 
 
@@ -547,7 +549,10 @@ def render_faults(data: dict[str, Any]) -> list[str]:
             ["", "with faults", "same seeds without faults"],
             [
                 [label, _cell(stats.loc["faults"], m, n), _cell(stats.loc["no faults"], m, n)]
-                for label, m in (("tracking RMS (mm)", "tracking_rms_mm"), ("final error (mm)", "final_error_mm"))
+                for label, m in (
+                    ("tracking RMS (mm)", "tracking_rms_mm"),
+                    ("final error (mm)", "final_error_mm"),
+                )
             ],
         ),
         "",
@@ -716,7 +721,8 @@ def read_template(data_dir: Path) -> tuple[str, list[tuple[str, str, str, str]]]
         heading, _, prose = block.partition("\n")
         key, renderer, title = (part.strip() for part in heading.split("|", 2))
         if renderer not in RENDERERS:
-            raise ValueError(f"{TEMPLATE}: section {key}: no renderer {renderer!r}; one of {sorted(RENDERERS)}")
+            known = sorted(RENDERERS)
+            raise ValueError(f"{TEMPLATE}: section {key}: no renderer {renderer!r}; one of {known}")
         sections.append((key, renderer, title, prose.strip()))
     return opening.strip(), sections
 

@@ -366,7 +366,8 @@ def own_cluster(tmp_path):
          "--no-dashboard"], **common,
     )  # fmt: skip
     worker = subprocess.Popen(
-        [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(file), "--nthreads", "1",
+        [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(file),
+         "--nthreads", "1",
          "--no-dashboard"], **common,
     )  # fmt: skip
     try:

@@ -7,7 +7,8 @@ column with no change here); ``window_end_s`` (the draw's common scoring window)
 line of a run whose controller raised, else empty); the draw's plant values as ``plant.FIELD``,
 the ``--vary`` values as ``varied.FIELD`` and whatever else was recorded about the draw. Nested
 entries are flattened with dotted names; lists are kept as JSON text. The table is written as CSV
-(``runs.csv``), read back with the same columns and types (true/false flags as booleans, a missing value as NaN, an empty text as one).
+(``runs.csv``), read back with the same columns and types (true/false flags as booleans, a
+missing value as NaN, an empty text as one).
 """
 
 from __future__ import annotations
