@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from contextlib import ExitStack, closing
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
-from ...atomic import write_text_atomic
+from ...atomic import atomic_path, write_text_atomic
 from ...budget import Workload, check_processes
 from ...config import ConfigError, Scenario
 from ...outputs import output_folder
@@ -145,6 +146,8 @@ def sweep(
         if s not in done
     ]
     _run(todo, out, done, runs, workers, client, progress, task)
+    if compare:
+        _adopt(out, [Path(f) for t in todo for f in (t.runs_dir, t.figures_dir) if f is not None])
     per_seed = [done[s] for s in seeds]
     write_table(table_from_entries(per_seed), out / TABLE_FILE)
     summary = {**summary_header(meta, seed, path, runs, seeds), "controllers": aggregate_runs(per_seed)}
@@ -165,6 +168,17 @@ def sweep(
     )
     write_text_atomic(out / "summary.md", markdown)
     return summary
+
+
+def _adopt(out: Path, folders: Sequence[Path]) -> None:
+    """Put the files the workers wrote under ``folders`` into place again from this process, so
+    that the output folder's manifest (:func:`capsule_mpc.outputs.output_folder`) lists them."""
+    names = ("trajectories.png", "errors.png", PREDICTION_FIGURE)
+    files = {f for d in set(folders) for f in d.rglob("*") if f.is_file() and f.parent != out}
+    files |= {out / n for n in names if (out / n).is_file()}
+    for file in sorted(files):
+        with atomic_path(file) as tmp:
+            shutil.copyfile(file, tmp)
 
 
 def _run(
