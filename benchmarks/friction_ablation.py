@@ -143,7 +143,7 @@ def variant(name: str, base: Scenario, learned_file: str, args: argparse.Namespa
 
 def learn_commands(args: argparse.Namespace, work: Path, seed: int) -> list[list[str]]:
     """The ``capsule-mpc demonstrate`` and ``learn-friction`` commands that learn a draw's friction."""
-    exe = [sys.executable, "-m", "capsule_mpc.cli"]
+    exe = [sys.executable, "-c", "import sys; from capsule_mpc.cli import main; sys.exit(main())"]
     config = work / "config.yaml"
     work.mkdir(parents=True, exist_ok=True)
     config.write_text(
