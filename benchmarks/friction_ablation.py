@@ -12,27 +12,17 @@ robot``), once per friction model it is given:
     learned on this draw: ``capsule-mpc demonstrate`` on the draw (the ``follow`` runs at
     ``--speeds`` on straight paths along x and y, and the breakaway experiments), then
     ``capsule-mpc learn-friction`` on those logs (the config's force model);
-``online``
-    ``learned`` plus the online update (``mpc.adaptation.mode: rls``) with the fast
-    disturbance integrator as a residual on top (``--residual-gain``, ``--residual-cap``);
 ``oracle``
     the plant's own friction: its steady rate-and-state law as c(v) with its mu0, its tether drag
     and drag growth, its breakaway after rest -- what no real rig gives a controller, the bound.
-``<variant>+stick``
-    the variant with ``mpc.stick_prediction`` (the prediction holds a resting capsule by the
-    model's breakaway force, :mod:`capsule_mpc.mpc.contact`);
 ``<variant>+preload``
-    the variant with ``mpc.start_preload: --preload`` (the start pre-loads the capsule to that
+    the variant with ``break_loose.preload: --preload`` (the start pre-loads the capsule to that
     fraction of the believed breakaway, arriving there fast, :mod:`capsule_mpc.mpc.start`; the
     paper's c(v) believes the breakaway is mu0 F_N + f_s);
 ``<variant>+sharp``
     the variant with the MPC's friction smoothed over a narrower speed, ``mpc.friction_smoothing_eps_mps:``
     :data:`SHARP_EPS_MPS` (its friction force then holds up closer to rest);
-``<variant>+endsharp``
-    the same narrower smoothing only once the horizon reaches the path's end,
-    ``mpc.final_friction_smoothing_eps_mps:`` :data:`SHARP_EPS_MPS` (the final stop is planned for a
-    capsule that sticks);
-suffixes combine in that order (``+stick+preload``, ``+preload+sharp``, ...).
+suffixes combine in that order (``+preload+sharp``).
 
 Each variant is a set of scenario overrides (:func:`variant`; the draw's own friction and the
 model learned on it are resolved per draw by :func:`capsule_mpc.experiments.sweep.tasks.variant_scenario`),
@@ -80,20 +70,18 @@ from capsule_mpc.paths import path_from_scenario
 from capsule_mpc.sim import draw_plant_truth
 from capsule_mpc.sim.oracle import oracle_friction_model
 
-BASE_VARIANTS = ("none", "paper", "learned", "online", "oracle")
-#: What a variant's suffixes switch on (``+stick``, ``+preload``, ``+sharp``, ``+endsharp``, in
-#: this order).
-MODIFIERS = ("stick", "preload", "sharp", "endsharp")
+BASE_VARIANTS = ("none", "paper", "learned", "oracle")
+#: What a variant's suffixes switch on (``+preload``, ``+sharp``, in this order).
+MODIFIERS = ("preload", "sharp")
 VARIANTS = tuple(
     base + "".join("+" + m for m in mods)
     for base in BASE_VARIANTS
     for k in range(len(MODIFIERS) + 1)
     for mods in itertools.combinations(MODIFIERS, k)
 )
-#: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, and
-#: ``mpc.final_friction_smoothing_eps_mps`` of the ``+endsharp`` ones, m/s (the default is 0.005).
+#: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, m/s (the default is 0.005).
 SHARP_EPS_MPS = 0.002
-#: ``mpc.start_preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
+#: ``break_loose.preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
 DEFAULT_PRELOAD = 1.0
 #: Variants run unless --variants says otherwise.
 DEFAULT_VARIANTS = BASE_VARIANTS
@@ -123,20 +111,12 @@ def variant(name: str, base: Scenario, learned_file: str, args: argparse.Namespa
             force_model=base.force_model,
         )
         over["friction.learned"] = none.model_dump(mode="json", exclude_none=True)
-    elif base_name in ("learned", "online", "oracle"):
+    elif base_name in ("learned", "oracle"):
         over["friction.learned"] = ORACLE if base_name == "oracle" else learned_file
-        if args.approach_fraction is not None:
-            over["mpc.approach.force_fraction"] = args.approach_fraction
-    if base_name == "online":
-        over.update({"mpc.adaptation.mode": "rls", "mpc.adaptation.time_s": args.online_time})
-        over.update({"mpc.disturbance_gain": args.residual_gain, "mpc.disturbance_max_n": args.residual_cap})
     if mods:
-        over.update({"mpc.stick_prediction": "stick" in mods})
-        over["mpc.start_preload"] = args.preload if "preload" in mods else None
+        over["break_loose.preload"] = args.preload if "preload" in mods else None
     if "sharp" in mods:
         over["mpc.friction_smoothing_eps_mps"] = SHARP_EPS_MPS
-    if "endsharp" in mods:
-        over["mpc.final_friction_smoothing_eps_mps"] = SHARP_EPS_MPS
     controllers = ("paper_0.8v", "mpc") if name == "paper" else ("mpc",)
     return Variant(name, over, controllers)
 
@@ -283,7 +263,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
         "--preload",
         type=float,
         default=DEFAULT_PRELOAD,
-        help=f"+preload: mpc.start_preload, (0, 1] ({DEFAULT_PRELOAD})",
+        help=f"+preload: break_loose.preload, (0, 1] ({DEFAULT_PRELOAD})",
     )
     add(
         "--reuse",
@@ -293,21 +273,11 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     add(
         "--speeds", type=float, nargs="+", default=[0.005, 0.01, 0.02, 0.04], help="demonstration speeds, m/s"
     )
-    add("--residual-gain", type=float, default=0.05, help="online: mpc.disturbance_gain (0.05)")
-    add("--residual-cap", type=float, default=0.1, help="online: mpc.disturbance_max_n, N (0.1)")
-    add("--online-time", type=float, default=0.3, help="online: mpc.adaptation.time_s, s (0.3)")
     add("--workers", type=int, default=2, help="worker processes of the LocalCluster (2)")
     add("--scheduler", help="address of a running Dask scheduler to run on instead")
     add("--work", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation_work")
     add("--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json")
     add("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
-    add(
-        "--approach-fraction",
-        type=float,
-        default=None,
-        help="mpc.approach.force_fraction of the variants "
-        "with the draw's static friction (learned, online, oracle), (0, 1) (default: the config's)",
-    )
     add(
         "--learn-only",
         action="store_true",
@@ -331,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     base = plant_scenario(args.config, args.plant)
     learned_file = str(Path(args.work).resolve() / f"{args.plant}_{{seed}}" / "model.yaml")
     variants = [] if args.learn_only else [variant(v, base, learned_file, args) for v in args.variants]
-    learns = args.learn_only or any(v.split("+")[0] in ("learned", "online") for v in args.variants)
+    learns = args.learn_only or any(v.split("+")[0] == "learned" for v in args.variants)
     with dask_client(args.scheduler, None if args.scheduler else args.workers) as client:
         learning = learn_and_check(args, client, base, seeds) if learns else {}
         ok = [s for s in seeds if not learns or s in learning]
@@ -361,11 +331,7 @@ def main(argv: list[str] | None = None) -> int:
         "draws_failed": [
             {"seed": s, "error": "learning failed"} for s in seeds if learns and s not in learning
         ],
-        "residual_gain": args.residual_gain,
         "preload_fraction": args.preload,
-        "approach_fraction": args.approach_fraction,
-        "online_time_s": args.online_time,
-        "residual_cap_n": args.residual_cap,
         "demonstration_speeds_mps": args.speeds,
         "draws": draws,
         "seconds": time.perf_counter() - t0,

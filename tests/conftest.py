@@ -50,11 +50,12 @@ def table(scenario: Scenario) -> ForceMap:
 def fast(scenario: Scenario) -> Scenario:
     """The paper scenario (ideal plant) for quick MPC runs: uncompiled NLP functions (built in well
     under a second), short settle and tail."""
-    # The final approach (tests/test_final_approach.py) is not the subject of the tests using this:
-    # its crawl after the path's end needs seconds past these short tails.
+    # The placement (tests/test_place.py) is not the subject of the tests using this: its moves
+    # after the path's end need seconds past these short tails.
     return scenario.model_copy(
         update={
-            "mpc": scenario.mpc.model_copy(update={"compile_c": False, "final_approach": False}),
+            "mpc": scenario.mpc.model_copy(update={"compile_c": False}),
+            "place": scenario.place.model_copy(update={"max_moves": 0}),
             "sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
         }
     )

@@ -67,3 +67,19 @@ def test_writes_are_recorded_by_the_blocks_whose_folder_holds_them(tmp_path):
     write_text_atomic(outer / "after.txt", "d")
     assert in_inner == {(inner / "summary.md").resolve()}
     assert in_outer == {(outer / "scenario.yaml").resolve(), (inner / "summary.md").resolve()}
+
+
+def test_the_journal_lists_each_file_as_it_is_written(tmp_path):
+    journal = tmp_path / "journal"
+    with recording_writes(tmp_path, journal=journal):
+        write_text_atomic(tmp_path / "a.csv", "1")
+        assert journal.read_text() == "a.csv\n"  # on disk at once: a killed process leaves it
+        write_text_atomic(tmp_path / "sub" / "b.json", "{}")
+    assert journal.read_text().splitlines() == ["a.csv", "sub/b.json"]
+
+
+def test_a_write_error_that_names_no_file_is_raised_naming_the_target(tmp_path):
+    target = tmp_path / "log.csv"
+    with pytest.raises(OSError, match="No space left on device") as info, atomic_path(target):
+        raise OSError(28, "No space left on device")
+    assert info.value.filename == str(target) and list(tmp_path.iterdir()) == []

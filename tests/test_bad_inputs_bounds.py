@@ -252,7 +252,7 @@ CASES = [
     Case(
         "bench-negative-seed",
         ["bench", "--seed", "-5", "--out", "{tmp}/b.json"],
-        r"^capsule-mpc bench: error: argument --seed: must be an integer >= 0, got -5$",
+        r"^capsule-mpc bench: error: argument --seed: must be an integer in \[0, 2\*\*63 - 1\], got -5$",
         parse=True,
     ),
     Case(
@@ -284,7 +284,7 @@ CASES = [
     Case(
         "demo-negative-seed",
         ["demo", "--seed", "-1", "--out", "{out}"],
-        r"^capsule-mpc demo: error: argument --seed: must be an integer >= 0, got -1$",
+        r"^capsule-mpc demo: error: argument --seed: must be an integer in \[0, 2\*\*63 - 1\], got -1$",
         parse=True,
     ),
     Case(
@@ -301,7 +301,8 @@ CASES = [
     Case(
         "demonstrate-seed-not-a-number",
         ["demonstrate", "--seed", "abc", "--out", "{out}"],
-        r"^capsule-mpc demonstrate: error: argument --seed: must be an integer >= 0, got 'abc'$",
+        r"^capsule-mpc demonstrate: error: argument --seed: must be an integer in \[0, 2\*\*63 - 1\], "
+        r"got 'abc'$",
         parse=True,
     ),
     Case(

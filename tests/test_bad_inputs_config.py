@@ -197,17 +197,17 @@ CASES = [
     _case(
         "negative-seed-simulate",
         _simulate("--seed", "-1"),
-        r"argument --seed: must be an integer >= 0, got -1",
+        r"argument --seed: must be an integer in \[0, 2\*\*63 - 1\], got -1",
     ),
     _case(
         "negative-seed-compare",
         _compare("--seed", "-1"),
-        r"argument --seed: must be an integer >= 0, got -1",
+        r"argument --seed: must be an integer in \[0, 2\*\*63 - 1\], got -1",
     ),
     _case(
         "fractional-seed-compare",
         _compare("--seed", "1.5"),
-        r"argument --seed: must be an integer >= 0, got '1\.5'",
+        r"argument --seed: must be an integer in \[0, 2\*\*63 - 1\], got '1\.5'",
     ),
 ]
 

@@ -234,13 +234,86 @@ def out_unwritable(d, rows, out):
 
 def out_is_the_input_log(d, rows, out):
     p = _write_log(d / "log.csv", rows)
-    return _learn("--log", str(p), "--out", str(p), *FAST), [f"--out {p}: is an input file"]
+    return _learn("--log", str(p), "--out", str(p), *FAST), [f"--out: {p} is --log {p}, an input"]
 
 
 def out_is_the_input_samples(d, rows, out):
     p = d / "s.csv"
     p.write_text(f"{SAMPLES_HEADER}\n" + "".join(f"{0.01 + 0.001 * k},0,0.15,0.7\n" for k in range(20)))
-    return _learn("--samples", str(p), "--out", str(p), "--degree", "0"), [f"--out {p}: is an input file"]
+    return _learn("--samples", str(p), "--out", str(p), "--degree", "0"), [f"--out: {p} is --samples {p}"]
+
+
+def _run_folder(d: Path, rows: list[list[str]], config: str) -> Path:
+    """A run folder: the log and the scenario it was recorded with (``base: paper`` + ``config``)."""
+    run = d / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text("base: paper\n" + config)
+    _write_log(run / "log.csv", rows)
+    return run
+
+
+def out_is_the_config(d, rows, out):
+    p = _write_log(d / "log.csv", rows)
+    cfg = d / "rig.yaml"
+    cfg.write_text("base: paper\n")
+    argv = _learn("--config", str(cfg), "--log", str(p), "--out", str(cfg), *FAST)
+    return argv, [f"--out: {cfg} is --config {cfg}, an input of this command, which it would overwrite"]
+
+
+def out_is_the_base_of_the_config(d, rows, out):
+    p = _write_log(d / "log.csv", rows)
+    (d / "base.yaml").write_text("base: paper\n")
+    cfg = d / "rig.yaml"
+    cfg.write_text("base: base.yaml\n")
+    argv = _learn("--config", str(cfg), "--log", str(p), "--out", str(d / "base.yaml"), *FAST)
+    return argv, [f"--out: {d / 'base.yaml'} is {d / 'base.yaml'}, the base: of --config {cfg}"]
+
+
+def out_is_the_config_recorded_with_the_log(d, rows, out):
+    run = _run_folder(d, rows, "")
+    argv = _learn("--log", str(run), "--out", str(run / "config.yaml"), *FAST)
+    return argv, [f"--out: {run / 'config.yaml'} is --log {run / 'config.yaml'}, an input"]
+
+
+def figures_hold_the_log(d, rows, out):
+    p = _write_log(d / "log.csv", rows)
+    argv = _learn("--log", str(p), "--out", str(out / "m.yaml"), "--figures", str(d), *FAST)
+    return argv, [f"--figures: {d} holds --log {p}, an input of this command"]
+
+
+def log_recorded_on_another_rig(d, rows, out):
+    run = _run_folder(d, rows, "capsule:\n  mass_kg: 0.05\nplate:\n  epm_height_m: 0.1\n")
+    argv = _learn("--log", str(run), "--out", str(out / "m.yaml"), *FAST)
+    return argv, [
+        f"{run / 'log.csv'}: recorded on another rig than --config",
+        "capsule.mass_kg (log: 0.05, --config: 0.0209)",
+        "plate.epm_height_m (log: 0.1, --config: 0.095)",
+    ]
+
+
+def log_recorded_with_other_friction(d, rows, out):
+    run = _run_folder(d, rows, "friction:\n  mu0: 0.4\n")
+    argv = _learn("--log", str(run), "--out", str(out / "m.yaml"), *FAST)
+    return argv, ["recorded on another rig than --config", "friction.mu0 (log: 0.4, --config: 0.22)"]
+
+
+def samples_with_a_huge_traction(d, rows, out):
+    p = d / "s.csv"
+    lines = [f"{0.01 + 0.001 * k},0,0.15,0.7" for k in range(20)]
+    lines[6] = "0.016,0,1e300,0.7"
+    p.write_text(SAMPLES_HEADER + "\n" + "\n".join(lines) + "\n")
+    argv = _learn("--samples", str(p), "--out", str(out / "m.yaml"), "--degree", "0")
+    return argv, [f"{p}: line 8, column traction_n: 1e+300 is outside [-1000, 1000] N"]
+
+
+def samples_with_a_huge_speed(d, rows, out):
+    p = d / "s.csv"
+    lines = [f"{0.01 + 0.001 * k},0,0.15,0.7" for k in range(20)]
+    lines[0] = "-1e300,0,0.15,0.7"
+    lines[3] = "1e20,0,0.15,0.7"
+    p.write_text(SAMPLES_HEADER + "\n" + "\n".join(lines) + "\n")
+    argv = _learn("--samples", str(p), "--out", str(out / "m.yaml"), "--degree", "0")
+    return argv, [f"{p}: line 2, column v_mps: -1e+300 is outside [-10, 10] m/s", "and 1 more row"]
 
 
 def samples_out_is_a_folder(d, rows, out):
@@ -266,7 +339,7 @@ def samples_out_is_out(d, rows, out):
 def figures_is_a_file(d, rows, out):
     p = _write_log(d / "log.csv", rows)
     return _learn("--log", str(p), "--out", str(out / "m.yaml"), "--figures", str(p), *FAST), [
-        f"--figures {p}: is a file"
+        f"--figures: {p} is --log {p}, an input of this command"
     ]
 
 
@@ -314,6 +387,14 @@ CASES: list[Case] = [
     samples_out_with_samples,
     samples_out_is_out,
     figures_is_a_file,
+    out_is_the_config,
+    out_is_the_base_of_the_config,
+    out_is_the_config_recorded_with_the_log,
+    figures_hold_the_log,
+    log_recorded_on_another_rig,
+    log_recorded_with_other_friction,
+    samples_with_a_huge_traction,
+    samples_with_a_huge_speed,
     demonstrate_out_is_a_file,
     demonstrate_speed_over_the_limit,
 ]

@@ -201,8 +201,8 @@ def test_report_with_repeats_prints_the_spread(report):
             "10001",
             "must be an integer >= 1 and <= 10000 (capsule_mpc.budget.MAX_RUNS), got 10001",
         ),
-        ("--seed", "-5", "must be an integer >= 0, got -5"),
-        ("--seed", "x", "must be an integer >= 0, got 'x'"),
+        ("--seed", "-5", "must be an integer in [0, 2**63 - 1], got -5"),
+        ("--seed", "x", "must be an integer in [0, 2**63 - 1], got 'x'"),
     ],
 )
 def test_bad_options_exit_2_when_parsed(capsys, option, value, says):

@@ -218,7 +218,9 @@ def test_several_seeds_are_scored_on_a_common_window(tmp_path, table, rectangle_
             )
             assert entries[name]["tracking_rms_mm"] == pytest.approx(again["tracking_rms_mm"])
             run_json = json.loads((dirs[name] / "run.json").read_text())
-            assert run_json["metrics"]["window_end_s"] == pytest.approx(window)
+            assert run_json["metrics"]["motion_end_s"] == pytest.approx(window)
+            # the path's metrics cover the path: the common window, no longer than its nominal time
+            assert run_json["metrics"]["window_end_s"] == pytest.approx(min(window, SHORT.duration_s))
             assert "decoupled" in entries[name]  # the runner's flags are kept
             assert _mcap_frames(dirs[name] / "run.mcap") == len(log["t_s"])  # its MCAP log, a message a frame
     failed = out / RUNS_FOLDER / "seed_4" / "paper_0.8v"

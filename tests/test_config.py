@@ -14,7 +14,7 @@ import yaml
 from capsule_mpc import ConfigError, dump_config, load_config
 from capsule_mpc.cli.reference import iter_config_fields
 from capsule_mpc.config import config_from_dict, packaged_config_path
-from capsule_mpc.config._loader import MOVED_KEYS
+from capsule_mpc.config._loader import MOVED_KEYS, REMOVED_KEYS
 from capsule_mpc.experiments.info import scenario_figures
 from capsule_mpc.path_reach import check_epm_height
 from capsule_mpc.path_reach import format_mm as _mm
@@ -106,15 +106,17 @@ def test_cross_field_rules(tmp_path):
 
 @pytest.mark.parametrize(("old", "new"), list(MOVED_KEYS.items()))
 def test_a_moved_key_is_refused_naming_where_it_went(tmp_path, old, new):
-    section, key = old.split(".")
-    path = tmp_path / "c.yaml"
-    path.write_text(f"base: paper\n{section}:\n  {key}: 1\n")
+    *sections, key = old.split(".")
+    nested: dict = {key: 1}
+    for section in reversed(sections):
+        nested = {section: nested}
+    path = _write(tmp_path, {"base": "paper", **nested})
     with pytest.raises(
         ConfigError, match=rf"^invalid config .*\n  {re.escape(old)}: moved to {re.escape(new)}$"
     ):
         load_config(path)
     with pytest.raises(ConfigError, match=rf"{re.escape(old)}: moved to {re.escape(new)}"):
-        config_from_dict({**PAPER, section: {key: 1}})
+        config_from_dict({**PAPER, **nested})
 
 
 def test_every_moved_key_names_a_field():
@@ -125,13 +127,22 @@ def test_every_moved_key_names_a_field():
 
 def test_the_nested_mpc_sections_load_and_round_trip(tmp_path):
     path = tmp_path / "c.yaml"
-    path.write_text("base: paper\nmpc:\n  approach:\n    speed_mps: 0.002\n  adaptation:\n    mode: rls\n")
+    path.write_text("base: paper\nplace:\n  approach_speed_mps: 0.02\n")
     s = load_config(path)
-    assert s.mpc.approach.speed_mps == 0.002 and s.mpc.adaptation.mode == "rls"
-    assert s.mpc.approach.max_attempts == 3 and s.mpc.adaptation.time_s == 0.3  # the others default
+    assert s.place.approach_speed_mps == 0.02
+    assert s.place.max_moves == 5  # the others default
     dumped = dump_config(s)
-    assert "approach_" not in dumped and "friction_adaptation" not in dumped
     assert load_config(_write(tmp_path, yaml.safe_load(dumped))).model_dump() == s.model_dump()
+
+
+@pytest.mark.parametrize("old", sorted(REMOVED_KEYS))
+def test_a_removed_key_is_refused_naming_it_and_where_its_measurement_is(tmp_path, old):
+    section, key = old.split(".")
+    path = _write(tmp_path, {"base": "paper", section: {key: 1}})
+    with pytest.raises(ConfigError, match=rf"{re.escape(old)}: removed \("):
+        load_config(path)
+    fields = {row[0] for row in iter_config_fields()}
+    assert old not in fields
 
 
 def test_base_inheritance_overrides_only_given_fields(tmp_path):
@@ -339,3 +350,16 @@ def test_paper_yaml_comment_matches_info(scenario):
         forces = scenario_figures(scenario)["forces"]
     assert f"{forces['finite_lead_0mm']['normal_over_weight']:.2f}" == quoted.group(1)
     assert f"{forces['finite_equilibrium']['normal_over_weight']:.2f}" == quoted.group(2)
+
+
+#: The sections the MPC controller owns (its sliding MPC, estimator and phases).
+CONTROLLER_SECTIONS = ("mpc", "estimator", "break_loose", "place")
+#: Their settings in all: a new one must replace one (an option stays only with a measured gain).
+CONTROLLER_SETTINGS_BUDGET = 33
+
+
+def test_the_controller_settings_stay_within_their_budget():
+    fields = [row[0] for row in iter_config_fields()]
+    owned = [f for f in fields if f.split(".")[0] in CONTROLLER_SECTIONS]
+    assert {f.split(".")[0] for f in owned} == set(CONTROLLER_SECTIONS)
+    assert len(owned) <= CONTROLLER_SETTINGS_BUDGET, owned

@@ -84,9 +84,7 @@ def _scenario(ablation, name, base, model_file, **options):
     from capsule_mpc.paths import path_from_scenario
     from capsule_mpc.sim import draw_plant_truth
 
-    args = argparse.Namespace(
-        approach_fraction=None, online_time=0.3, residual_gain=0.05, residual_cap=0.1, preload=1.0
-    )
+    args = argparse.Namespace(preload=1.0)
     vars(args).update(options)
     v = ablation.variant(name, base, str(model_file), args)
     return variant_scenario(base, v, draw_plant_truth(base, 0), path_from_scenario(base))
@@ -106,17 +104,16 @@ def learned(tmp_path):
     return model, tmp_path / "lab_{seed}" / "model.yaml"
 
 
-def test_the_approach_fraction_goes_to_the_variants_with_the_draws_static_friction(ablation, learned):
+def test_the_variants_leave_the_placement_alone_and_preload_sets_the_break_loose(ablation, learned):
     from capsule_mpc.config import load_config
 
     base = load_config(REPO / "configs" / "rectangle_lookup.yaml")
-    default = base.mpc.approach.force_fraction
-    for variant, expected in (("paper", default), ("none", default), ("learned", 0.85), ("oracle", 0.85)):
-        scenario = _scenario(ablation, variant, base, learned[1], approach_fraction=0.85)
-        assert scenario.mpc.approach.force_fraction == expected, variant
-    stick = _scenario(ablation, "learned+stick", base, learned[1], approach_fraction=0.85)
-    assert stick.mpc.approach.force_fraction == 0.85 and stick.mpc.stick_prediction
-    assert stick.friction.learned == learned[0]  # the draw's file, read for seed 0
+    for variant in ("paper", "none", "learned", "oracle"):
+        scenario = _scenario(ablation, variant, base, learned[1])
+        assert scenario.place == base.place, variant
+    preload = _scenario(ablation, "learned+preload", base, learned[1])
+    assert preload.break_loose.preload is not None
+    assert preload.friction.learned == learned[0]  # the draw's file, read for seed 0
 
 
 def test_variant_suffixes_combine(ablation, learned):
@@ -126,15 +123,11 @@ def test_variant_suffixes_combine(ablation, learned):
     plain = _scenario(ablation, "learned", base, learned[1])
     both = _scenario(ablation, "learned+preload+sharp", base, learned[1], preload=0.8)
     assert plain.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
-    assert plain.mpc.start_preload is None
+    assert plain.break_loose.preload is None
     assert both.mpc.friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
-    assert both.mpc.start_preload == 0.8
+    assert both.break_loose.preload == 0.8
     assert both.friction.learned == learned[0]
     assert "learned+preload+sharp" in ablation.VARIANTS and "learned+sharp+preload" not in ablation.VARIANTS
-    end = _scenario(ablation, "learned+preload+endsharp", base, learned[1])
-    assert end.mpc.final_friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
-    assert end.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
-    assert plain.mpc.final_friction_smoothing_eps_mps is None
     none = _scenario(ablation, "none", base, learned[1])
     assert none.friction.learned.mu0 == 0.0 and none.friction.learned.tether_drag_n == 0.0
     oracle = _scenario(ablation, "oracle", base, learned[1])

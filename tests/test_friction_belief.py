@@ -16,9 +16,10 @@ from hypothesis import strategies as st
 
 from capsule_mpc import Scenario
 from capsule_mpc.config import LearnedFrictionModel
+from capsule_mpc.dynamics import normal_force_expr
 from capsule_mpc.friction import MIN_REST_S, FrictionBelief, SteadyFrictionLaw
 from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
-from capsule_mpc.mpc.approach import FinalApproach
+from capsule_mpc.mpc.place import place_geometry, plan_move
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
 from capsule_mpc.sim.oracle import oracle_friction_model
@@ -115,28 +116,35 @@ def test_the_plants_own_friction_is_a_member_of_the_family(lab_scenario, seed):
     assert belief.breakaway_mu(2.0) > SteadyFrictionLaw.from_scenario(lab_scenario).mu(0.005) + 0.05
 
 
-def _cap_lead(scenario: Scenario) -> float:
-    """The lead along +y (from the model's equilibrium) at which the approach's crawl stops adding force."""
-    lead_eq = model_equilibrium_lead(scenario)
-    approach = FinalApproach(scenario, PATH, capsule_force_function(scenario), lead_eq, 1 / 30)
-    approach._dir = np.array([0.0, 1.0])
-    approach._progress_t = 10.0
+def _backoff_m(scenario: Scenario) -> float:
+    """How far behind the capsule's rest a placement move takes the EPM (from the model's
+    equilibrium), for a capsule that rested 2 s a fraction of a millimetre short of the target."""
     h = scenario.plate.epm_height_m
-    for extra in np.arange(0.0, scenario.limits.max_lead_m, 1e-4):
-        if approach._at_cap(10.0, lead_eq + np.array([0.0, extra]), h, np.zeros(2)):
-            return float(extra)
-    return math.inf
+    geo = place_geometry(
+        capsule_force_function(scenario),
+        model_equilibrium_lead(scenario),
+        h,
+        np.zeros(2),
+        lambda f: float(normal_force_expr(scenario, f)),
+    )
+    target = np.array([0.0, -0.03])
+    rest = target - 3e-4 * geo.axis
+    belief = FrictionBelief.from_scenario(scenario)
+    move = plan_move(
+        geo, belief, rest, target, 1.0, np.zeros(2), 2.0, 0.0, 1.0, h, scenario.limits.max_lead_m, 0.02
+    )
+    return float((rest + geo.lead_eq_m - move.waypoints_m[0][:2]) @ geo.axis)
 
 
-def test_the_approach_caps_its_force_at_the_learned_breakaway(scenario):
-    """A learned breakaway above the paper's mu0 lets the crawl push harder, one below makes it
-    stop sooner; without a static part the cap is the paper's."""
-    paper = _cap_lead(scenario)
+def test_the_placement_backs_off_by_the_learned_breakaway(scenario):
+    """A learned breakaway above the paper's mu0 makes a placement move back off farther, one below
+    less far; without a static part the back-off is the paper's."""
+    paper = _backoff_m(scenario)
     mu0 = scenario.friction.mu0
-    higher = _cap_lead(with_learned(scenario, static_mu_1s=1.5 * mu0, static_healing=0.0))
-    lower = _cap_lead(with_learned(scenario, static_mu_1s=0.5 * mu0, static_healing=0.0))
+    higher = _backoff_m(with_learned(scenario, static_mu_1s=1.5 * mu0, static_healing=0.0))
+    lower = _backoff_m(with_learned(scenario, static_mu_1s=0.5 * mu0, static_healing=0.0))
     assert lower < paper < higher
-    assert _cap_lead(with_learned(scenario)) == paper
+    assert _backoff_m(with_learned(scenario)) == pytest.approx(paper)
 
 
 def test_the_mpc_feeds_the_drag_growth_forward(scenario):
@@ -155,8 +163,8 @@ def test_the_mpc_feeds_the_drag_growth_forward(scenario):
     for k in range(31):  # 1 s at 30 Hz, the capsule where the reference is
         t = k / 30
         ctrl.step(t, Measurement(t, t, path.position(np.array([t]))[0]), epm)
-    assert ctrl._drag_growth_n == pytest.approx(growth * 0.02 * 1.0)
-    assert ctrl._progress_m(100.0) == pytest.approx(path.length_m)
+    assert ctrl.reference.drag_growth_n(1.0) == pytest.approx(growth * 0.02 * 1.0)
+    assert ctrl.reference.progress_m(100.0) == pytest.approx(path.length_m)
 
 
 LEARNED_LAB5 = Path(__file__).parent / "data" / "learned_lab5_lookup.yaml"

@@ -181,7 +181,7 @@ def test_library_imports_inside_functions_load_only_heavy_dependencies(name):
 def test_the_graph_is_read_from_the_imports():
     # the reader sees known edges, including one inside a function
     assert "capsule_mpc.config" in GRAPH["capsule_mpc.interfaces"]
-    assert "capsule_mpc.planner" in GRAPH["capsule_mpc.mpc.controller"]
+    assert "capsule_mpc.safety" in GRAPH["capsule_mpc.mpc.controller"]
     assert "capsule_mpc.arm" in GRAPH["capsule_mpc.sim.loop"]
     assert not any(dep.startswith("capsule_mpc.sim") for dep in GRAPH["capsule_mpc.arm.export"])
 

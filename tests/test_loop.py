@@ -149,5 +149,5 @@ def test_step_outcomes_agree_with_the_logged_status(scenario):
     assert StepOutcome.SOLVED in outcomes
     for stats in res.step_stats:
         assert stats.failed == (stats.outcome in (StepOutcome.LATE, StepOutcome.FAILED, StepOutcome.INVALID))
-        if stats.outcome in (StepOutcome.LATE, StepOutcome.FAILED, StepOutcome.APPROACH):
+        if stats.outcome in (StepOutcome.LATE, StepOutcome.FAILED, StepOutcome.PLACE):
             assert stats.status.startswith(stats.outcome.value)

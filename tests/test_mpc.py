@@ -10,9 +10,11 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from capsule_mpc.dynamics import capsule_model, discrete_step
+from capsule_mpc.friction import FrictionBelief
 from capsule_mpc.interfaces import Measurement
 from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack, safe_command
 from capsule_mpc.mpc.controller import model_scenario
+from capsule_mpc.mpc.reference import SlideReference
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import simulate
 
@@ -236,25 +238,6 @@ def test_a_recovery_cut_short_warm_starts_the_next_frame(fast, monkeypatch, fail
     assert np.all(np.isfinite(cmd.epm_velocity_mps))
 
 
-def test_offline_plan_as_feedforward(fast):
-    planned = fast.model_copy(update={"mpc": fast.mpc.model_copy(update={"feedforward": "plan"})})
-    ctrl = MPCController()
-    run = simulate(planned, ctrl, PATH, seed=3)
-    assert ctrl._offline_plan is not None and ctrl._offline_plan.success
-    ref = ctrl._reference(0.5)
-    starts = 0.5 + ctrl.dt_s * np.arange(1, ref.shape[1] + 1) - ctrl.dt_s  # input k starts at t + k dt
-    expected = np.array([ctrl._offline_plan.epm_velocity_at(t)[:2] for t in starts]).T
-    assert ref[4:6] == pytest.approx(expected)
-    assert np.abs(ref[4:6] - ref[2:4]).max() > 1e-4  # the plan's EPM velocity, not the path's
-    cmd = np.column_stack([run.log["cmd_vx_mps"], run.log["cmd_vy_mps"]])
-    assert np.abs(np.diff(cmd, axis=0)).max() <= fast.limits.accel_mps2 / fast.camera.rate_hz + 1e-12
-    # The capsule is still creeping onto the end when the short tail runs out (the final approach is
-    # off here): it is judged on where it got to.
-    m = run.metrics
-    assert not (m["decoupled"] or m["dropped"] or m["stalled"])
-    assert m["final_error_mm"] < 1.0 and m["cross_track_max_mm"] < 1.5
-
-
 @settings(max_examples=100, deadline=None)
 @given(
     offset=st.tuples(*[st.floats(-0.01, 0.01)] * 2),
@@ -263,14 +246,14 @@ def test_offline_plan_as_feedforward(fast):
 )
 @example(offset=(1.192092896e-07, 0.0), blend=3.0, t0=1.0)  # rounding beat the bound's 1e-12 (found once)
 def test_the_start_reference_joins_the_path_smoothly(fast, offset, blend, t0):
-    """From the capsule's rest position at t = 0 onto the path by ``mpc.start_blend_s``, with a
+    """From the capsule's rest position at t = 0 onto the path by ``break_loose.blend_s``, with a
     velocity that is the derivative of the position (a closed form, checked by differences)."""
-    ctrl = MPCController()
-    ctrl.scenario = fast.model_copy(update={"mpc": fast.mpc.model_copy(update={"start_blend_s": blend})})
-    ctrl._start_offset = np.asarray(offset)
+    ocp = build_mpc_stack(fast).ocp
+    reference = SlideReference(PATH, ocp, blend, FrictionBelief.from_scenario(fast))
+    reference.start_offset_m = np.asarray(offset, dtype=float)
     times = np.array([0.0, t0, t0 + 1e-6, blend, blend + t0])
     pos, vel = PATH.position(times).T, PATH.velocity(times).T
-    jpos, jvel = ctrl._join(times, pos, vel)
+    jpos, jvel = reference.join(times, pos, vel)
     assert np.allclose(jpos[:, 0], pos[:, 0] + offset, atol=1e-15)
     assert np.allclose(jpos[:, 3:], pos[:, 3:], atol=1e-15) and np.allclose(jvel[:, 3:], vel[:, 3:])
     joined = (jpos - pos)[:, 1:3]  # the offset left at t0 and just after: a fading, smooth blend
@@ -296,7 +279,8 @@ def test_joining_the_path_from_the_rest_position_tracks_better_on_the_lab_rig(la
     for blend in (0.0, 2.0):
         sc = lab_scenario.model_copy(
             update={
-                "mpc": lab_scenario.mpc.model_copy(update={"compile_c": False, "start_blend_s": blend}),
+                "mpc": lab_scenario.mpc.model_copy(update={"compile_c": False}),
+                "break_loose": lab_scenario.break_loose.model_copy(update={"blend_s": blend}),
                 "sim": lab_scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 4.0}),
             }
         )

@@ -21,12 +21,13 @@ PATH = ReferencePath(np.array([[-0.05, -0.03], [0.0, -0.03], [0.0, -0.015]]), cl
 
 def _fast(scenario):
     """Ideal plant, uncompiled NLP functions, short settle and tail."""
-    # The final approach (tests/test_final_approach.py) is not the subject: its crawl after the
-    # path's end needs seconds past these short tails.
+    # The placement (tests/test_place.py) is not the subject: its moves after the path's end
+    # need seconds past these short tails.
     return scenario.model_copy(
         update={
             "plant": scenario.plant.model_copy(update={"preset": "ideal"}),
-            "mpc": scenario.mpc.model_copy(update={"compile_c": False, "final_approach": False}),
+            "mpc": scenario.mpc.model_copy(update={"compile_c": False}),
+            "place": scenario.place.model_copy(update={"max_moves": 0}),
             "sim": scenario.sim.model_copy(update={"settle_s": 0.5, "tail_s": 3.0}),
         }
     )

@@ -184,7 +184,7 @@ def test_a_controller_node_refuses_a_rig_with_another_controller_config():
         ),
         (["rig", "serve", "--wait-controller", "nan"], "--wait-controller: must be a number of seconds"),
         (["rig", "serve", "--backend", "ur5"], "--ur-host: required with --backend ur5"),
-        (["rig", "serve", "--seed", "-1"], "--seed: must be an integer >= 0"),
+        (["rig", "serve", "--seed", "-1"], "--seed: must be an integer in [0, 2**63 - 1], got -1"),
         (["rig", "serve", "--prefix", "a/*"], "prefix: must be chunks"),
         (["rig", "serve", "--listen", "bogus"], "endpoint: must be <protocol>/<address>"),
         (["control", "--controller", "nope"], "--controller: unknown 'nope'"),

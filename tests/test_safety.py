@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from capsule_mpc.safety import braking_speed_mps, safe_command
+from capsule_mpc.safety import SafetyFilter, braking_speed_mps, safe_command
 
 DT = 1 / 30
 #: Any float at all: NaN, +-inf, huge and tiny values.
@@ -87,3 +87,22 @@ def test_a_nan_command_brakes_and_an_unknown_position_brakes(scenario):
         out, clipped = safe_command(u, u_prev, pos, scenario, DT)
         assert clipped
         assert out == pytest.approx([0.05 - da, -0.05 + da, 0.0])
+
+
+@settings(max_examples=30, deadline=None)
+@given(wanted=st.lists(st.tuples(*[st.floats(-0.2, 0.2)] * 3), min_size=1, max_size=40))
+def test_the_filter_is_safe_command_chained_and_counts_what_it_clipped(scenario, wanted):
+    """Each command is safe_command's given the previous one sent and its slope; the count is the
+    commands that differ from what was asked."""
+    dt = 1 / 30
+    epm = np.array([0.0, 0.0, scenario.plate.epm_height_m])
+    filt = SafetyFilter(scenario, dt)
+    prev, slope, clipped = np.zeros(3), np.zeros(3), 0
+    for u in wanted:
+        expected, was = safe_command(np.array(u), prev, epm, scenario, dt, slope)
+        cmd, flag = filt.apply(np.array(u), epm)
+        np.testing.assert_array_equal(cmd, expected)
+        assert flag == was
+        slope, prev, clipped = (cmd - prev) / dt, cmd, clipped + int(was)
+    assert filt.clipped == clipped
+    assert np.array_equal(filt.u_prev, prev) and np.array_equal(filt.slope_prev, slope)

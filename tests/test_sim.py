@@ -515,8 +515,8 @@ def test_late_mpc_solves_in_realtime_fall_back_to_the_shifted_plan(scenario, mon
 
     sc = short_settle(scenario, 0.5)
     # The final approach (commands without a solve, and without a prediction) is not the subject.
-    mpc = sc.mpc.model_copy(update={"compile_c": False, "final_approach": False})
-    sc = sc.model_copy(update={"mpc": mpc})
+    mpc = sc.mpc.model_copy(update={"compile_c": False})
+    sc = sc.model_copy(update={"mpc": mpc, "place": sc.place.model_copy(update={"max_moves": 0})})
     period_ms = 1e3 / sc.camera.rate_hz
     solver = build_mpc_stack(
         sc.model_copy(update={"mpc": sc.mpc.model_copy(update={"enforce_deadline": True})})

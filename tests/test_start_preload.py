@@ -1,4 +1,4 @@
-"""The start's pre-load (capsule_mpc.mpc.start, mpc.start_preload): the lead it aims at against an
+"""The start's pre-load (capsule_mpc.mpc.start, break_loose.preload): the lead it aims at against an
 independent evaluation of the force model and the friction belief, the arm's limits on every
 command, and when the phase ends."""
 
@@ -34,7 +34,7 @@ def preload_scenario(scenario: Scenario, fraction: float | None = 0.9) -> Scenar
     return scenario.model_copy(
         update={
             "friction": scenario.friction.model_copy(update={"learned": model}),
-            "mpc": scenario.mpc.model_copy(update={"start_preload": fraction}),
+            "break_loose": scenario.break_loose.model_copy(update={"preload": fraction}),
         }
     )
 
@@ -170,17 +170,18 @@ def test_without_start_preload_there_is_no_phase(scenario):
 
 
 def test_start_preload_is_validated(scenario):
+    section = scenario.break_loose
     for bad in (0.0, -0.5, 1.5):
-        with pytest.raises(ValidationError, match="start_preload"):
-            type(scenario.mpc).model_validate({**scenario.mpc.model_dump(), "start_preload": bad})
+        with pytest.raises(ValidationError, match="preload"):
+            type(section).model_validate({**section.model_dump(), "preload": bad})
     for bad in (-0.1, 1.5):
-        with pytest.raises(ValidationError, match="start_preload_arrival"):
-            type(scenario.mpc).model_validate({**scenario.mpc.model_dump(), "start_preload_arrival": bad})
+        with pytest.raises(ValidationError, match="arrival"):
+            type(section).model_validate({**section.model_dump(), "arrival": bad})
 
 
 def test_arrival_zero_arrives_at_the_paths_speed(scenario):
     sc = preload_scenario(scenario)
-    sc = sc.model_copy(update={"mpc": sc.mpc.model_copy(update={"start_preload_arrival": 0.0})})
+    sc = sc.model_copy(update={"break_loose": sc.break_loose.model_copy(update={"arrival": 0.0})})
     start, _, epm = make(sc)
     assert start.arrival_speed(epm[0:2], epm[0:2] + np.array([0.005, 0.0])) == sc.path.speed_mps
 
@@ -216,8 +217,8 @@ def test_arriving_fast_breaks_the_capsule_loose_sooner_in_closed_loop(lab_start_
     base, leg = lab_start_leg
     runs = {}
     for arrival in (0.0, 0.9):
-        mpc = base.mpc.model_copy(update={"start_preload": 1.0, "start_preload_arrival": arrival})
-        runs[arrival] = simulate(base.model_copy(update={"mpc": mpc}), "mpc", leg, 5, progress=False)
+        bl = base.break_loose.model_copy(update={"preload": 1.0, "arrival": arrival})
+        runs[arrival] = simulate(base.model_copy(update={"break_loose": bl}), "mpc", leg, 5, progress=False)
         assert runs[arrival].metrics["arm_ok"]
     assert _first_slip_s(runs[0.9]) <= _first_slip_s(runs[0.0]) - 1.5 / 30
     assert runs[0.9].metrics["start_tracking_rms_mm"] < runs[0.0].metrics["start_tracking_rms_mm"] - 0.2

@@ -3,6 +3,7 @@ to the run's log; the export of the run folder gives the same channels; bad run 
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import shutil
@@ -141,6 +142,10 @@ def test_the_prediction_is_the_controller_s_and_the_events_tell_the_run(mpc_run)
     assert events[0].message.startswith("run started: controller mpc, seed 1")
     assert "path started" in events[1].message
     assert events[-1].message.startswith(f"run ended: {result.metrics['outcome']}")
+    # One event per change of the log's phase column, naming both phases.
+    phase = result.log["phase"]
+    changes = [f"phase: {a} -> {b}" for a, b in itertools.pairwise(phase) if a != b]
+    assert changes and [e.message.split(" (")[0] for e in events if e.message.startswith("phase:")] == changes
 
 
 def _matrix(tf) -> np.ndarray:

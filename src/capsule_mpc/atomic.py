@@ -22,8 +22,9 @@ __all__ = ["ENCODING", "atomic_path", "recording_writes", "write_text_atomic"]
 #: The encoding of every text file the package reads or writes.
 ENCODING = "utf-8"
 
-#: The active :func:`recording_writes` blocks: (resolved folder, the files written under it).
-_recorders: list[tuple[Path, set[Path]]] = []
+#: The active :func:`recording_writes` blocks: (resolved folder, the files written under it, the
+#: journal file each is appended to, or None).
+_recorders: list[tuple[Path, set[Path], Path | None]] = []
 _recorders_lock = threading.Lock()
 
 
@@ -33,20 +34,31 @@ def _record(target: Path) -> None:
         return
     path = target.parent.resolve() / target.name  # the file itself, even if a link pointed there
     with _recorders_lock:
-        for root, files in _recorders:
+        for root, files, journal in _recorders:
             if root in path.parents:
                 files.add(path)
+                if journal is not None:
+                    _append(journal, path.relative_to(root).as_posix())
+
+
+def _append(journal: Path, line: str) -> None:
+    """Append ``line`` to ``journal``, flushed to disk (it must survive the process being killed)."""
+    with journal.open("a", encoding=ENCODING) as fh:
+        fh.write(line + "\n")
+        fh.flush()
+        os.fsync(fh.fileno())
 
 
 @contextmanager
-def recording_writes(folder: str | Path) -> Iterator[set[Path]]:
+def recording_writes(folder: str | Path, journal: str | Path | None = None) -> Iterator[set[Path]]:
     """Collect, in the yielded set, every file written under ``folder`` while the block runs.
 
     A file counts when :func:`atomic_path` (and so :func:`write_text_atomic`) renames it into
     place, from any thread of this process; the set holds resolved paths. Blocks nest: a file is
-    reported to every block whose folder holds it.
+    reported to every block whose folder holds it. With ``journal``, each file's path relative to
+    ``folder`` is also appended to that file as it is written (what a killed process wrote).
     """
-    entry = (Path(folder).resolve(), set[Path]())
+    entry = (Path(folder).resolve(), set[Path](), None if journal is None else Path(journal))
     with _recorders_lock:
         _recorders.append(entry)
     try:
@@ -63,7 +75,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     The temporary name keeps the suffix of ``path`` (NumPy and matplotlib infer the format
     from it) and lies in the same folder (same file system, so the rename is atomic). The
     parent folder is created. On an exception the temporary file is removed and ``path``
-    is left untouched. The written file is reported to the :func:`recording_writes` blocks
+    is left untouched (an ``OSError`` that names no file is raised again naming ``path``). The
+    written file is reported to the :func:`recording_writes` blocks
     that cover it.
     """
     target = Path(path)
@@ -73,6 +86,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         yield tmp
         tmp.replace(target)
         _record(target)
+    except OSError as exc:
+        if exc.filename is None:  # e.g. a full disk on a write: say which file
+            raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from exc
+        raise
     finally:
         tmp.unlink(missing_ok=True)
 

@@ -96,14 +96,16 @@ class FollowPath(Controller):
                 self._settle_sum += measurement.position_m
                 self._settle_n += 1
                 self._settle_epm = epm[:2].copy()
-            return Command(np.zeros(3), StepStats(status="calibrating"))
+            return Command(np.zeros(3), StepStats(status="calibrating", phase="settle"))
         if not self._calibrated:
             self._calibrate()
         target = self.path.position(t_s) + self.offset_m
         vel_xy = self.path.velocity(t_s) + self.position_gain_per_s * (target - epm[:2])
         vel_z = self.position_gain_per_s * (self.height_m - epm[2])
         vel = np.clip(np.array([vel_xy[0], vel_xy[1], vel_z]), -self.speed_limit_mps, self.speed_limit_mps)
-        return Command(vel, StepStats(status="ok"))  # no solver: solve_ms stays NaN
+        # No solver: solve_ms stays NaN. The phase as the MPC's are named: the path runs, then it holds.
+        phase = "slide" if t_s < self.path.duration_s else "hold"
+        return Command(vel, StepStats(status="ok", phase=phase))
 
 
 @register_controller("follow")

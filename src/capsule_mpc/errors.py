@@ -11,7 +11,16 @@ carry the time and EPM position they happened at.
 
 from __future__ import annotations
 
-__all__ = ["CapsuleMPCError", "ConfigError", "LearningDataError", "OutputError", "PlanError"]
+import re
+
+__all__ = [
+    "CapsuleMPCError",
+    "ConfigError",
+    "LearningDataError",
+    "OutputError",
+    "PlanError",
+    "library_error",
+]
 
 #: Longest line of a :class:`ConfigError` message, and most lines, characters.
 MAX_LINE, MAX_LINES = 500, 20
@@ -51,3 +60,15 @@ class LearningDataError(CapsuleMPCError, ValueError):
 
 class PlanError(CapsuleMPCError, RuntimeError):
     """A plan was needed (e.g. by the ``plan`` controller) but its solve failed; the message says how."""
+
+
+#: A native library's note of where in its own sources an error arose (`` at /path/file.rs:61.``).
+_SOURCE_NOTE = re.compile(r"\s+at /\S+?\.rs:\d+\.?")
+
+
+def library_error(exc: BaseException) -> str:
+    """A native library's error as one line for a user: its source-file notes removed, the
+    innermost reason kept (``Address already in use (os error 98)``)."""
+    text = " ".join(_SOURCE_NOTE.sub("", str(exc)).split())
+    reasons = re.findall(r"[^\[\]:]*\(os error \d+\)", text)
+    return reasons[-1].strip() if reasons else text

@@ -107,8 +107,8 @@ class StepOutcome(enum.Enum):
     FAILED = "failed"
     #: No measurement has arrived yet: the command is zero.
     NO_MEASUREMENT = "no_measurement"
-    #: The final approach's crawl gave the command (no solve).
-    APPROACH = "approach"
+    #: A placement move gave the command (no solve).
+    PLACE = "place"
     #: The controller returned no valid command; the loop sent a stop.
     INVALID = "invalid"
 
@@ -118,7 +118,9 @@ class StepStats:
     """What a controller reports about one step (solvers fill in the solve fields).
 
     ``outcome`` is what happened, as a value to act on; ``status`` the same in words with the
-    solver's own detail (it goes into the run log's ``solver_status`` column).
+    solver's own detail (it goes into the run log's ``solver_status`` column); ``phase`` the
+    controller's phase at the step (the run log's ``phase`` column; empty for a controller
+    without phases).
     """
 
     solve_ms: float = math.nan
@@ -127,6 +129,7 @@ class StepStats:
     failed: bool = False
     extra: dict[str, float] = field(default_factory=dict)
     outcome: StepOutcome = StepOutcome.OK
+    phase: str = ""
 
 
 @dataclass(frozen=True)
@@ -167,6 +170,12 @@ class Controller(ABC):
         still applies).
         """
         return True
+
+    @property
+    def gave_up(self) -> str:
+        """Why the controller gave up on the run's end (e.g. a placement out of moves); empty if it
+        did not. A run it gave up on fails."""
+        return ""
 
 
 class Actuator(ABC):

@@ -49,9 +49,11 @@ __all__ = [
     "EPM_VELOCITY_COLUMNS",
     "MIN_TRAVEL_M",
     "MOVING_SPEED_MPS",
+    "PLACED_STILL_M",
     "START_WINDOW_S",
     "arrival_time_s",
     "cross_track_errors",
+    "end_metrics",
     "epm_jerk_mps3",
     "hold_log_until",
     "motion_end_s",
@@ -378,7 +380,10 @@ def run_metrics(
         ``arrival_ratio`` (arrival / nominal), ``window_end_s`` and ``motion_end_s`` (both the
         window end used, s), and the :func:`solver_metrics` of the logged frames.
     """
-    end = motion_end_s(log, completion_time_s) if window_end_s is None else float(window_end_s)
+    motion_end = motion_end_s(log, completion_time_s) if window_end_s is None else float(window_end_s)
+    # The path's metrics cover the path: the same window, its nominal time, for every controller
+    # (the end is scored at rest by end_metrics).
+    end = min(motion_end, path.duration_s)
     scored = hold_log_until(log, end, path)
     mask = motion_mask(scored, end)
     capsule = np.column_stack([scored["capsule_x_m"], scored["capsule_y_m"]])[mask]
@@ -406,7 +411,7 @@ def run_metrics(
         "nominal_time_s": path.duration_s,
         "arrival_ratio": arrival / path.duration_s,
         "window_end_s": end,
-        "motion_end_s": end,
+        "motion_end_s": motion_end,
         "epm_jerk_rms_mps3": _rms(jerk),
         "epm_path_ratio": path_length_m(epm) / travel if travel > MIN_TRAVEL_M else math.nan,
         "normal_force_min_n": float(np.nanmin(f_n)) if np.any(np.isfinite(f_n)) else math.nan,
@@ -414,3 +419,60 @@ def run_metrics(
     }
     out.update(solver_metrics(log, deadline_ms))
     return out
+
+
+#: A capsule counts as placed from the time it stays this close to where it ends, m (a few camera
+#: noise floors below the placement tolerance).
+PLACED_STILL_M = 2e-5
+
+
+def end_metrics(
+    log: Mapping[str, np.ndarray],
+    path: ReferencePath,
+    camera_bias_m: np.ndarray,
+    placement_moves: int,
+    at_rest: bool,
+) -> dict[str, Any]:
+    """How the run ended, from the plant's truth: the metrics of the placement at the path's end.
+
+    Parameters
+    ----------
+    log : mapping of str to numpy.ndarray
+        A run log (true positions; the ``phase`` column when the controller has phases).
+    path : ReferencePath
+        The reference; its end is the target.
+    camera_bias_m : numpy.ndarray (2,)
+        The draw's camera registration bias, m: what the camera adds to every position on average.
+    placement_moves : int
+        The controller's placement moves.
+    at_rest : bool
+        Whether the run ended at rest (else the time to place is NaN).
+
+    Returns
+    -------
+    dict
+        ``final_error_seen_mm``: the last true position plus the camera's bias (what the camera
+        sees on average, noise-free) to the path's end; ``camera_bias_mm`` (|bias|, a floor no
+        controller can see); ``time_to_place_s``: from the path's nominal end to the time from
+        which the capsule stayed within :data:`PLACED_STILL_M` of where it ended (0 if it was
+        there by the nominal end; NaN if the run did not end at rest); ``placement_moves``;
+        ``end_phase``: the controller's phase at the last frame ('' without phases).
+    """
+    t = np.asarray(log["t_s"], dtype=float)
+    pos = np.column_stack([log["capsule_x_m"], log["capsule_y_m"]]).astype(float)
+    bias = np.asarray(camera_bias_m, dtype=float)
+    if not len(t):
+        return {"final_error_seen_mm": math.nan, "camera_bias_mm": float(np.linalg.norm(bias)) * 1e3,
+                "time_to_place_s": math.nan, "placement_moves": placement_moves, "end_phase": ""}  # fmt: skip
+    final = pos[-1]
+    away = np.linalg.norm(pos - final, axis=1) > PLACED_STILL_M
+    last_away = float(t[away][-1]) if np.any(away) else -math.inf
+    placed_s = max(last_away - path.duration_s, 0.0) if at_rest else math.nan
+    phases = log.get("phase")
+    return {
+        "final_error_seen_mm": float(np.linalg.norm(final + bias - path.end_m)) * 1e3,
+        "camera_bias_mm": float(np.linalg.norm(bias)) * 1e3,
+        "time_to_place_s": placed_s,
+        "placement_moves": int(placement_moves),
+        "end_phase": "" if phases is None or not len(phases) else str(phases[-1]),
+    }

@@ -7,8 +7,10 @@ A command that writes into ``--out`` enters :func:`output_folder`, which
    * a path that is a file, or that cannot be created or written (e.g. a name too long);
    * the working directory (``--out .`` or ``--out ''``) or a folder holding it, and a folder in
      the ``capsule_mpc`` package: outputs belong in a folder of their own;
-   * a folder holding one of the command's input files (``--config``, ``--waypoints``,
-     ``--plan``): the command would remove or overwrite its own input;
+   * a folder that is or holds one of the command's inputs, or another output of the command
+     that is one (:func:`capsule_mpc.overwrite.refuse_overwrite`: ``--config`` and its ``base:``
+     chain, ``--waypoints``, ``--plan``; ``--mcap``): the command would remove or overwrite its
+     own input;
    * a folder holding files named like the package's outputs (:data:`OUTPUT_NAMES`: an older
      run's ``predictions.npz``, a ``config.yaml`` of one's own) that no manifest there lists:
      they are not the package's to remove, and the new run would overwrite them or leave them
@@ -17,9 +19,14 @@ A command that writes into ``--out`` enters :func:`output_folder`, which
 
 2. takes a lock file (``.capsule-mpc.lock``, created exclusively): a second command into the same
    folder is refused while the first runs; a lock left by a process that no longer exists on
-   this host is taken over, with a one-line warning on stderr;
-3. removes what the previous command there produced, as listed in its manifest, so a folder never
-   mixes the outputs of two runs (files the user put there are never touched);
+   this host is taken over, and what that killed process left is cleaned up
+   (:func:`capsule_mpc.previous_run.recover`), with a one-line warning on stderr;
+3. sets aside what the previous command there produced, as listed in its manifest
+   (:func:`capsule_mpc.previous_run.set_aside`; refused before any work if a file cannot be
+   moved), so a folder never mixes the outputs of two runs (files the user put there are never
+   touched); the previous run is dropped once the new one has written something, and put back
+   exactly as it was otherwise (nothing written, bad input found late, a file that could not be
+   written, a crash);
 4. on exit writes ``manifest.json``: the command, its arguments, the start and end times, how it
    ended (``status``: ``complete`` when its exit status is 0, else ``failed`` or
    ``interrupted``), its exit status (``exit_status``: the one the command set on the
@@ -28,8 +35,9 @@ A command that writes into ``--out`` enters :func:`output_folder`, which
    else creates in the folder meanwhile is never claimed, nor removed by the next command (a
    command that failed or was interrupted before writing anything leaves no manifest);
 5. if the command refused its input (:class:`~capsule_mpc.config.ConfigError`, or the command's
-   own refusals) after the folder was prepared, removes what it wrote and the folder too if it
-   created it: bad input leaves no output.
+   own refusals) after the folder was prepared, or a file could not be written (an ``OSError``,
+   e.g. a full disk), removes what it wrote and the folder too if it created it: bad input leaves
+   no output, and a failed write no half-written folder.
 
 Single files are written atomically (:mod:`capsule_mpc.atomic`), so an interrupted command leaves
 complete files only, and the manifest says it was interrupted.
@@ -37,6 +45,7 @@ complete files only, and the manifest says it was interrupted.
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import json
 import os
@@ -50,6 +59,8 @@ from pathlib import Path
 from .atomic import ENCODING, recording_writes, write_text_atomic
 from .errors import ConfigError, OutputError
 from .interrupt import exit_status
+from .overwrite import refuse_overwrite, resolved, shown_path
+from .previous_run import JOURNAL_NAME, Backup, recover, set_aside
 
 __all__ = [
     "LOCK_NAME",
@@ -183,8 +194,11 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def _acquire_lock(folder: Path, command: str) -> Path:
+def _acquire_lock(folder: Path, command: str) -> tuple[Path, int | None]:
+    """Take the folder's lock: (the lock file, the process that held it and no longer runs, or
+    None)."""
     lock = folder / LOCK_NAME
+    stale: int | None = None
     info = {"pid": os.getpid(), "host": socket.gethostname(), "command": command, "since": time.time()}
     for _ in range(2):
         try:
@@ -196,11 +210,7 @@ def _acquire_lock(folder: Path, command: str) -> Path:
             except (OSError, ValueError, KeyError, TypeError):
                 held, pid, host = {}, -1, ""
             if host == socket.gethostname() and pid > 0 and not _pid_alive(pid):
-                print(
-                    f"capsule-mpc {command}: warning: --out: {folder} was locked by process {pid}, which "
-                    "no longer runs; taking the lock",
-                    file=sys.stderr,
-                )
+                stale = pid
                 lock.unlink(missing_ok=True)
                 continue
             who = f"process {pid} on {host} ({held.get('command', '?')})" if held else "another command"
@@ -212,8 +222,21 @@ def _acquire_lock(folder: Path, command: str) -> Path:
             raise OutputError(f"--out: cannot write into {folder}: {exc.strerror}") from None
         with os.fdopen(fd, "w", encoding=ENCODING) as fh:
             json.dump(info, fh)
-        return lock
+        return lock, stale
     raise OutputError(f"--out: could not take the lock {lock}")  # pragma: no cover - a race lost twice
+
+
+def _say_recovered(command: str, folder: Path, stale: int | None, done: str) -> None:
+    """One line on stderr for a lock taken over from a process that no longer runs, and what was
+    cleaned up after a killed command (``done``)."""
+    if stale is not None:
+        text = f"{folder} was locked by process {stale}, which no longer runs; taking the lock"
+    elif done:
+        text = f"{folder}: a command was killed while writing here"
+    else:
+        return
+    done = f"; {done}" if done else ""
+    print(f"capsule-mpc {command}: warning: --out: {text}{done}", file=sys.stderr)
 
 
 def _inside(folder: Path, rel: str) -> Path | None:
@@ -236,21 +259,13 @@ def _remove_files(folder: Path, rels: Sequence[str]) -> None:
             parent.rmdir()
 
 
-def shown_path(path: str | Path) -> str:
-    """``path`` for a one-line message: ``''`` for an empty one, a very long one shortened."""
-    text = str(path)
-    if not text:
-        return "''"
-    return text if len(text) <= 100 else f"{text[:60]}...{text[-20:]} ({len(text)} characters)"
-
-
 def _holds(folder: Path, path: Path) -> bool:
     """Whether ``path`` is ``folder`` or lies inside it (both resolved)."""
     return path == folder or folder in path.parents
 
 
-def _misplaced(folder: Path, shown: str, inputs: Mapping[str, str | Path | None]) -> str | None:
-    """Why ``folder`` (resolved) must not take a command's outputs, or None."""
+def _misplaced(folder: Path, shown: str) -> str | None:
+    """Why ``folder`` (resolved) must not take a command's outputs, or None (its inputs aside)."""
     cwd = Path.cwd().resolve()
     if folder == cwd:
         return f"--out: {shown} is the working directory; give the outputs a folder of their own"
@@ -259,12 +274,6 @@ def _misplaced(folder: Path, shown: str, inputs: Mapping[str, str | Path | None]
     package = Path(__file__).resolve().parent  # this package's own folder
     if _holds(package, folder):
         return f"--out: {shown} is in the capsule_mpc package ({package}); write the outputs elsewhere"
-    for option, given in inputs.items():
-        if given is not None and str(given) and _holds(folder, Path(given).resolve()):
-            return (
-                f"--out: {shown} holds {option} {given}, an input of this command, which it could remove "
-                "or overwrite; give another folder"
-            )
     return None
 
 
@@ -297,8 +306,14 @@ def _unlisted_outputs(folder: Path, listed: Sequence[str]) -> list[str]:
     return found
 
 
-def _prepare(path: str | Path, inputs: Mapping[str, str | Path | None]) -> tuple[Path, bool]:
-    """Check and create the folder; (the folder, whether this call created it).
+def _prepare(
+    path: str | Path,
+    inputs: Mapping[str, str | Path | None],
+    files: Mapping[str, str | Path | None],
+) -> tuple[Path, bool]:
+    """Check the folder and the command's other output ``files`` against its ``inputs``
+    (:func:`capsule_mpc.overwrite.refuse_overwrite`) and create the folder; (the folder, whether
+    this call created it).
 
     Raises
     ------
@@ -307,11 +322,14 @@ def _prepare(path: str | Path, inputs: Mapping[str, str | Path | None]) -> tuple
     """
     folder, shown = Path(path), shown_path(path)
     try:
+        real = resolved(folder, "--out")
         if folder.exists() and not folder.is_dir():
             raise OutputError(f"--out: {shown} exists and is not a folder")
-        problem = _misplaced(folder.resolve(), shown, inputs)
+        problem = _misplaced(real, shown)
         if problem:
             raise OutputError(problem)
+        outputs = {"--out": (path, True), **{o: (f, False) for o, f in files.items()}}
+        refuse_overwrite(outputs, inputs)
         created = not folder.exists()
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -372,6 +390,7 @@ def output_folder(
     refusals: tuple[type[BaseException], ...] = (ConfigError,),
     resume: bool = False,
     inputs: Mapping[str, str | Path | None] | None = None,
+    files: Mapping[str, str | Path | None] | None = None,
 ) -> Iterator[OutputFolder]:
     """Prepare ``path`` for ``command``'s outputs and yield it; see the module docstring.
 
@@ -396,7 +415,11 @@ def output_folder(
         that are still there as well as those written now.
     inputs : mapping of str to path, optional
         The command's input files by option (``{"--config": ..., "--waypoints": ...}``; None
-        for an option not given): a folder holding one is refused.
+        for an option not given, ``--config`` standing for its whole ``base:`` chain): a folder
+        holding one is refused, as is one of ``files`` that is one.
+    files : mapping of str to path, optional
+        The command's output files outside the folder by option (``{"--mcap": ...}``), checked
+        against ``inputs`` with the folder before anything is written.
 
     Yields
     ------
@@ -408,42 +431,93 @@ def output_folder(
     OutputError
         ``path`` cannot or must not be used (module docstring), or another command holds its lock.
     """
-    folder, created = _prepare(path, inputs or {})
-    lock = _acquire_lock(folder, command)
+    folder, created = _prepare(path, inputs or {}, files or {})
+    lock, stale = _acquire_lock(folder, command)
     try:
+        shown = shown_path(path)
+        _say_recovered(command, folder, stale, recover(folder))
         if replace_previous and not resume and not created:
-            _check_unlisted(folder, shown_path(path))
-        if replace_previous:
-            _remove_files(folder, _listed(folder))
+            _check_unlisted(folder, shown)
         kept = _listed(folder) if resume else []
-        started = time.time()
-        handle = OutputFolder(folder)
-        outcome: tuple[str, int] | None = ("failed", _EXIT_ERROR)
-        written: list[str] = []
-        try:
-            with recording_writes(folder) as files:
-                try:
-                    yield handle
-                    outcome = ("complete" if handle.status == 0 else "failed", handle.status)
-                except KeyboardInterrupt as exc:
-                    outcome = ("interrupted", exit_status(exc))
-                    raise
-                except refusals:
-                    # Bad input found after the folder was prepared: leave nothing behind.
-                    _remove_files(folder, _relative(folder, files))
-                    if replace_previous:  # the previous run's files are gone: its manifest too
-                        (folder / MANIFEST_NAME).unlink(missing_ok=True)
-                    outcome = None
-                    raise
-                except BaseException:  # an error the command did not handle here
-                    outcome = ("failed", handle.status or _EXIT_ERROR)
-                    raise
-                finally:
-                    written = _relative(folder, files) if outcome is not None else []
-        finally:
-            if outcome is not None:
-                _write_manifest(folder, command, argv, started, outcome, written, kept)
+        backup = set_aside(folder, _listed(folder), shown) if replace_previous else None
+        yield from _run_in(folder, command, argv, refusals, backup, kept)
     finally:
+        (folder / JOURNAL_NAME).unlink(missing_ok=True)
         lock.unlink(missing_ok=True)
-        if created and folder.is_dir() and not any(folder.iterdir()):
-            folder.rmdir()
+        if created:
+            _remove_empty(folder)
+
+
+def _remove_empty(folder: Path) -> None:
+    """Remove ``folder`` (which this command created) if it holds only empty folders."""
+    for here, _dirs, _files in sorted(os.walk(folder), key=lambda w: len(w[0]), reverse=True):
+        with contextlib.suppress(OSError):  # not empty
+            Path(here).rmdir()
+
+
+def _run_in(
+    folder: Path,
+    command: str,
+    argv: Sequence[str] | None,
+    refusals: tuple[type[BaseException], ...],
+    backup: Backup | None,
+    kept: list[str],
+) -> Iterator[OutputFolder]:
+    """Yield the folder to the command and record how it ended: a manifest, and the previous run
+    (``backup``) dropped when the new one replaces it, else put back (module docstring)."""
+    started = time.time()
+    handle = OutputFolder(folder)
+    stopped_by: tuple[type[BaseException], ...] = (*refusals, OSError)
+    outcome: tuple[str, int] | None = None  # None: refused, or a file could not be written
+    crashed = False
+    written: list[str] = []
+    try:
+        with recording_writes(folder, journal=folder / JOURNAL_NAME) as files:
+            try:
+                yield handle
+                outcome = ("complete" if handle.status == 0 else "failed", handle.status)
+            except KeyboardInterrupt as exc:
+                outcome = ("interrupted", exit_status(exc))
+                raise
+            except stopped_by:
+                # Bad input found after the folder was prepared, or a file that could not be
+                # written (a full disk): leave nothing of this run behind.
+                raise
+            except BaseException:  # an error the command did not handle here
+                outcome, crashed = ("failed", handle.status or _EXIT_ERROR), True
+                raise
+            finally:
+                written = _relative(folder, files)
+    finally:
+        record = (started, outcome, written, kept)
+        _settle(folder, command, argv, record, backup, crashed)
+
+
+def _settle(
+    folder: Path,
+    command: str,
+    argv: Sequence[str] | None,
+    record: tuple[float, tuple[str, int] | None, list[str], list[str]],
+    backup: Backup | None,
+    crashed: bool,
+) -> None:
+    """Keep the new run (its manifest written, the previous run dropped), or put the previous run
+    back and remove the new run's files: after bad input, a write that failed, a crash, or a stop
+    before anything was written (a crash in a folder without a previous run keeps its files)."""
+    started, outcome, written, kept = record
+    if outcome is None or not (outcome[0] == "complete" or written) or (crashed and backup is not None):
+        if backup is not None:
+            backup.restore(written)
+        elif outcome is None:
+            _remove_files(folder, written)
+        return
+    try:
+        _write_manifest(folder, command, argv, started, outcome, written, kept)
+    except OSError:
+        if backup is not None:
+            backup.restore(written)
+        else:
+            _remove_files(folder, written)
+        raise
+    if backup is not None:
+        backup.discard()

@@ -31,7 +31,7 @@ import numpy as np
 
 from .config import Scenario
 
-__all__ = ["braking_speed_mps", "safe_command"]
+__all__ = ["SafetyFilter", "braking_speed_mps", "safe_command"]
 
 #: A reported EPM position this far from the origin (m) is not a position but a broken reading
 #: (it would overflow the envelope's arithmetic): the command brakes as for a NaN position.
@@ -126,3 +126,34 @@ def safe_command(
     if known:  # outside the envelope already: stop on the face rather than cross it
         u = np.minimum(np.maximum(u, np.minimum((lo - pos) / dt_s, 0.0)), np.maximum((hi - pos) / dt_s, 0.0))
     return u, bool(not finite or float(np.max(np.abs(u - target))) > 1e-12)
+
+
+class SafetyFilter:
+    """:func:`safe_command` on a stream of commands: it keeps the command sent and its slope (the
+    jerk bound's memory) and counts the commands it clipped.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        ``limits`` and ``mpc.height_control``.
+    dt_s : float
+        Command period, s (> 0).
+    """
+
+    def __init__(self, scenario: Scenario, dt_s: float) -> None:
+        self.scenario = scenario
+        self.dt_s = dt_s
+        #: The last command sent (m/s) and its change over its frame (m/s^2).
+        self.u_prev = np.zeros(3)
+        self.slope_prev = np.zeros(3)
+        #: Commands that were clipped so far.
+        self.clipped = 0
+
+    def apply(self, u: np.ndarray, epm_position_m: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The command to send for ``u`` (m/s) with the EPM at ``epm_position_m`` (m), and whether
+        it was clipped; it becomes the previous command of the next call."""
+        cmd, clipped = safe_command(u, self.u_prev, epm_position_m, self.scenario, self.dt_s, self.slope_prev)
+        self.clipped += int(clipped)
+        self.slope_prev = (cmd - self.u_prev) / self.dt_s
+        self.u_prev = cmd
+        return cmd, clipped

@@ -4,10 +4,12 @@ Exit status of every command: 0 on success, 1 when the work failed (the command 
 bad input (a config, file or option; the message names it), 128 + the signal's number when a
 signal stopped it: 130 on Ctrl-C (``capsule-mpc: interrupted`` on stderr), 143 on SIGTERM and 129
 on SIGHUP (``capsule-mpc: interrupted by SIGTERM``). An interrupted command stops at once, even
-inside a CasADi solve (:mod:`capsule_mpc.interrupt`), and records nothing for the work in progress
-(an interrupted solve is never reported as a failed one); the files it had written are complete
-(every file is replaced atomically), its output folder's manifest says ``interrupted`` and its
-worker processes are stopped.
+inside a CasADi solve (:mod:`capsule_mpc.interrupt`); an interrupted solve is never reported as a
+failed one. The files it had written are complete (every file is replaced atomically), a closed
+loop it ran keeps its log so far and a finalised MCAP (``simulate``, ``rig serve``), its output
+folder's manifest says ``interrupted`` and its worker processes are stopped. Every error is one
+line: argparse's (no usage), and an ``OSError`` that stopped the work (exit 1, e.g. a full disk:
+the file named, nothing half-written left).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import os
 import signal
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from ..errors import ConfigError, PlanError
 from ..interrupt import TERMINATING_SIGNALS, exit_status, interruptible
@@ -60,9 +63,17 @@ def package_version() -> str:
         return __version__
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are one line on stderr (``<prog>: error: <message>``) and
+    exit status 2, as every other refusal of bad input (``--help`` shows the usage)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with every registered command."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="capsule-mpc",
         description=(
             "Plan and control a magnetically actuated tethered capsule endoscope. Exit status: 0 "
@@ -101,6 +112,14 @@ def _run(argv: Sequence[str] | None) -> int:
     return status
 
 
+def os_error_text(exc: OSError) -> str:
+    """One line for an operating system's error that stopped a command: why, and on which file."""
+    lines = str(exc).splitlines()
+    reason = exc.strerror or (lines[0] if lines else type(exc).__name__)
+    where = f": {exc.filename}" if exc.filename else ""
+    return f"stopped: {reason}{where}"
+
+
 def _tolerate_encoding(streams: Sequence[object]) -> None:
     """Print what a locale's encoding cannot show (``±`` under ``LC_ALL=C``) as escapes, rather
     than fail on it; the files are UTF-8 whatever the locale."""
@@ -119,6 +138,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"capsule-mpc: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a file that could not be written (a full disk) or read meanwhile
+        print(f"capsule-mpc: {os_error_text(exc)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as exc:
         status = exit_status(exc)
         by = "" if status == EXIT_INTERRUPTED else f" by {signal.Signals(status - 128).name}"

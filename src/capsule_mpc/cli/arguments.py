@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from ..learning.demonstrations import BreakawayPlan
 
 __all__ = [
+    "MAX_SEED",
     "add_breakaway_arguments",
     "add_rig_arguments",
     "add_run_arguments",
@@ -29,6 +30,7 @@ __all__ = [
     "out_folder",
     "positive_speed",
     "refuse_repeats",
+    "refuse_seed_overflow",
     "run_count",
     "seed",
     "write_problem",
@@ -59,8 +61,35 @@ def int_at_least(minimum: int, maximum: int | None = None, bound: str | None = N
     return parse
 
 
-#: A random seed: an integer >= 0 (NumPy seeds cannot be negative).
-seed = int_at_least(0)
+#: The largest seed: the rig's and controller's messages carry it as a signed 64-bit integer.
+MAX_SEED = 2**63 - 1
+
+
+def seed(text: str) -> int:
+    """An argparse ``type``: a random seed, an integer in [0, :data:`MAX_SEED`] (NumPy seeds cannot
+    be negative), else an argparse error (exit 2) saying so."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= MAX_SEED:
+        shown = repr(text) if value == -1 and text.strip() != "-1" else text
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, 2**63 - 1], got {shown}")
+    return value
+
+
+def refuse_seed_overflow(first: int | None, runs: int, default: int) -> str | None:
+    """Why the seeds ``first`` (``default`` when None), ``first + 1``, ... of ``runs`` runs go past
+    :data:`MAX_SEED`, or None."""
+    start = default if first is None else first
+    if start + runs - 1 > MAX_SEED:
+        return (
+            f"--seed: the last run's seed {start} + {runs} - 1 is past the largest seed 2**63 - 1; give "
+            f"a seed <= {MAX_SEED - runs + 1}"
+        )
+    return None
+
+
 #: A number of runs: an integer in [1, :data:`capsule_mpc.budget.MAX_RUNS`].
 run_count = int_at_least(1, MAX_RUNS, "capsule_mpc.budget.MAX_RUNS")
 
@@ -135,8 +164,8 @@ def add_rig_arguments(p: argparse.ArgumentParser, seed_default: int | None = 0) 
         "--seed",
         type=seed,
         default=seed_default,
-        help=f"seed of the rig's plant draw, an integer >= 0 (default {default}); every run runs on that "
-        "one draw, each with its own camera-noise seed derived from it",
+        help=f"seed of the rig's plant draw, an integer in [0, 2**63 - 1] (default {default}); every run "
+        "runs on that one draw, each with its own camera-noise seed derived from it",
     )
 
 
@@ -185,7 +214,7 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
         "--seed",
         type=seed,
         default=None,
-        help="random seed, an integer >= 0 (default: sim.seed of the config)",
+        help="random seed, an integer in [0, 2**63 - 1] (default: sim.seed of the config)",
     )
     p.add_argument(
         "--waypoints",

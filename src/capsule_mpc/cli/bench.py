@@ -18,6 +18,7 @@ from ..experiments import bench, bench_report
 from ..experiments.bench import DEFAULT_FRAMES, DEFAULT_HORIZONS, DEFAULT_QP_SOLVERS, DEFAULT_SCHEMES
 from ..experiments.bench_report import DEFAULT_OUT, REPORT_NAME
 from ..mpc.solver import QP_SOLVERS
+from ..overwrite import refuse_overwrite
 from .arguments import int_at_least, run_count, seed, write_problem
 
 __all__ = ["bench_out", "register", "run"]
@@ -89,7 +90,7 @@ def register(sub: Any) -> None:
         "--seed",
         type=seed,
         default=None,
-        help="random seed, an integer >= 0 (default: sim.seed of the config)",
+        help="random seed, an integer in [0, 2**63 - 1] (default: sim.seed of the config)",
     )
     p.add_argument(
         "--out",
@@ -105,6 +106,8 @@ def register(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark, print the tables and write the JSON report and its figure."""
     try:
+        is_folder = not str(args.out).endswith(".json")
+        refuse_overwrite({"--out": (args.out, is_folder)}, {"--config": args.config})
         bench.check_bench(args.config, args.horizons, args.frames or None)
     except ConfigError as exc:
         print(f"capsule-mpc bench: {exc}", file=sys.stderr)

@@ -16,7 +16,7 @@ from ..experiments import compare as comparison
 from ..experiments.compare import check_controllers
 from ..experiments.runs import prepare_run
 from ..outputs import output_folder
-from .arguments import add_run_arguments, input_files, run_count
+from .arguments import add_run_arguments, input_files, refuse_seed_overflow, run_count
 from .sweep import add_dask_arguments
 
 __all__ = ["register", "run"]
@@ -32,12 +32,14 @@ def register(sub: Any) -> None:
             "the same plant, path and seed; with --runs N on N seeds (seed, seed + 1, ...), each drawing its "
             "own plant and start offset. The runs of one seed are scored on a common window (t = 0 to the "
             "latest end of a run); the seeds run in parallel on Dask (a LocalCluster of --workers "
-            "processes, or the cluster at --scheduler). Writes one run folder per controller and seed, "
+            "processes, or the cluster at --scheduler; with one local worker, in this process). Writes "
+            "one run folder per controller and seed, "
             "runs.csv (the run table: a row per seed and controller), summary.json (means, spreads and "
             "every run), summary.md (mean ± sd for N > 1), trajectories.png, errors.png, "
             "metrics.png (distributions for N > 1) and, with mpc, mpc_prediction.png. A controller that "
             "fails (e.g. the planner's solve does not converge) gets no metrics: its row reads 'failed: "
-            "<why>' and the exit status is 1. Ctrl-C stops at once with status 130 and records nothing."
+            "<why>' and the exit status is 1. Ctrl-C stops at once with status 130 and records no result; "
+            "the runs in progress keep their log so far and a finalised MCAP."
         ),
     )
     add_run_arguments(p)
@@ -63,6 +65,10 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.sweep.campaign import local_workers
     from ..experiments.sweep.tasks import dask_client
 
+    overflow = refuse_seed_overflow(args.seed, args.runs, 0)
+    if overflow:
+        print(f"capsule-mpc compare: {overflow}", file=sys.stderr)
+        return 2
     names = check_controllers(args.controllers)
     local = local_workers(args.runs, args.workers, args.scheduler)
     work = replace(comparison.run_figures(names, args.runs), processes=local or 1)

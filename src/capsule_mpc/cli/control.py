@@ -6,7 +6,8 @@ on lost frames, and resets itself on the run if restarted
 (:class:`capsule_mpc.nodes.controller.ControllerNode`; docs/nodes.md).
 
 Exit status: 0 the rig's run ended; 1 no rig had a run for the node within ``--wait``; 2 a bad
-config or option, or a rig whose scenario differs from ``--config`` where the controller uses it.
+config or option, a rig whose scenario differs from ``--config`` where the controller uses it, or
+a rig whose run another controller node drives (one node drives a run at a time).
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ def register(sub: Any) -> None:
             "restarted. --config must be the rig's scenario (the plant, path and faults may differ)."
         ),
         epilog="Exit status: 0 the rig's run ended; 1 no rig had a run within --wait; 2 a bad config or "
-        "option, or a rig whose scenario differs from --config.",
+        "option, a rig whose scenario differs from --config, or a rig whose run another controller node "
+        "drives (one at a time).",
     )
     p.add_argument("--config", default=None, help="scenario YAML (default: packaged paper.yaml)")
     p.add_argument(

@@ -23,6 +23,9 @@ from ..experiments.learn import (
 )
 from ..learning import MIN_LOG_RATIO, SPEED_FLOOR_MPS, LearningDataError, LogOptions
 from ..learning.fit import MAX_DEGREE
+from ..learning.logs import find_run_logs
+from ..learning.rig_check import check_log_rigs
+from ..overwrite import refuse_overwrite
 
 __all__ = ["register", "run"]
 
@@ -149,8 +152,13 @@ def run(args: argparse.Namespace) -> int:
     log is written (exit 0) with its warnings in the output, the JSON and the model file's header.
     """
     start = time.perf_counter()
-    scenario = load_config(args.config)
     outputs = LearnOutputs(Path(args.out), _path(args.samples_out), _path(args.figures))
+    try:
+        _check_inputs(args, outputs)
+    except (LearningDataError, ValueError) as exc:
+        print(f"capsule-mpc learn-friction: {exc}", file=sys.stderr)
+        return 2
+    scenario = load_config(args.config)
     fit = {
         "degree": args.degree,
         "robust": args.robust,
@@ -202,6 +210,24 @@ def run(args: argparse.Namespace) -> int:
     for warning in result.warnings:
         print(f"capsule-mpc learn-friction: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def _check_inputs(args: argparse.Namespace, outputs: LearnOutputs) -> None:
+    """Refuse, before any work, an output that is or holds an input (the config and its ``base:``
+    chain, the samples, the logs and the scenarios recorded beside them), and logs recorded on
+    another rig than ``--config`` where the fit depends on it.
+
+    Raises
+    ------
+    LearningDataError, ConfigError
+        Naming the paths, or the log and the fields that differ.
+    """
+    logs = [] if args.log is None else find_run_logs(args.log)
+    beside = [log.parent / "config.yaml" for log in logs]
+    inputs = {"--config": args.config, "--samples": args.samples, "--log": [*logs, *beside]}
+    refuse_overwrite({option: (path, folder) for option, path, folder in outputs.listed()}, inputs)
+    if logs:
+        check_log_rigs(load_config(args.config), logs)
 
 
 def _path(text: str | None) -> Path | None:

@@ -15,10 +15,21 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..overwrite import refuse_overwrite
 from .arguments import write_problem
 
 __all__ = ["register", "run_export"]
 
+#: The files of a run folder ``log export`` reads (those present), and its manifest.
+RUN_FILES = (
+    "log.csv",
+    "run.json",
+    "config.yaml",
+    "joint_trajectory.csv",
+    "predictions.npz",
+    "events.json",
+    "manifest.json",
+)
 #: The formats ``log export`` writes.
 FORMATS = ("mcap",)
 
@@ -62,6 +73,9 @@ def register(sub: Any) -> None:
 def run_export(args: argparse.Namespace) -> int:
     """Export ``RUN_DIR`` (a bad folder or file raises ConfigError: exit 2, the file named)."""
     target = Path(args.out) if args.out is not None else Path(args.run_dir) / "run.mcap"
+    run_dir = Path(args.run_dir)
+    read = [run_dir / name for name in RUN_FILES]
+    refuse_overwrite({"--out": (target, False)}, {"RUN_DIR": [run_dir, *read]})
     problem = write_problem(target, folder=False)
     if problem and Path(args.run_dir).is_dir():
         print(f"capsule-mpc log export: --out: {problem}", file=sys.stderr)

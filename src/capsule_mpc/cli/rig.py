@@ -30,6 +30,7 @@ from typing import Any
 
 from ..nodes import DEFAULT_ENDPOINT, DEFAULT_PREFIX
 from ..outputs import output_folder
+from ..overwrite import refuse_overwrite
 from ..telemetry.options import add_telemetry_arguments
 from .arguments import input_files, seed
 
@@ -127,7 +128,12 @@ def register(sub: Any) -> None:
         default=None,
         help="plant preset (overrides plant.preset)",
     )
-    p.add_argument("--seed", type=seed, default=None, help="random seed, an integer >= 0 (default: sim.seed)")
+    p.add_argument(
+        "--seed",
+        type=seed,
+        default=None,
+        help="random seed, an integer in [0, 2**63 - 1] (default: sim.seed)",
+    )
     p.add_argument(
         "--backend",
         choices=("sim", "ur5"),
@@ -153,7 +159,7 @@ def register(sub: Any) -> None:
         "(default 120)",
     )
     p.add_argument("--out", default=None, help="output folder (created); default: write nothing")
-    add_telemetry_arguments(p)
+    add_telemetry_arguments(p, realtime_option=False)
     p.set_defaults(func=run)
 
 
@@ -224,10 +230,11 @@ def run(args: argparse.Namespace) -> int:
     if bad is not None:
         print(f"capsule-mpc rig serve: {bad}", file=sys.stderr)
         return 2
+    inputs = input_files(args, "--config", "--waypoints", "--ur-calibration")
     if args.out is None:
+        refuse_overwrite({"--mcap": (args.mcap, False)}, inputs)
         return _serve(args, None, calibration)
-    inputs = input_files(args, "--config", "--waypoints", "--mcap", "--ur-calibration")
-    with output_folder(args.out, "rig serve", inputs=inputs) as folder:
+    with output_folder(args.out, "rig serve", inputs=inputs, files={"--mcap": args.mcap}) as folder:
         folder.status = _serve(args, folder.path, calibration)
     return folder.status
 
@@ -240,15 +247,17 @@ def _serve(args: argparse.Namespace, out: Path | None, calibration: Any = None) 
     from ..arm.ur5_rtde import UR5Error
     from ..budget import Workload
     from ..experiments.runs import prepare_run
-    from ..nodes.rig import NodeError, RigOptions, serve_rig, write_rig_outputs
+    from ..nodes.rig import NodeError, RigOptions, serve_rig, write_events, write_rig_outputs
     from ..nodes.transport import Transport
     from ..telemetry.observer import telemetry_observers
+    from ..telemetry.partial import PartialRun
 
     options = RigOptions(watchdog_timeout_s=args.watchdog_timeout, wait_controller_s=args.wait_controller)
     scenario, path, meta = prepare_run(args.config, args.waypoints, None, args.plant, Workload(predicting=1))
     run_seed = scenario.sim.seed if args.seed is None else args.seed
     connect, listen = transport_endpoints(args, listens=True)
     no_mcap = args.no_mcap or (out is None and args.mcap is None)  # no folder, no default MCAP
+    partial, events = PartialRun(), list[dict[str, Any]]()
     with contextlib.ExitStack() as stack:
         telemetry = telemetry_observers(out or Path(), mcap=args.mcap, no_mcap=no_mcap, live=args.live)
         for tel in map(stack.enter_context, telemetry):
@@ -270,8 +279,13 @@ def _serve(args: argparse.Namespace, out: Path | None, calibration: Any = None) 
                 options=options,
                 actuator=actuator,
                 meta=meta,
-                observers=telemetry,
+                observers=[*telemetry, partial],
+                events=events,
             )
+        except KeyboardInterrupt:
+            if out is not None and partial.write(out):  # the log so far and the events
+                write_events(events, out)
+            raise
         except ArmError as exc:  # the config's workspace or start is out of the UR5's reach
             print(f"capsule-mpc rig serve: --backend ur5: {exc}", file=sys.stderr)
             return 2
@@ -307,6 +321,9 @@ def _print_run(result: Any) -> None:
     """How the run ended, its tracking, deadline misses, watchdog stops and round trips."""
     m = result.metrics
     print(f"{result.controller} (controller node): {result.outcome_text()}")
+    drove = result.meta.get("controllers") or []
+    if len(drove) > 1:  # a node restarted under another name took over
+        print("  driven by " + ", then ".join(f"{d['name']} ({d['frames']} frames)" for d in drove))
     print(
         f"  tracking RMS {m['tracking_rms_mm']:.2f} mm; deadline misses {m['deadline_misses']} "
         f"({m.get('node_deadline_misses_motion', 0)} at t >= 0 without a command); watchdog stops "

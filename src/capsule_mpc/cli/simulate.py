@@ -16,6 +16,7 @@ from typing import Any
 from ..errors import ConfigError
 from ..outputs import output_folder
 from ..telemetry.options import add_telemetry_arguments
+from ..telemetry.partial import PartialRun
 from .arguments import add_run_arguments, input_files
 
 __all__ = ["EXIT_COMPLETED", "EXIT_RUN_FAILED", "register", "run"]
@@ -82,23 +83,32 @@ def run(args: argparse.Namespace) -> int:
     work = runs.run_workload(args.controller, want_arm)
     scenario, path, meta = runs.prepare_run(args.config, args.waypoints, args.speed, args.plant, work)
     run_seed = scenario.sim.seed if args.seed is None else args.seed
-    inputs = input_files(args, "--config", "--waypoints", "--mcap")
-    with output_folder(args.out, "simulate", inputs=inputs) as folder, contextlib.ExitStack() as stack:
+    inputs = input_files(args, "--config", "--waypoints")
+    mcap = {"--mcap": args.mcap}
+    with (
+        output_folder(args.out, "simulate", inputs=inputs, files=mcap) as folder,
+        contextlib.ExitStack() as stack,
+    ):
         telemetry = telemetry_observers(folder.path, mcap=args.mcap, no_mcap=args.no_mcap, live=args.live)
         for tel in map(stack.enter_context, telemetry):
             if tel.live_url:
                 print(f"live view: {tel.live_url} (Foxglove: Open connection)", file=sys.stderr)
-        result = runs.simulate_into(
-            scenario,
-            args.controller,
-            path,
-            run_seed,
-            folder.path,
-            meta=meta,
-            progress=not args.no_progress,
-            realtime=args.realtime,
-            arm=want_arm,
-            observers=telemetry,
-        )
+        partial = PartialRun()
+        try:
+            result = runs.simulate_into(
+                scenario,
+                args.controller,
+                path,
+                run_seed,
+                folder.path,
+                meta=meta,
+                progress=not args.no_progress,
+                realtime=args.realtime,
+                arm=want_arm,
+                observers=[*telemetry, partial],
+            )
+        except KeyboardInterrupt:
+            partial.write(folder.path)  # the log so far; the telemetry closes its MCAP on the way out
+            raise
         folder.status = EXIT_RUN_FAILED if result.failed else EXIT_COMPLETED
     return folder.status

@@ -6,10 +6,11 @@ command parses the options and calls :func:`capsule_mpc.experiments.sweep.campai
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from ..experiments.sweep.vary import parse_vary
-from .arguments import add_run_arguments, int_at_least, run_count
+from .arguments import add_run_arguments, int_at_least, refuse_seed_overflow, run_count
 
 __all__ = ["add_dask_arguments", "register", "run"]
 
@@ -68,6 +69,10 @@ def run(args: argparse.Namespace) -> int:
     # lazy: the library (CasADi, Pinocchio, Dask) loads when the sweep starts, not for ``--help``
     from ..experiments.sweep.campaign import run_sweep
 
+    overflow = refuse_seed_overflow(args.seed, args.runs, 0)
+    if overflow:
+        print(f"capsule-mpc sweep: {overflow}", file=sys.stderr)
+        return 2
     return run_sweep(
         args.config,
         args.out,

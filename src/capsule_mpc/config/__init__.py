@@ -14,7 +14,8 @@ base-60 90), and a UTF-8 byte-order mark is allowed. A file nested deeper than 2
 more than 100 aliases or expanding to more than 10,000 values is refused with its line.
 
 The sections live in one module each (:mod:`.rig`, :mod:`.friction`, :mod:`.plant`, :mod:`.mpc`,
-:mod:`.arm`, :mod:`.sim`, :mod:`.faults`) and :class:`Scenario` (:mod:`.scenario`) holds them all;
+:mod:`.phases`, :mod:`.arm`, :mod:`.sim`, :mod:`.faults`) and :class:`Scenario`
+(:mod:`.scenario`) holds them all;
 every public name is importable from ``capsule_mpc.config``.
 """
 
@@ -40,7 +41,8 @@ from .friction import (
     LearnedRig,
     RateStateConfig,
 )
-from .mpc import AdaptationConfig, ApproachConfig, MPCConfig
+from .mpc import MPCConfig
+from .phases import BreakLooseConfig, EstimatorConfig, PlaceConfig
 from .plant import PLANT_FIXED, PLANT_PRESET_RANGES, FrictionPatchConfig, PlantConfig
 from .rig import (
     CameraConfig,
@@ -60,13 +62,13 @@ __all__ = [
     "PAPER_C_VALIDITY_MPS",
     "PLANT_FIXED",
     "PLANT_PRESET_RANGES",
-    "AdaptationConfig",
-    "ApproachConfig",
     "ArmConfig",
+    "BreakLooseConfig",
     "CameraConfig",
     "CapsuleConfig",
     "ConfigError",
     "EPMConfig",
+    "EstimatorConfig",
     "FaultsConfig",
     "ForceMapConfig",
     "FrictionConfig",
@@ -78,6 +80,7 @@ __all__ = [
     "LimitsConfig",
     "MPCConfig",
     "PathConfig",
+    "PlaceConfig",
     "PlantConfig",
     "PlateConfig",
     "RateStateConfig",

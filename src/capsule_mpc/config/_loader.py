@@ -16,6 +16,7 @@ from .scenario import Scenario
 
 __all__ = [
     "MOVED_KEYS",
+    "REMOVED_KEYS",
     "check_learned_force_model",
     "config_from_dict",
     "dump_config",
@@ -26,41 +27,61 @@ __all__ = [
 ]
 
 
-#: Keys that moved into a section, by their old path, with their new one: a file or mapping that
-#: still uses one is refused naming both.
+#: Keys that moved, by their old path, with their new one: a file or mapping that still uses one
+#: is refused naming both.
 MOVED_KEYS: dict[str, str] = {
-    **{
-        f"mpc.approach_{name}": f"mpc.approach.{name}"
-        for name in (
-            "speed_mps",
-            "force_fraction",
-            "max_attempts",
-            "attempt_s",
-            "max_s",
-            "backoff_m",
-            "window_s",
-            "observe_s",
-        )
-    },
-    "mpc.friction_adaptation": "mpc.adaptation.mode",
-    "mpc.friction_adaptation_time_s": "mpc.adaptation.time_s",
-    "mpc.friction_offset_min": "mpc.adaptation.offset_min",
-    "mpc.friction_offset_max": "mpc.adaptation.offset_max",
-    "mpc.friction_offset_prior_std": "mpc.adaptation.offset_prior_std",
-    "mpc.friction_adaptation_min_speed_mps": "mpc.adaptation.min_speed_mps",
+    "mpc.final_tolerance_m": "place.tolerance_m",
+    "mpc.start_preload": "break_loose.preload",
+    "mpc.start_preload_arrival": "break_loose.arrival",
+    "mpc.start_blend_s": "break_loose.blend_s",
+    "mpc.estimator_accel_std_mps2": "estimator.accel_std_mps2",
+    "mpc.disturbance_gain": "estimator.disturbance_gain",
+    "mpc.disturbance_max_n": "estimator.disturbance_max_n",
 }
 
 
+#: Keys that were removed, by their old path, with why: a file or mapping that still uses one is
+#: refused naming it.
+REMOVED_KEYS: dict[str, str] = {
+    **{
+        f"mpc.{name}": "no measured gain; docs/friction.md, removed options"
+        for name in (
+            "stick_prediction",
+            "adaptation",
+            "friction_adaptation",
+            "friction_adaptation_time_s",
+            "friction_offset_min",
+            "friction_offset_max",
+            "friction_offset_prior_std",
+            "friction_adaptation_min_speed_mps",
+            "final_friction_smoothing_eps_mps",
+        )
+    },
+    "mpc.feedforward": "no measured gain: the path's velocity is the feed-forward",
+    "mpc.final_approach": "replaced by the placement moves (place); place.max_moves: 0 switches them off",
+    "mpc.approach": "replaced by the placement moves (place)",
+    "place.enabled": "place.max_moves: 0 switches the placement off",
+    "place.approach": "replaced by the placement moves (place)",
+    "mpc.max_sqp_iter": "fixed, capsule_mpc.mpc.solver.MAX_SQP_ITER",
+    "mpc.max_ipopt_iter": "fixed, capsule_mpc.mpc.solver.MAX_IPOPT_ITER",
+    "mpc.terminal_factor": "fixed, capsule_mpc.mpc.problem.TERMINAL_FACTOR",
+}
+
+
+def _has_key(data: dict[str, Any], dotted: str) -> bool:
+    """Whether the nested mapping ``data`` has the key at the dotted path ``dotted``."""
+    *sections, key = dotted.split(".")
+    node: Any = data
+    for section in sections:
+        node = node.get(section) if isinstance(node, dict) else None
+    return isinstance(node, dict) and key in node
+
+
 def _validate_scenario(data: dict[str, Any], where: str) -> Scenario:
-    """:func:`validate` a scenario mapping, first refusing every key of :data:`MOVED_KEYS` it uses."""
-    moved = []
-    for old, new in MOVED_KEYS.items():
-        *sections, key = old.split(".")
-        node: Any = data
-        for section in sections:
-            node = node.get(section) if isinstance(node, dict) else None
-        if isinstance(node, dict) and key in node:
-            moved.append(f"{old}: moved to {new}")
+    """:func:`validate` a scenario mapping, first refusing every key of :data:`MOVED_KEYS` and
+    :data:`REMOVED_KEYS` it uses."""
+    moved = [f"{old}: moved to {new}" for old, new in MOVED_KEYS.items() if _has_key(data, old)]
+    moved += [f"{old}: removed ({why})" for old, why in REMOVED_KEYS.items() if _has_key(data, old)]
     if moved:
         raise ConfigError(f"invalid {where}:\n  " + "\n  ".join(moved))
     scenario: Scenario = validate(Scenario, data, where)

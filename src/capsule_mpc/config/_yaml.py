@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import re
 import reprlib
+import typing
 from collections.abc import Hashable
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from ..errors import ConfigError, cut
 
@@ -216,14 +217,35 @@ _RANGE_TEXT = {
 }
 
 
-def _format_errors(exc: ValidationError, where: str) -> str:
+#: A number written with a unit (``"20 mm/s"``, ``"20g"``, ``"5 %"``).
+_WITH_UNIT = re.compile(
+    r"^\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*[A-Za-z\u00b5\u00b0%][\w/^*. \u00b5\u00b0%-]*$"
+)
+
+
+def _field_description(model: Any, loc: tuple[Any, ...]) -> str | None:
+    """The description of the field at ``loc`` in ``model`` (its unit and range), or None."""
+    for part in loc:
+        fields = getattr(model, "model_fields", None)
+        if not isinstance(fields, dict) or part not in fields:
+            return None
+        info = fields[part]
+        if part == loc[-1]:
+            return info.description
+        candidates = [info.annotation, *typing.get_args(info.annotation)]
+        model = next((c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)), None)
+    return None
+
+
+def _format_errors(exc: ValidationError, where: str, model: Any = None) -> str:
     lines = []
     for err in exc.errors():
         loc = cut(".".join(str(p) for p in err["loc"]), _MAX_SHOWN) or "<top>"
         bound = _RANGE_TEXT.get(err["type"])
         if bound is not None:
-            msg = f"{bound[0]} {err.get('ctx', {}).get(bound[1])!s:.12}".replace(".0 ", " ")
-            msg = msg.removesuffix(".0")
+            limit = err.get("ctx", {}).get(bound[1])
+            shown = f"{limit:.12g}" if isinstance(limit, float) else f"{limit!s:.30}"  # an int in full
+            msg = f"{bound[0]} {shown}"
         elif err["type"] == "extra_forbidden":
             msg = "unknown key (not a field of this section)"
         elif err["type"] == "missing":
@@ -238,6 +260,12 @@ def _format_errors(exc: ValidationError, where: str) -> str:
             lines.append(msg if loc == "<top>" else f"{loc}: {msg}")
         else:
             lines.append(f"{loc}: {msg}, got {_shown(err.get('input'))}")
+            unit_typed = msg.startswith(("must be a number", "must be an integer")) and bool(
+                _WITH_UNIT.match(str(err.get("input")))
+            )
+            about = _field_description(model, tuple(err["loc"])) if unit_typed else None
+            if about:  # a unit written into the value ("20 mm/s"): say the field's unit and range
+                lines[-1] += f" (write the number alone: {about})"
     return f"invalid {where}:\n  " + "\n  ".join(lines)
 
 
@@ -245,4 +273,4 @@ def validate(model: type[Any], data: dict[str, Any], where: str) -> Any:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(_format_errors(exc, where)) from None
+        raise ConfigError(_format_errors(exc, where, model)) from None

@@ -65,10 +65,10 @@ class ArmConfig(StrictModel):
     )
     plan_waypoint_rate_hz: Number | None = Field(
         None,
-        gt=0,
+        ge=1,
         le=1000,
         description=(
-            "Plans sampled faster than this are thinned to it before smoothing, Hz, (0, 1000]; None: "
+            "Plans sampled faster than this are thinned to it before smoothing, Hz, [1, 1000]; None: "
             "camera.rate_hz (the rate of MPC and planner setpoints)."
         ),
     )

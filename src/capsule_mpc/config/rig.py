@@ -253,7 +253,12 @@ class LimitsConfig(StrictModel):
 class CameraConfig(StrictModel):
     """The camera that measures the capsule position."""
 
-    rate_hz: Number = Field(30.0, gt=0, le=1000, description="Frame rate, Hz, (0, 1000]. Paper: ~30 Hz.")
+    rate_hz: Number = Field(
+        30.0,
+        ge=1,
+        le=1000,
+        description="Frame rate, Hz, [1, 1000] (a frame a second at least). Paper: ~30 Hz.",
+    )
     noise_std_m: Number = Field(3e-4, ge=0, le=0.01, description="Gaussian noise per axis, m, [0, 0.01].")
     latency_frames: Integer = Field(
         1, ge=0, le=10, description="Delay of each measurement in frames, [0, 10]."

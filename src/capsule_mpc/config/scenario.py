@@ -13,6 +13,7 @@ from .arm import ArmConfig
 from .faults import FaultsConfig
 from .friction import FrictionConfig, LearnedFrictionModel
 from .mpc import MPCConfig
+from .phases import BreakLooseConfig, EstimatorConfig, PlaceConfig
 from .plant import PLANT_PRESET_RANGES, PlantConfig
 from .rig import (
     CameraConfig,
@@ -50,7 +51,16 @@ class Scenario(StrictModel):
     limits: LimitsConfig = Field(default_factory=LimitsConfig, description="EPM command limits.")
     camera: CameraConfig = Field(default_factory=CameraConfig, description="The camera.")
     sim: SimConfig = Field(default_factory=SimConfig, description="The simulated rig.")
-    mpc: MPCConfig = Field(default_factory=MPCConfig, description="The MPC controller.")
+    mpc: MPCConfig = Field(default_factory=MPCConfig, description="The MPC controller's sliding MPC.")
+    estimator: EstimatorConfig = Field(
+        default_factory=EstimatorConfig, description="The MPC controller's estimator."
+    )
+    break_loose: BreakLooseConfig = Field(
+        default_factory=BreakLooseConfig, description="The MPC controller's start from rest."
+    )
+    place: PlaceConfig = Field(
+        default_factory=PlaceConfig, description="The MPC controller's placement at the path's end."
+    )
     arm: ArmConfig = Field(
         default_factory=ArmConfig, description="The arm carrying the EPM (Ruckig + Pinocchio)."
     )

@@ -20,7 +20,9 @@ class SimConfig(StrictModel):
     seed: Integer = Field(
         0,
         ge=0,
-        description="Seed of every random draw (plant truth, start offset, camera noise, drops), >= 0.",
+        le=2**63 - 1,
+        description="Seed of every random draw (plant truth, start offset, camera noise, drops), "
+        "[0, 2**63 - 1] (the rig's messages carry it as a signed 64-bit integer).",
     )
     settle_s: Number = Field(
         1.0,

@@ -8,7 +8,8 @@ common window, from t = 0 to the latest end among that seed's runs
 (:func:`capsule_mpc.metrics.run_metrics` holds an earlier run's last state up to it).
 
 A comparison is a campaign (:func:`capsule_mpc.experiments.sweep.campaign.sweep`): one Dask task
-per seed, on a ``LocalCluster`` of ``--workers`` processes or on the cluster at ``--scheduler``.
+per seed, on a ``LocalCluster`` of ``--workers`` processes or on the cluster at ``--scheduler``;
+with one local worker (one seed, or ``--workers 1``) the seeds run in this process, with no cluster.
 Writes, into the output folder: one run folder per controller and seed (``log.csv``,
 ``config.yaml``, ``run.json``, ``run.mcap``; ``predictions.npz`` for the MPC) -- ``OUT/NAME/`` for
 one run, ``OUT/runs/seed_<S>/NAME/`` for several -- ``runs/seed_<S>.json`` (each seed's runs),
@@ -33,9 +34,10 @@ when the planner's solve does not converge (:class:`capsule_mpc.planner.PlanErro
 has no metrics (``runs[k].controllers.NAME`` is ``{"error", "traceback"}``), its controller's
 ``status`` says ``failed``, and a controller that failed on every seed reads ``failed: <why>`` in
 the table instead of numbers. Exit status: 0 when every controller ran on every seed, 1 when
-any failed (each failure is also printed on stderr), 2 on bad input, 130 on Ctrl-C (the runs in
-progress are dropped: nothing is recorded for them, and summary.json / summary.md are written
-only by a finished comparison).
+any failed (each failure is also printed on stderr), 2 on bad input, 130 on Ctrl-C (no result is
+recorded: summary.json / summary.md are written only by a finished comparison; each run in
+progress keeps its ``log.csv`` so far, its ``config.yaml`` and a finalised ``run.mcap``, also in a
+local worker, which stops its run when the command closes the cluster).
 
 Solver figures per controller (from the run log; NaN / ``n/a`` for controllers that
 report no solve): ``solve_ms_median``, ``solve_ms_p99``, ``solve_ms_max``,

@@ -28,6 +28,7 @@ from ..errors import LearningDataError
 __all__ = [
     "EXCLUSION_REASONS",
     "MIN_LOG_RATIO",
+    "SAMPLE_BOUNDS",
     "SAMPLE_COLUMNS",
     "SPEED_FLOOR_MPS",
     "CSamples",
@@ -35,6 +36,7 @@ __all__ = [
     "FrictionSamples",
     "LearningDataError",
     "nan_rows_message",
+    "out_of_range_message",
     "per_sample_c",
     "read_columns",
     "read_header",
@@ -60,6 +62,15 @@ EXCLUSION_REASONS = (
     "outside_force_map",
     "unsteady",
 )
+#: Largest magnitude of each samples column (bound, unit): far beyond any tabletop capsule rig
+#: (grams, millimetres per second, millinewtons), so that only a corrupt value is refused, before
+#: it overflows the fit.
+SAMPLE_BOUNDS = {
+    "v_mps": (10.0, "m/s"),
+    "a_mps2": (1e3, "m/s^2"),
+    "traction_n": (1e3, "N"),
+    "normal_n": (1e3, "N"),
+}
 
 
 @dataclass(frozen=True)
@@ -358,6 +369,23 @@ def nan_rows_message(path: Path | str, columns: Mapping[str, np.ndarray], first_
     )
 
 
+def out_of_range_message(
+    path: Path | str, columns: Mapping[str, np.ndarray], first_line: int = 2
+) -> str | None:
+    """A message naming the first file line whose value lies outside :data:`SAMPLE_BOUNDS` (and
+    how many do), or None."""
+    for name, col in columns.items():
+        bound, unit = SAMPLE_BOUNDS.get(name, (math.inf, ""))
+        bad = np.flatnonzero(np.abs(col) > bound)
+        if bad.size:
+            more = f" (and {bad.size - 1} more row(s))" if bad.size > 1 else ""
+            return (
+                f"{path}: line {bad[0] + first_line}, column {name}: {col[bad[0]]:g} is outside "
+                f"[-{bound:g}, {bound:g}] {unit}, no capsule friction sample{more}"
+            )
+    return None
+
+
 def read_samples_csv(path: str | Path, min_rows: int = 1) -> FrictionSamples:
     """Read a samples CSV with header ``v_mps,a_mps2,traction_n,normal_n`` (extra columns are ignored).
 
@@ -371,14 +399,15 @@ def read_samples_csv(path: str | Path, min_rows: int = 1) -> FrictionSamples:
     Raises
     ------
     LearningDataError
-        Missing column, non-numeric value, NaN rows (with their file line numbers) or too few rows.
+        Missing column, non-numeric value, NaN rows (with their file line numbers), a value out of
+        :data:`SAMPLE_BOUNDS` (its line) or too few rows.
     """
     path = Path(path)
     cols = read_columns(path, SAMPLE_COLUMNS)
     n = len(cols["v_mps"])
     if n < min_rows:
         raise LearningDataError(f"{path}: too few rows: {n} data row(s), need at least {min_rows}")
-    msg = nan_rows_message(path, cols)
+    msg = nan_rows_message(path, cols) or out_of_range_message(path, cols)
     if msg is not None:
         raise LearningDataError(msg)
     return FrictionSamples(

@@ -1,45 +1,27 @@
-"""Contact modes of the MPC's prediction: the stages in which static friction holds the capsule.
+"""Whether the capsule rests, and since when: what the phases that use static friction (the
+start's pre-load, the placement) judge a capsule by.
 
 A capsule at rest stays put until the lateral force on it exceeds its breakaway force, which heals
-(grows) with the time it has rested. A smooth friction law cannot say that: at low speed it
-predicts little friction, so a plan from rest expects the capsule to follow a small force, and
-the capsule instead sticks while the reference moves on, then lurches. A switch between sticking
-and sliding inside the optimisation would make the problem non-smooth; instead each stage gets a
-static friction force, fixed before each solve (``mpc.stick_prediction``): the breakaway force
-less the model's own friction at rest, in the stages the capsule is predicted to rest in, 0 in
-the others. It acts like the model's friction (against the motion, through the smoothed
-direction), so in the prediction a force below breakaway only creeps the capsule and more force
-moves it more: the solver sees what building the force up earlier buys. Which stages rest:
+(grows) with the time it has rested. A noisy velocity estimate alone cannot tell a stuck capsule
+from a creeping one, so the rule is on positions:
 
 * the capsule rests from the first frame (it was placed and settled) until the mean of its last
   :data:`DEPART_FRAMES` estimated positions leaves the rest position (the mean of the estimates
-  since it came to rest) by more than :attr:`ContactModes.depart_m`; after moving it rests again
-  once a line through its estimated positions over :data:`REST_WINDOW_S` is slower than
-  ``moving_mps`` (the rest counted from the window's start). A noisy velocity estimate alone
-  cannot tell a stuck capsule from a creeping one;
-* while it moves, every stage slides;
-* while it rests, the stages are stuck up to the first stage at which the force the model
-  predicts on the still capsule (the EPM where the previous plan, shifted by a frame, puts it;
-  the estimated constant disturbance added) exceeds the friction belief's breakaway force after
-  the rest so far plus the time to that stage (:meth:`capsule_mpc.friction.FrictionBelief.breakaway_n`).
-  From that stage on the capsule slides.
-
-Each frame re-evaluates the stages from the newest plan, so the predicted breakaway moves as the
-plan does. The paper's law has no static part: its breakaway is ``mu0 F_N`` plus the drag.
+  since it came to rest) by more than :attr:`RestDetector.depart_m`;
+* after moving it rests again once a line through its estimated positions over
+  :data:`REST_WINDOW_S` is slower than ``moving_mps`` (the rest counted from the window's start).
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
-from collections.abc import Callable
 
 import numpy as np
 
-from ..dynamics import CapsuleModel
-from ..estimation import fit_window
-from ..friction import FrictionBelief
+from ..estimation import MIN_FIT_FRAMES
 
-__all__ = ["REST_WINDOW_S", "ContactModes", "RestDetector"]
+__all__ = ["DEPART_FRAMES", "DEPART_MIN_M", "DEPART_NOISE_STDS", "REST_WINDOW_S", "RestDetector"]
 
 #: Window of estimated positions a capsule must stay slow over to count as resting again, s.
 REST_WINDOW_S = 0.3
@@ -112,79 +94,22 @@ class RestDetector:
             self._recent.popleft()
         if self._recent[-1][0] - self._recent[0][0] < REST_WINDOW_S - 1e-9:
             return False
-        fit = fit_window(self._recent, t_s, REST_WINDOW_S)
-        if fit is None or float(np.linalg.norm(fit.velocity_mps)) >= self.moving_mps:
+        if len(self._recent) < MIN_FIT_FRAMES or self._speed_mps() >= self.moving_mps:
             return False
         self._rest(self._recent[0][0], [p for _, p in self._recent])
         return True
 
-
-class ContactModes:
-    """Per-frame static friction of the MPC's stages (:mod:`capsule_mpc.mpc.contact`).
-
-    Parameters
-    ----------
-    model : CapsuleModel
-        The MPC's capsule model: its force, normal force and friction at rest.
-    belief : FrictionBelief
-        The controller's friction belief (its breakaway force).
-    stage_times_s : numpy.ndarray (N,)
-        Times of stages 1..N from the frame the plan starts at, s.
-    rest : RestDetector
-        Whether the capsule rests and since when (updated by the caller every frame).
-    """
-
-    def __init__(
-        self,
-        model: CapsuleModel,
-        belief: FrictionBelief,
-        stage_times_s: np.ndarray,
-        rest: RestDetector,
-    ) -> None:
-        self.belief = belief
-        self.stage_times_s = np.asarray(stage_times_s, dtype=float)
-        self._outputs = model.outputs.map(len(self.stage_times_s))
-        self.rest = rest
-        self.breakaway_stage = 0
-
-    def static_n(
-        self,
-        t_s: float,
-        epm_path_m: np.ndarray,
-        disturbance_xy_n: np.ndarray,
-        progress_m: Callable[[float], float],
-    ) -> np.ndarray:
-        """The static friction of stages 0..N-1 for the frame at ``t_s``, N (stage k's velocity
-        row gives the velocity at stage k+1, so whether it rests is decided by the force there),
-        with the capsule where it rests (:attr:`RestDetector.rest_position_m`).
-
-        Parameters
-        ----------
-        t_s : float
-            The frame's time, s.
-        epm_path_m : numpy.ndarray (3 x N)
-            The EPM's predicted position (x, y, height) at stages 1..N, m.
-        disturbance_xy_n : numpy.ndarray (2,)
-            The estimated constant force on the capsule besides the magnet's, N.
-        progress_m : callable
-            The tether paid out at a time, m (the drag grows with it).
-        """
-        n = len(self.stage_times_s)
-        position = self.rest.rest_position_m
-        if position is None:
-            self.breakaway_stage = 0
-            return np.zeros(n)
-        epm = np.asarray(epm_path_m, dtype=float)
-        still = np.vstack([np.tile(position[:, None], (1, n)), np.zeros((2, n)), epm])
-        _lead, forces, normal, mu = (np.asarray(x) for x in self._outputs(still))
-        lateral = np.linalg.norm(forces[0:2] + np.asarray(disturbance_xy_n, dtype=float)[:, None], axis=0)
-        normal = np.maximum(normal.ravel(), 0.0)
-        rest = self.rest.rest_s(t_s)
-        drag = np.array([self.belief.drag_n(progress_m(t_s + dt)) for dt in self.stage_times_s])
-        breakaway = (
-            np.array([self.belief.breakaway_mu(rest + dt) for dt in self.stage_times_s]) * normal + drag
-        )
-        free = np.maximum.accumulate(lateral > breakaway)
-        self.breakaway_stage = int(np.argmax(free)) if free.any() else n
-        sliding = mu.ravel() * normal + drag  # the model's own friction of a capsule at rest
-        return np.where(free, 0.0, np.maximum(breakaway - sliding, 0.0))
+    def _speed_mps(self) -> float:
+        """Speed of the least-squares line through the recent positions (all within the window),
+        m/s: the slope in closed form, on Python floats (a two-parameter fit to about ten points,
+        where NumPy's and LAPACK's call overhead costs more than the sums; this runs every frame)."""
+        n = len(self._recent)
+        ts = [tc for tc, _ in self._recent]
+        xs = [float(p[0]) for _, p in self._recent]
+        ys = [float(p[1]) for _, p in self._recent]
+        tm, xm, ym = sum(ts) / n, sum(xs) / n, sum(ys) / n
+        dts = [t - tm for t in ts]
+        stt = sum(d * d for d in dts)
+        vx = sum(d * (x - xm) for d, x in zip(dts, xs, strict=True)) / stt
+        vy = sum(d * (y - ym) for d, y in zip(dts, ys, strict=True)) / stt
+        return math.hypot(vx, vy)

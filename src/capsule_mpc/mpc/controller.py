@@ -1,30 +1,20 @@
-"""The MPC controller: estimation, the receding-horizon solve, and a safety layer.
+"""The MPC controller: an estimator, a supervisor with explicit phases, the sliding MPC as a pure
+step, and a safety filter on every command.
 
 Every frame:
 
-1. fuse the camera frame in the Kalman filter, predict over the latency;
-2. update the force-disturbance estimate (offset-free MPC): the velocity the
-   last plan predicted for now vs the estimate; with ``mpc.adaptation.mode: rls`` the
-   friction along the motion is the friction-coefficient offset of
-   :mod:`capsule_mpc.mpc.adaptation` instead (the disturbance keeps the constant force);
-3. solve the NLP warm-started from the shifted previous solution (the first frame, or one
-   after the plan ran out, is solved to convergence by IPOPT); with
-   ``mpc.final_friction_smoothing_eps_mps`` set, from the frame at which the horizon reaches the
-   path's end a second solver, whose model smooths its friction over that speed instead, takes
-   over from the same warm start (:func:`final_scenario`);
-4. if the fast step failed: accept it anyway while the rig holds the EPM (the settle phase:
-   the command is 0 whatever the plan), else recover with a few SQP iterations with line
-   search on the same structure (``mpc.recovery_sqp_iter``);
-5. take the first command, or -- on a failed, non-finite or late solve -- the
-   shifted previous plan, or else a braking command (a recovery that ran out of iterations
-   leaves its last iterate as the next frame's warm start);
-6. pass it through the safety layer: speed, acceleration and workspace limits
-   are enforced on the command actually sent (and any clipping is counted).
+1. the estimator (:mod:`.estimator`, :attr:`MPCController.state`) fuses the camera frame in the
+   Kalman filter and predicts it over the latency; before t = 0 it collects where the capsule
+   rests, and calibrates at t = 0;
+2. the supervisor (:mod:`.supervisor`) applies the events of time and asks the phase's producer
+   (:mod:`.phases`) for the command: ``SETTLE`` (t < 0) and ``SLIDE`` the sliding MPC
+   (:mod:`.slide`), ``BREAK_LOOSE`` the start's pre-load (:mod:`.start`), ``PLACE`` and after it
+   ``HOLD`` or ``FAILED`` the placement moves (:mod:`.place`);
+3. the safety filter (:class:`capsule_mpc.safety.SafetyFilter`) enforces speed, acceleration,
+   jerk and workspace limits on the command actually sent, and counts any clipping.
 
-After the path's nominal end the final approach (:mod:`.approach`) may take over from step 2
-on: when the MPC has left the capsule slow and off the final waypoint, it crawls it on below
-breakaway, lets go and checks; its commands pass the same safety layer, and the controller is
-not :attr:`finished` (the run does not end at rest) until the approach is over.
+The frame's phase goes to the run log (:attr:`StepStats.phase`). The controller is not
+:attr:`~MPCController.finished` (the run does not end at rest) until the placement is over.
 """
 
 from __future__ import annotations
@@ -44,24 +34,20 @@ from ..friction import FrictionBelief
 from ..interfaces import Command, Controller, Measurement, StepOutcome, StepStats, register_controller
 from ..magnetics import cache_directory, capsule_force_function, model_equilibrium_lead
 from ..paths import ReferencePath
-from ..planner import cached_plan
-from ..safety import safe_command
-from .adaptation import FrictionOffsetRLS, friction_regression
-from .approach import FinalApproach
-from .contact import ContactModes, RestDetector
+from ..safety import SafetyFilter, safe_command
+from .estimator import StateEstimator
 from .grid import prediction_steps_s
-from .problem import N_DIST, OCP, build_ocp
-from .solver import MPCSolver, SolveResult
+from .phases import TERMINAL, FrameContext, Phase, PhaseProducer
+from .place import PlacementProducer
+from .problem import OCP, build_ocp
+from .producers import PreloadBreakLoose
+from .reference import SlideReference
+from .slide import Plan, SettleProducer, SlideProducer
+from .solver import MPCSolver
 from .start import StartPreload
+from .supervisor import Supervisor
 
-__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "final_scenario", "model_scenario", "safe_command"]
-
-
-#: Time the controller's step takes besides the solve (estimation, reference, safety layer), ms:
-#: the SQP recovery of a paced loop leaves it free (measured ~0.3 ms at N = 20, 0.5 with margin).
-_REST_OF_STEP_MS = 0.5
-#: Speed above which the velocity innovation is attributed to friction along the motion, m/s.
-_MOVING_MPS = 2e-3
+__all__ = ["MPCController", "MPCStack", "build_mpc_stack", "model_scenario", "safe_command"]
 
 
 @dataclass
@@ -88,20 +74,12 @@ def model_scenario(scenario: Scenario) -> Scenario:
     return scenario.model_copy(update={"friction": friction})
 
 
-def final_scenario(scenario: Scenario) -> Scenario | None:
-    """The scenario of the solver that plans the final stop (``mpc.final_friction_smoothing_eps_mps``),
-    or None when the run's solver plans it too."""
-    eps = scenario.mpc.final_friction_smoothing_eps_mps
-    if eps is None or eps == model_scenario(scenario).friction.smoothing_eps_mps:
-        return None
-    update = {"friction_smoothing_eps_mps": eps, "final_friction_smoothing_eps_mps": None}
-    return scenario.model_copy(update={"mpc": scenario.mpc.model_copy(update=update)})
-
-
 def build_mpc_stack(scenario: Scenario) -> MPCStack:
     """Build (or reuse, within the process) the OCP and solver for ``scenario``."""
     # The camera's rate sets the first stage; its noise and latency leave the problem alone.
-    key = scenario.model_dump_json(exclude={"sim", "camera", "path", "name", "faults"})
+    key = scenario.model_dump_json(
+        exclude={"sim", "camera", "path", "name", "faults", "estimator", "break_loose", "place"}
+    )
     key += f"|frame {1.0 / scenario.camera.rate_hz!r}"
     if key in _STACKS:
         return _STACKS[key]
@@ -114,54 +92,21 @@ def build_mpc_stack(scenario: Scenario) -> MPCStack:
     ocp = build_ocp(model, float(steps[-1]), lead_eq, float(steps[0]))
     compile_dir = cache_directory(scenario) / "mpc" if cfg.compile_c else None
     try:
-        solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, compile_dir, cfg.qp_solver)
+        solver = MPCSolver(ocp, cfg.scheme, compile_dir=compile_dir, qpsol=cfg.qp_solver)
     except (OSError, RuntimeError) as exc:  # no C compiler, or it failed: run uncompiled
         if compile_dir is None:
             raise
         warnings.warn(f"mpc.compile_c: compiling the NLP failed ({exc}); running uncompiled", stacklevel=2)
-        solver = MPCSolver(ocp, cfg.scheme, cfg.max_sqp_iter, cfg.max_ipopt_iter, None, cfg.qp_solver)
+        solver = MPCSolver(ocp, cfg.scheme, qpsol=cfg.qp_solver)
     stack = MPCStack(ocp, solver, time.perf_counter() - t0, force, model)
     _STACKS[key] = stack
     return stack
 
 
-@dataclass
-class _Plan:
-    """A solved plan and how many frames ago it was solved.
-
-    ``xs`` (7 x N, stages 1..N) and ``us`` (3 x N) stay as solved, on the OCP's stage times
-    ``times`` (0..N, s); ``w`` is the warm start, shifted frame by frame (:meth:`OCP.shift`).
-    """
-
-    w: np.ndarray
-    lam_x: np.ndarray | None
-    lam_g: np.ndarray | None
-    xs: np.ndarray
-    us: np.ndarray
-    times: np.ndarray
-    age: int = 0
-
-    def command(self, t_s: float) -> np.ndarray:
-        """The command the plan sends for the frame that ends ``t_s`` after it was solved: its
-        velocity command at that time, linear over each stage (the command's slope is constant
-        over a stage, so a frame inside a longer stage sends the ramp's point), held after the
-        last stage."""
-        times = self.times[1:]
-        return np.array([np.interp(t_s, times, row) for row in self.us])
-
-    def state(self, t_s: float) -> np.ndarray:
-        """The model state the plan predicts ``t_s`` (>= the first stage's end) after it was
-        solved: a stage's own where ``t_s`` is one (within 1 ns), else interpolated linearly."""
-        times = self.times[1:]
-        k = int(np.searchsorted(times, t_s - 1e-9))
-        if k < len(times) and abs(times[k] - t_s) <= 1e-9:
-            return self.xs[:, k]
-        return np.array([np.interp(t_s, times, row) for row in self.xs])
-
-
 @register_controller("mpc")
 class MPCController(Controller):
-    """Receding-horizon control of the EPM velocity (see the module docstring)."""
+    """Estimator -> supervisor of phases -> producers (the sliding MPC among them) -> safety
+    filter (see the module docstring)."""
 
     name = "mpc"
 
@@ -171,389 +116,128 @@ class MPCController(Controller):
     def reset(self, scenario: Scenario, path: ReferencePath, epm_position_m: np.ndarray) -> None:
         """Build (or reuse) the problem for ``scenario`` and forget the previous run."""
         self.scenario = scenario
-        self.path = path
-        self._use_stack(build_mpc_stack(scenario))
-        assert self.stack is not None
-        final = final_scenario(scenario)
-        self._final_stack = None if final is None else build_mpc_stack(final)
-        # From this time on the horizon reaches the path's end.
-        self._final_from_s = path.duration_s - float(self.stack.ocp.node_times_s[-1])
-        cfg = scenario.mpc
-        # The frame period: the first stage of the plan, the time between commands.
-        self.dt_s = self.stack.ocp.frame_s
-        self.deadline_ms = cfg.deadline_ms if cfg.deadline_ms is not None else 1e3 * self.dt_s
-        self.estimator = CapsuleEstimator(scenario.camera.noise_std_m, cfg.estimator_accel_std_mps2)
-        self.disturbance_n = np.zeros(N_DIST)
-        self.friction_belief = FrictionBelief.from_scenario(scenario)
-        self._drag_growth_n = 0.0
-        self.friction_rls = (
-            FrictionOffsetRLS(cfg.adaptation, self.dt_s) if cfg.adaptation.mode == "rls" else None
-        )
-        self.u_prev = np.zeros(3)
-        self.slope_prev = np.zeros(3)  # the last command's change over its frame, m/s^2
-        self.plan: _Plan | None = None
-        self._offline_plan = None
-        if cfg.feedforward == "plan":
-            offline = cached_plan(scenario, path)
-            if offline.success:
-                self._offline_plan = offline
-            else:
-                warnings.warn(
-                    f"mpc.feedforward: the offline plan failed ({offline.status}); using the path's "
-                    "velocity as feed-forward",
-                    stacklevel=2,
-                )
-        self._started = False
-        self._start_offset: np.ndarray | None = None
-        self.last_prediction: np.ndarray | None = None
-        self.clipped_steps = 0
-        self._rest_leads: list[np.ndarray] = []
-        self._calibrated = False
-        self.fallback_steps = 0
-        self.deadline_misses = 0
-        self.approach = FinalApproach(
-            scenario, path, self.stack.force, self.stack.ocp.lead_eq_m, self.dt_s, self.friction_belief
-        )
-        if self.approach.enabled:
-            self.approach.warm_up(scenario.plate.epm_height_m)
-        self._static_parts(scenario, path)
-
-    def _static_parts(self, scenario: Scenario, path: ReferencePath) -> None:
-        """The parts that use static friction, each only when configured: the rest detector they
-        share, the prediction's contact modes and the start's pre-load."""
-        cfg, stack = scenario.mpc, self.stack
-        assert stack is not None
-        used = cfg.stick_prediction or cfg.start_preload is not None
-        self.rest = RestDetector(scenario.camera.noise_std_m, _MOVING_MPS) if used else None
-        self.contact = self.start = None
-        if self.rest is not None and cfg.stick_prediction:
-            times = stack.ocp.node_times_s[1:]
-            self.contact = ContactModes(stack.model, self.friction_belief, times, self.rest)
-        if self.rest is not None and cfg.start_preload is not None:
-            self.start = StartPreload(
-                scenario, path, stack.force, stack.ocp.lead_eq_m, self.friction_belief, self.rest, self.dt_s
-            )
-
-    def _use_stack(self, stack: MPCStack) -> None:
-        """Solve with ``stack`` from now on. The stacks of a run share the problem's layout, so the
-        plan and its multipliers warm-start either."""
-        self.stack = stack
+        stack = self.stack = build_mpc_stack(scenario)
         wrap = self.solver_wrapper
         self.solver = stack.solver if wrap is None else wrap(stack.solver)
+        # The frame period: the first stage of the plan, the time between commands.
+        self.dt_s = stack.ocp.frame_s
+        self.state = StateEstimator(scenario, stack.force, self.dt_s)
+        belief = FrictionBelief.from_scenario(scenario)
+        self.reference = SlideReference(path, stack.ocp, scenario.break_loose.blend_s, belief)
+        self.slide = SlideProducer(
+            self.solver, stack.ocp, scenario.mpc, self.state, self.reference, self.dt_s
+        )
+        self.safety = SafetyFilter(scenario, self.dt_s)
+        self.target_m = np.asarray(path.end_m, dtype=float)
+        self.supervisor = Supervisor(self._producers(scenario, path, stack, belief), path.duration_s)
 
-    # ------------------------------------------------------------------ helpers
-    def _reference(self, t_s: float) -> np.ndarray:
-        """Capsule position and velocity at stages 1..N and the EPM feed-forward of inputs 0..N-1."""
-        ocp = self.stack.ocp  # type: ignore[union-attr]
-        n = ocp.horizon
-        times = t_s + ocp.node_times_s[1:]
-        if t_s < 0:  # settle phase: the rig holds the EPM, so plan to stay at the start
-            return np.vstack([self.path.position(np.zeros(n)).T, np.zeros((4, n))])
-        pos, vel = self.path.position(times).T, self.path.velocity(times).T
-        if self._start_offset is not None:
-            pos, vel = self._join(times, pos, vel)
-        if self._offline_plan is None:
-            return np.vstack([pos, vel, vel])
-        starts = times - ocp.steps_s  # input k applies from stage k's time on
-        ff = np.array([self._offline_plan.epm_velocity_at(t)[:2] for t in starts]).T
-        return np.vstack([pos, vel, ff])
+    def _producers(
+        self, scenario: Scenario, path: ReferencePath, stack: MPCStack, belief: FrictionBelief
+    ) -> dict[Phase, PhaseProducer]:
+        """Each phase's producer for this run."""
+        start = None
+        if scenario.break_loose.preload is not None:
+            rest = self.state.rest
+            start = StartPreload(scenario, path, stack.force, stack.ocp.lead_eq_m, belief, rest, self.dt_s)
+        self.placement = place = PlacementProducer(
+            scenario, self.slide, stack.force, stack.ocp.lead_eq_m, belief, path.length_m
+        )
+        return {
+            Phase.SETTLE: SettleProducer(self.slide),
+            Phase.BREAK_LOOSE: PreloadBreakLoose(start, self.slide),
+            Phase.SLIDE: self.slide,
+            Phase.PLACE: place,
+            Phase.HOLD: place,
+            Phase.FAILED: place,
+        }
 
-    def _progress_m(self, t_s: float) -> float:
-        """The tether paid out at ``t_s``, m: the reference's progress along the path (the capsule
-        follows it within millimetres; a projection of the estimate would jump where a closed path
-        passes its start again)."""
-        duration = self.path.duration_s
-        return self.path.length_m * min(max(t_s, 0.0) / duration, 1.0) if duration > 0 else 0.0
+    @property
+    def plan(self) -> Plan | None:
+        """The sliding MPC's current plan (None before the first solve, or after another phase
+        took over)."""
+        return self.slide.plan
 
-    def _update_disturbance(self, v_est: np.ndarray) -> None:
-        cfg = self.scenario.mpc
-        if self.plan is None or cfg.disturbance_gain == 0:
-            return
-        v_pred = self.plan.state((self.plan.age + 1) * self.dt_s)[2:4]
-        mass = self.scenario.capsule.mass_kg
-        # Force that would explain the velocity innovation over one frame.
-        innov = cfg.disturbance_gain * mass * (v_est - v_pred) / self.dt_s
-        speed = float(np.linalg.norm(v_pred))
-        d = self.disturbance_n.copy()
-        if float(np.linalg.norm(v_est)) < _MOVING_MPS:
-            # The capsule is (nearly) at rest: static friction holds it, which is neither the
-            # sliding friction nor a steady force -- learn nothing from a stuck capsule.
-            return
-        if speed > _MOVING_MPS:
-            # Along the motion: extra friction (opposes v), unless the friction adaptation has it;
-            # across it: a constant force.
-            v_hat = v_pred / speed
-            along = float(innov @ v_hat)
-            if self.friction_rls is None:
-                d[2] -= along
-            d[0:2] += innov - along * v_hat
-        else:
-            d[0:2] += innov
-        self.disturbance_n = np.clip(d, -cfg.disturbance_max_n, cfg.disturbance_max_n)
+    @property
+    def estimator(self) -> CapsuleEstimator:
+        """The Kalman filter of the estimator (:attr:`state`): position and velocity from the camera."""
+        return self.state.kalman
 
-    def _update_friction(self, t_s: float, state: np.ndarray) -> None:
-        """``mpc.adaptation.mode: rls``: fuse this frame's velocity innovation along the motion
-        if the capsule slides (see :mod:`capsule_mpc.mpc.adaptation`)."""
-        rls = self.friction_rls
-        if rls is None:
-            return
-        vel = state[2:4]
-        ref_speed = float(np.linalg.norm(self.path.velocity(np.array([t_s]))[0])) if t_s >= 0 else 0.0
-        if not rls.sliding(t_s, state[0:2], vel, ref_speed) or self.plan is None:
-            return
-        model = self.stack.model  # type: ignore[union-attr]
-        x_pred = self.plan.state((self.plan.age + 1) * self.dt_s)
-        y_n, phi_n = friction_regression(model, x_pred, vel, rls.offset, self.dt_s)
-        rls.update(y_n, phi_n)
+    @property
+    def disturbance_n(self) -> np.ndarray:
+        """The estimated disturbance: constant force (x, y) and extra friction along the motion, N."""
+        return self.state.disturbance_n
 
-    def _calibrate_rest_offset(self, t_s: float, epm: np.ndarray, meas: Measurement) -> None:
-        """Settle phase: where the capsule rests under the still EPM tells the model's force bias.
+    @property
+    def deadline_ms(self) -> float:
+        """The solve deadline, ms (``mpc.deadline_ms``, else one frame)."""
+        return self.slide.deadline_ms
 
-        While t < 0 the measured rest leads are collected; at t = 0 the constant disturbance
-        is set to cancel the model's lateral force at their mean (the model then has its
-        equilibrium where the capsule really rests). Runs without a settle phase skip this.
-        """
-        if t_s < 0:
-            if meas.position_m is not None:
-                self._rest_leads.append(epm[:2] - meas.position_m)
-            return
-        if self._calibrated or not self._rest_leads:
-            return
-        self._calibrated = True
-        lead = np.mean(self._rest_leads, axis=0)
-        force = np.asarray(self.stack.force(lead, epm[2])).ravel()  # type: ignore[union-attr]
-        limit = self.scenario.mpc.disturbance_max_n
-        self.disturbance_n[0:2] = np.clip(-force[0:2], -limit, limit)
+    @property
+    def phase(self) -> Phase:
+        """The current phase (:class:`~capsule_mpc.mpc.phases.Phase`)."""
+        return self.supervisor.phase
 
-    def _join(self, times: np.ndarray, pos: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The reference joining the path from where the capsule rested at the start.
-
-        The offset of the rest position from the path's start fades out over
-        ``mpc.start_blend_s`` (a half cosine), so the capsule breaks loose along the path and is
-        steered onto it while it slides, instead of being dragged sideways out of the
-        static-friction dead zone first (a breakaway across the path lurches millimetres on the
-        soft axis). The run is still scored against the path itself.
-        """
-        blend = self.scenario.mpc.start_blend_s
-        phase = np.clip(times / blend, 0.0, 1.0)
-        weight = 0.5 * (1.0 + np.cos(np.pi * phase))
-        rate = np.where(phase < 1.0, -0.5 * np.pi / blend * np.sin(np.pi * phase), 0.0)
-        offset = self._start_offset[:, None]
-        return pos + offset * weight, vel + offset * rate
-
-    def _initial_guess(self, x0: np.ndarray) -> np.ndarray:
-        """Everything standing still at the current state."""
-        ocp = self.stack.ocp  # type: ignore[union-attr]
-        n = ocp.horizon
-        held = np.tile(self.u_prev[:, None], (1, n))
-        return ocp.pack_variables(np.tile(x0[:, None], (1, n)), held, np.zeros((2, n)), x0, self.u_prev)
-
-    def _contact_modes(
-        self, t_s: float, x0: np.ndarray, ref: np.ndarray, guess: np.ndarray | None
-    ) -> np.ndarray | None:
-        """``mpc.stick_prediction``: the stages static friction holds the capsule in
-        (:mod:`.contact`), the EPM where the shifted plan ``guess`` puts it. Where that plan (or
-        no plan) breaks the capsule loose at no stage, the EPM moved by the reference's
-        feed-forward instead: a plan in which nothing the EPM does moves the capsule gives the
-        solver no reason to move the EPM."""
-        if self.contact is None:
-            return None
-        ocp = self.stack.ocp  # type: ignore[union-attr]
-        if guess is not None:
-            epm = ocp.unpack(guess)[0][4:7]
-            static = self.contact.static_n(t_s, epm, self.disturbance_n[0:2], self._progress_m)
-            if self.contact.breakaway_stage < ocp.horizon:
-                return static
-        moved = np.cumsum(ref[4:6] * ocp.steps_s, axis=1)
-        epm = np.vstack([x0[4:6, None] + moved, np.full((1, ocp.horizon), x0[6])])
-        return self.contact.static_n(t_s, epm, self.disturbance_n[0:2], self._progress_m)
-
-    def _solve(
-        self, t_s: float, x0: np.ndarray, ref: np.ndarray, held: bool
-    ) -> tuple[SolveResult, StepOutcome]:
-        """This frame's solve and what it came to if it succeeds (solved, recovered, or held);
-        ``held``: the rig holds the EPM (settle phase)."""
-        stack = self.stack
-        assert stack is not None
-        solver = self.solver
-        offset = 0.0 if self.friction_rls is None else self.friction_rls.offset
-        # The model's drag grows with the tether paid out: its growth so far joins the estimated
-        # extra friction (both oppose the motion), a feed-forward the estimator need not learn.
-        dist = self.disturbance_n + np.array([0.0, 0.0, self._drag_growth_n])
-        plan = self.plan
-        guess = None if plan is None else stack.ocp.shift(plan.w)
-        static = self._contact_modes(t_s, x0, ref, guess)
-        p = stack.ocp.pack_parameters(x0, ref, self.u_prev, dist, offset, self.slope_prev, static)
-        if plan is None or guess is None:
-            return solver.solve_converged(p, self._initial_guess(x0)), StepOutcome.SOLVED
-        res = solver.solve(p, guess, plan.lam_x, plan.lam_g)
-        if res.success or solver.scheme == "ipopt":
-            return res, StepOutcome.SOLVED
-        if held and np.all(np.isfinite(res.w)):
-            # The command is 0 whatever the plan says: the step only warm-starts the next frame,
-            # and the next frames absorb its violation (typically the friction's sign change of a
-            # capsule at rest).
-            return replace(res, success=True, status=f"held ({res.status})"), StepOutcome.HELD
-        cfg = self.scenario.mpc
-        if cfg.recovery_sqp_iter == 0 or solver.scheme != "rti":
-            return res, StepOutcome.SOLVED
-        # The RTI step failed: a few SQP iterations with line search from the same guess (counted
-        # in the time). Paced by the wall clock they stop in time for the frame's deadline.
-        budget = self.deadline_ms - res.solve_ms - _REST_OF_STEP_MS if cfg.enforce_deadline else None
-        rec = solver.sqp(p, guess, cfg.recovery_sqp_iter, budget)
-        status = f"recovered ({res.status})" if rec.success else f"{res.status}; {rec.status}"
-        return replace(
-            rec,
-            status=status,
-            iterations=res.iterations + rec.iterations,
-            solve_ms=res.solve_ms + rec.solve_ms,
-        ), StepOutcome.RECOVERED
-
-    # ------------------------------------------------------------------ step
     def step(self, t_s: float, measurement: Measurement, epm_position_m: np.ndarray) -> Command:
-        """One frame: estimate, solve, fall back if needed, and enforce the limits."""
+        """One frame: estimate, let the phase's producer command, enforce the limits."""
         epm = np.asarray(epm_position_m, dtype=float)
-        accepted = True
-        if measurement.position_m is not None:
-            accepted = self.estimator.update(measurement.capture_t_s, measurement.position_m)
-        if not self.estimator.initialised:  # nothing seen yet: hold still
-            return self._emit(
-                np.zeros(3), epm, StepStats(status="no_measurement", outcome=StepOutcome.NO_MEASUREMENT)
-            )
+        accepted = self.state.fuse(measurement)
+        if not self.state.initialised:  # nothing seen yet: hold still
+            stats = StepStats(status="no_measurement", outcome=StepOutcome.NO_MEASUREMENT)
+            stats.phase = self.supervisor.phase.value
+            return self._emit(np.zeros(3), epm, stats)
         if not accepted:  # an outlier rejected by the filter's gate: the prediction stands in for it
             measurement = replace(measurement, position_m=None)
-        pos, vel = self.estimator.estimate(t_s)
-        if t_s >= 0 and not self._started:
-            self._started = True
-            if self.scenario.mpc.start_blend_s > 0:
-                self._start_offset = pos - self.path.start_m
-        self._calibrate_rest_offset(t_s, epm, measurement)
-        if self.rest is not None:
-            self.rest.update(t_s, pos)
-        self.approach.observe(measurement)
-        u_approach = self.approach.step(t_s, epm, self.u_prev, self.disturbance_n[0:2])
-        if u_approach is not None:
-            return self._approach_command(u_approach, epm)
-        final = self._final_stack
-        if final is not None and self.stack is not final and t_s >= self._final_from_s:
-            self._use_stack(final)
-        x0 = np.concatenate([pos, vel, epm])
-        self._drag_growth_n = self.friction_belief.drag_growth_n(self._progress_m(t_s))
-        if measurement.position_m is not None:  # a dropped or rejected frame teaches nothing
-            self._update_disturbance(vel)
-            self._update_friction(t_s, x0)
-        res, outcome = self._solve(t_s, x0, self._reference(t_s), held=t_s < 0)
-        if res.success and not np.all(np.isfinite(res.w)):  # a solver that says so is not trusted
-            res = replace(res, success=False, status=f"non-finite solution ({res.status})")
-        late = res.solve_ms > self.deadline_ms and self.plan is not None
-        self.deadline_misses += int(late)
-        late = late and self.scenario.mpc.enforce_deadline
-        stats = StepStats(
-            solve_ms=res.solve_ms,
-            status=res.status,
-            iterations=res.iterations,
-            outcome=outcome,
-            extra={
-                "disturbance_x_n": float(self.disturbance_n[0]),
-                "disturbance_y_n": float(self.disturbance_n[1]),
-                "disturbance_friction_n": float(self.disturbance_n[2]),
-            },
+        est = self.state.estimate(t_s, measurement.position_m, epm)
+        if t_s >= 0:
+            self.reference.start(est.position_m)
+        ctx = FrameContext(
+            t_s=t_s,
+            measurement=measurement,
+            position_m=est.position_m,
+            velocity_mps=est.velocity_mps,
+            resting=est.resting,
+            rest_s=est.rest_s,
+            epm_m=epm,
+            u_prev_mps=self.safety.u_prev,
+            slope_prev_mps2=self.safety.slope_prev,
+            disturbance_n=self.state.disturbance_n.copy(),
+            target_m=self.target_m,
         )
-        if self.friction_rls is not None:
-            stats.extra.update(self.friction_rls.as_stats())
-        if self.contact is not None:
-            stats.extra["breakaway_stage"] = float(self.contact.breakaway_stage)
+        phase, out = self.supervisor.step(ctx)
+        assert out.command is not None  # the supervisor returns only an output with a command
+        stats = out.stats if out.stats is not None else StepStats()
+        stats.phase = phase.value
         if not accepted:
             stats.extra["measurement_rejected"] = 1.0
-        if res.success:
-            xs, us, _ = self.stack.ocp.unpack(res.w)  # type: ignore[union-attr]
-            new_plan = _Plan(res.w, res.lam_x, res.lam_g, xs, us, self.stack.ocp.node_times_s)  # type: ignore[union-attr]
-            if not late:
-                self.plan = new_plan
-                self.last_prediction = xs[0:2].T.copy()
-                return self._send(us[:, 0], epm, stats, t_s)
-            # Late: this frame's command comes from the previous plan (the new one arrived too
-            # late to be sent), but the new solution is the better warm start for the next
-            # frame -- dropping it makes the next step start cold and be late again.
-            stats.failed, stats.outcome = True, StepOutcome.LATE
-            stats.status = "late: " + res.status
-            self.fallback_steps += 1
-            u = self._fallback_command()
-            self.plan = new_plan
-            return self._send(u, epm, stats, t_s)
-        stats.failed, stats.outcome = True, StepOutcome.FAILED
-        stats.status = "failed: " + res.status
-        self.fallback_steps += 1
-        u = self._fallback_command()
-        if res.solver == "sqp" and self.plan is not None and np.all(np.isfinite(res.w)):
-            # A recovery that ran out of iterations: its iterate (each line search lowered the
-            # merit from the shifted plan's) warm-starts the next frame, whose step goes on with
-            # the repair; restarting from the shifted plan would repeat the same failed step.
-            self.plan.w = res.w
-        return self._send(u, epm, stats, t_s)
-
-    def _send(self, u: np.ndarray, epm: np.ndarray, stats: StepStats, t_s: float) -> Command:
-        """Send the MPC's command ``u``, or the start's pre-load command while that phase lasts
-        (:mod:`.start`; the MPC solves meanwhile, so its plan is warm when it takes over)."""
-        start = self.start
-        if start is not None and t_s >= 0 and start.active:
-            u_start = start.command(t_s, epm, self.u_prev, self.disturbance_n[0:2])
-            if u_start is not None:
-                stats.extra["start_preload"] = 1.0
-                u = u_start
-        return self._emit(u, epm, stats, hold=t_s < 0)
-
-    def _approach_command(self, u: np.ndarray, epm: np.ndarray) -> Command:
-        """The final approach's command (:mod:`.approach`): the MPC's plan is dropped (a new one is
-        solved from scratch should the MPC take over again) and it predicts nothing."""
-        self.plan = None
-        self.last_prediction = None
-        attempts = float(self.approach.attempts)
-        stats = StepStats(
-            status=f"approach: {self.approach.phase}",
-            extra={"approach_attempts": attempts},
-            outcome=StepOutcome.APPROACH,
-        )
-        return self._emit(u, epm, stats)
+        return self._emit(out.command, epm, stats, hold=t_s < 0)
 
     @property
     def finished(self) -> bool:
-        """Whether the final approach (:mod:`.approach`) is over: done, given up, or switched off
-        (``mpc.final_approach``); until then the run does not end at rest."""
-        return self.approach.finished
+        """Whether the placement is over (done or given up) or off (``place.max_moves: 0``); until
+        then the run does not end at rest."""
+        return self.scenario.place.max_moves == 0 or self.supervisor.phase in TERMINAL
 
-    def _fallback_command(self) -> np.ndarray:
-        """The previous plan's command for now while the plan lasts (it predicts the next frame),
-        else brake.
-
-        The warm start is shifted by the frame that passed (the plan's command for it was
-        applied), so it stays aligned with time for the next solve.
-        """
-        plan = self.plan
-        if plan is not None and (plan.age + 2) * self.dt_s < plan.times[-1] + 1e-9:
-            plan.age += 1
-            plan.w = self.stack.ocp.shift(plan.w)  # type: ignore[union-attr]
-            plan.lam_x = plan.lam_g = None
-            return plan.command((plan.age + 1) * self.dt_s)
-        self.plan = None
-        return np.zeros(3)  # braking target; the safety layer limits the deceleration
+    @property
+    def gave_up(self) -> str:
+        """The placement's reason when it gave up (the ``FAILED`` phase), else empty."""
+        if self.supervisor.phase is not Phase.FAILED:
+            return ""
+        return next(
+            (tr.reason for tr in reversed(self.supervisor.transitions) if tr.after is Phase.FAILED), ""
+        )
 
     def _emit(self, u: np.ndarray, epm: np.ndarray, stats: StepStats, hold: bool = False) -> Command:
-        """Send ``u`` through the safety layer; ``hold``: the settle phase (t < 0), in which the
+        """Send ``u`` through the safety filter; ``hold``: the settle phase (t < 0), in which the
         rig keeps the EPM still whatever is commanded, so the controller sends (and assumes) 0."""
-        if hold:
-            u = np.zeros(3)
-        cmd, clipped = safe_command(u, self.u_prev, epm, self.scenario, self.dt_s, self.slope_prev)
+        cmd, clipped = self.safety.apply(np.zeros(3) if hold else u, epm)
         if clipped:
-            self.clipped_steps += 1
             stats.extra["clipped"] = 1.0
-        self.slope_prev = (cmd - self.u_prev) / self.dt_s
-        self.u_prev = cmd
         return Command(epm_velocity_mps=cmd, stats=stats)
 
     def predicted_capsule_path(self) -> np.ndarray | None:
         """The capsule positions (N, 2) predicted by the last successful solve."""
-        return None if self.last_prediction is None else self.last_prediction.copy()
+        pred = self.slide.last_prediction
+        return None if pred is None else pred.copy()
 
     @property
     def build_s(self) -> float:

@@ -30,20 +30,12 @@ function of one stage's ``(x_k, u_k)`` only, so the Gauss-Newton Hessian is bloc
   stretches the horizon at the same N (e.g. 20 ms stages in a 100 Hz loop); ``dt`` above is the
   stage's own step.
 
-Parameters ``p = (x_0, ref, u_prev, s_prev, d, dmu, static)``: the estimated current state (7), the
-reference window (capsule position and velocity at stages 1..N, and the EPM velocity feed-forward
-for inputs 0..N-1: the path's velocity, or an offline plan's EPM velocity), the command being
-applied (3) and its slope (3), the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a
-constant force (N) plus an extra friction force (N) that opposes the capsule's motion -- the model's
-friction is the part of the mismatch that turns with the motion, so it must not be a fixed vector --
-and last the friction-coefficient offset ``dmu`` of :mod:`capsule_mpc.mpc.adaptation` (the model's
-friction force becomes ``(mu(v) + dmu) F_N + f_s``; with ``mpc.adaptation.mode: off`` the parameter
-is unused), and the static friction of stages 0..N-1 (``static``, N forces >= 0, N; with
-``mpc.stick_prediction`` the static friction a resting capsule must overcome beyond the model's
-sliding friction at rest, against the motion, in the stages :mod:`capsule_mpc.mpc.contact` predicts
-it still rests; it acts through the same smoothed direction as the model's friction, so a force
-below it creeps the capsule slowly and the plan sees that more force moves it; without
-``mpc.stick_prediction`` the parameters are unused).
+Parameters ``p = (x_0, ref, u_prev, s_prev, d)``: the estimated current state (7), the reference
+window (capsule position and velocity at stages 1..N, and the EPM velocity feed-forward for inputs
+0..N-1: the path's velocity, or an offline plan's EPM velocity), the command being applied (3) and
+its slope (3), and the estimated force disturbance ``d = (d_x, d_y, d_fric)``: a constant force (N)
+plus an extra friction force (N) that opposes the capsule's motion -- the model's friction is the
+part of the mismatch that turns with the motion, so it must not be a fixed vector.
 
 The objective is a sum of squares ``0.5 |R(w, p)|^2`` plus a linear slack penalty; stage k's
 residuals weigh the state ``x_{k+1}`` against the reference at stage k+1, the command ``c_{k+1}``
@@ -56,7 +48,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import casadi as ca
 import numpy as np
@@ -71,16 +63,15 @@ __all__ = [
     "FN_SCALE",
     "INPUT_SCALE",
     "N_DIST",
-    "N_FRICTION",
     "N_INPUT",
     "N_PATH",
     "N_REF",
     "N_STATE",
-    "N_STICK_PER_STAGE",
     "OCP",
     "STATE_SCALE",
     "S_SCALE",
     "TANGENT_EPS_MPS",
+    "TERMINAL_FACTOR",
     "U_SCALE",
     "X_SCALE",
     "build_ocp",
@@ -91,10 +82,6 @@ __all__ = [
 N_REF = 6
 #: Disturbance parameters: constant force (x, y) and extra friction magnitude, N.
 N_DIST = 3
-#: Friction parameters after the disturbance: the friction-coefficient offset dmu.
-N_FRICTION = 1
-#: Static-friction parameters per stage after the friction ones (N; 0: the capsule slides).
-N_STICK_PER_STAGE = 1
 #: Model state (p, v, e, h) and EPM velocity sizes (see :mod:`capsule_mpc.dynamics`).
 _NX_MODEL, _NU_MODEL = 7, 3
 #: Stage state: the model state, the command applied and its slope (13); stage input: dc, v_next,
@@ -105,6 +92,10 @@ N_INPUT = _NU_MODEL + 2 + n_slacks + 1
 N_PATH = 11
 #: Stage-state columns of the command's slope (the EPM acceleration of the step that ends there).
 _SLOPE = slice(_NX_MODEL + _NU_MODEL, N_STATE)
+#: Factor on the last stage's tracking weights (the terminal cost): a plan that ends on the
+#: reference is preferred to one that is closer earlier, as in an LQR's terminal weight; the value
+#: the controller was tuned with on the rectangle.
+TERMINAL_FACTOR = 3.0
 #: Scale of the command's slope (EPM acceleration), m/s^2, and of the jerk rows, m/s^3.
 A_SCALE = np.array([0.1, 0.1, 0.1])
 J_SCALE = 1.0
@@ -161,13 +152,21 @@ class OCP:
     horizon: int
     dt_s: float
     lead_eq_m: np.ndarray
-    n_w: int
-    n_p: int
     steps_s: np.ndarray
-    n_x: int = N_STATE
-    n_u: int = N_INPUT
-    n_g: int = N_PATH
     lag_s: float = 0.0
+    n_x: ClassVar[int] = N_STATE
+    n_u: ClassVar[int] = N_INPUT
+    n_g: ClassVar[int] = N_PATH
+
+    @property
+    def n_w(self) -> int:
+        """Number of variables."""
+        return len(self.lbw)
+
+    @property
+    def n_p(self) -> int:
+        """Number of parameters."""
+        return int(self.nlp["p"].numel())
 
     @property
     def frame_s(self) -> float:
@@ -242,27 +241,14 @@ class OCP:
         ref: np.ndarray,
         u_prev: np.ndarray,
         disturbance_n: np.ndarray,
-        friction_offset: float = 0.0,
         slope_prev: np.ndarray | None = None,
-        static_n: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3), the
-        friction-coefficient offset (dimensionless; 0: the model's friction), the slope of the
-        command being applied (3, m/s^2: its change from the one before, per frame; default 0) and
-        the static friction of each stage beyond the sliding one (N values, N; default 0: every
-        stage slides)."""
+        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3) and
+        the slope of the command being applied (3, m/s^2: its change from the one before, per
+        frame; default 0)."""
         slope = np.zeros(_NU_MODEL) if slope_prev is None else np.ravel(slope_prev)
-        modes = np.zeros(self.horizon) if static_n is None else np.ravel(static_n).astype(float)
         return np.concatenate(
-            [
-                np.ravel(x0),
-                np.ravel(ref, order="F"),
-                np.ravel(u_prev),
-                slope,
-                np.ravel(disturbance_n),
-                [float(friction_offset)],
-                modes,
-            ]
+            [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), slope, np.ravel(disturbance_n)]
         )
 
     def pack_variables(
@@ -472,6 +458,42 @@ def _constraint_bounds(sc: Scenario, steps: np.ndarray) -> tuple[np.ndarray, np.
     return np.concatenate(lbg), np.concatenate(ubg)
 
 
+def _stage_rows(
+    model: CapsuleModel,
+    xk: ca.MX,
+    uk: ca.MX,
+    x_next_var: ca.MX,
+    dist: ca.MX,
+    h: float,
+    lag: float,
+    lead_eq_m: np.ndarray,
+) -> tuple[list[ca.MX], tuple[ca.MX, ...]]:
+    """One stage's constraint rows (gap, implicit velocity, coupling, normal force, jerk) from the
+    physical stage state ``xk`` and input ``uk`` (step ``h``, s), and the stage's parts the residuals
+    weigh: the next model state, command, command change, slacks, jerk slack and jerk."""
+    sc: Scenario = model.scenario
+    x1 = _next_state(xk, uk, h, lag)
+    m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL : _NX_MODEL + _NU_MODEL], uk[0:3], uk[5:7]
+    sj, jerk = uk[7], (uk[0:3] / h - xk[_SLOPE]) / J_SCALE
+    eps = sc.friction.smoothing_eps_mps
+    v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
+    acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / sc.capsule.mass_kg
+    lead, _force, f_n, _mu = model.outputs(m1)
+    rows = [
+        x_next_var - x1 / ca.DM(STATE_SCALE),  # gap: the coefficient of x_{k+1} is the identity
+        (m1[2:4] - xk[2:4] - h * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
+        ca.sumsqr(lead - ca.DM(lead_eq_m)) / sc.limits.max_lead_m**2 - 1 - sk[0],  # <= 0: keeps the magnet
+        (f_n + sk[1]) / FN_SCALE,  # >= F_N,min: stays on the plate
+        (f_n - sk[1]) / FN_SCALE,  # <= F_N,max: tissue-safe
+        # The slope's change (the jerk the arm must make) within the jerk limit, softened by one
+        # slack so that a start state already past it (after a braking fallback) keeps the QP
+        # feasible; the safety layer enforces the limit on the command sent.
+        jerk + sj / J_SCALE,  # >= -J frame
+        jerk - sj / J_SCALE,  # <= J frame
+    ]
+    return rows, (m1, c1, dc, sk, sj, jerk)
+
+
 def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: float | None = None) -> OCP:
     """Build the MPC's NLP for ``model`` with step ``dt_s`` in the stage-wise layout.
 
@@ -492,7 +514,7 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
         The NLP, its residual function and bounds.
     """
     sc: Scenario = model.scenario
-    cfg, lim = sc.mpc, sc.limits
+    cfg = sc.mpc
     n = cfg.horizon
     for name, value in (("dt_s", dt_s), ("frame_s", frame_s)):
         if value is not None and not value > 0:
@@ -500,19 +522,14 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     steps = np.full(n, float(dt_s))
     steps[0] = dt_s if frame_s is None else frame_s
     n_w = _STAGE * n + N_STATE
-    n_p = _NX_MODEL + N_REF * n + 2 * _NU_MODEL + N_DIST + N_FRICTION + N_STICK_PER_STAGE * n
+    n_p = _NX_MODEL + N_REF * n + 2 * _NU_MODEL + N_DIST
     w = ca.MX.sym("w", n_w)
     p = ca.MX.sym("p", n_p)
     ref = ca.reshape(p[_NX_MODEL : _NX_MODEL + N_REF * n], N_REF, n)
     i_dist = _NX_MODEL + N_REF * n + 2 * _NU_MODEL
-    dist, mu_offset = p[i_dist : i_dist + N_DIST], p[i_dist + N_DIST]
-    static = p[i_dist + N_DIST + N_FRICTION :]
+    dist = p[i_dist : i_dist + N_DIST]
 
-    mass = sc.capsule.mass_kg
     lag = servo_time_constant_s(sc.arm.servo_bandwidth_hz) or 0.0  # no servo lag: 0
-    eps = sc.friction.smoothing_eps_mps
-    eq_sq = lim.max_lead_m**2
-    lead_eq = ca.DM(lead_eq_m)
     x_scale, u_scale = ca.DM(STATE_SCALE), ca.DM(INPUT_SCALE)
     rows, residuals = [], []
     for k in range(n):
@@ -520,35 +537,11 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
         xk = x_scale * w[_STAGE * k : _STAGE * k + N_STATE]
         uk = u_scale * w[_STAGE * k + N_STATE : _STAGE * (k + 1)]
         x_next_var = w[_STAGE * (k + 1) : _STAGE * (k + 1) + N_STATE]
-        x1 = _next_state(xk, uk, h, lag)
-        m1, c1, dc, sk = x1[0:_NX_MODEL], x1[_NX_MODEL : _NX_MODEL + _NU_MODEL], uk[0:3], uk[5:7]
-        sj, jerk = uk[7], (uk[0:3] / h - xk[_SLOPE]) / J_SCALE
-        v_hat = m1[2:4] / ca.sqrt(ca.sumsqr(m1[2:4]) + eps**2)
-        acc = model.ode(m1, c1)[2:4] + (dist[0:2] - dist[2] * v_hat) / mass
-        lead, _force, f_n, _mu = model.outputs(m1)
-        if cfg.adaptation.mode != "off":
-            # The offset dmu on mu: friction dmu F_N against the motion (F_N taken as 0 off the
-            # plate, as in the model's own friction). Only built when used: without it the NLP is
-            # operation for operation the one without adaptation (IPOPT's first solve rounds the
-            # same), with dmu an unused parameter.
-            acc = acc - mu_offset * ca.fmax(f_n, 0) * v_hat / mass
-        if cfg.stick_prediction:
-            # Static friction of a resting stage, against the motion; only built when used, so
-            # that without it the NLP is operation for operation the one without.
-            acc = acc - static[k] * v_hat / mass
-        rows += [
-            x_next_var - x1 / x_scale,  # gap: the coefficient of x_{k+1} is the identity
-            (m1[2:4] - xk[2:4] - h * acc) / X_SCALE[2:4],  # implicit Euler of the velocity
-            ca.sumsqr(lead - lead_eq) / eq_sq - 1 - sk[0],  # <= 0: capsule keeps the magnet
-            (f_n + sk[1]) / FN_SCALE,  # >= F_N,min: stays on the plate
-            (f_n - sk[1]) / FN_SCALE,  # <= F_N,max: tissue-safe
-            # The slope's change (the jerk the arm must make) within the jerk limit, softened by
-            # one slack so that a start state already past it (after a braking fallback) keeps
-            # the QP feasible; the safety layer enforces the limit on the command sent.
-            jerk + sj / J_SCALE,  # >= -J frame
-            jerk - sj / J_SCALE,  # <= J frame
-        ]
-        weight = cfg.terminal_factor if k == n - 1 else 1.0
+        stage_rows, (m1, c1, dc, sk, sj, jerk) = _stage_rows(
+            model, xk, uk, x_next_var, dist, h, lag, lead_eq_m
+        )
+        rows += stage_rows
+        weight = TERMINAL_FACTOR if k == n - 1 else 1.0
         residuals += _stage_residuals(cfg, weight, ref[:, k], m1, c1, dc, sk, sj, jerk, dt_s / h)
 
     res = ca.vertcat(*residuals)
@@ -566,5 +559,5 @@ def build_ocp(model: CapsuleModel, dt_s: float, lead_eq_m: np.ndarray, frame_s: 
     return OCP(
         nlp={"x": w, "p": p, "f": f, "g": g}, residual=residual, slack_gradient=slack_gradient,
         lbw=lbw, ubw=ubw, lbg=lbg, ubg=ubg, horizon=n, dt_s=dt_s,
-        lead_eq_m=np.asarray(lead_eq_m, dtype=float), n_w=n_w, n_p=n_p, steps_s=steps, lag_s=lag,
+        lead_eq_m=np.asarray(lead_eq_m, dtype=float), steps_s=steps, lag_s=lag,
     )  # fmt: skip

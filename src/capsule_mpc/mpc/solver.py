@@ -8,7 +8,7 @@
   buffer interface (:class:`FastCall`: NumPy arrays in and out, no DM conversion), without
   option dicts or ``stats()`` on the frame.
 * ``sqp`` -- the same step iterated with a backtracking line search on the l1 merit function
-  (:meth:`MPCSolver.sqp`), to convergence (``mpc.max_sqp_iter``). The controller also uses a
+  (:meth:`MPCSolver.sqp`), to convergence (:data:`MAX_SQP_ITER`). The controller also uses a
   few of these iterations to recover a frame whose RTI step failed.
 * ``ipopt`` -- interior point, primal-dual warm start; also the converged solve of the first
   frame of the SQP schemes (from a cold start RTI can diverge).
@@ -42,6 +42,8 @@ from .problem import N_REF, N_STATE, OCP, STATE_SCALE, U_SCALE, X_SCALE
 
 __all__ = [
     "HPIPM_OPTIONS",
+    "MAX_IPOPT_ITER",
+    "MAX_SQP_ITER",
     "MAX_STEP_VIOLATION",
     "QP_SOLVERS",
     "FastCall",
@@ -61,6 +63,13 @@ __all__ = [
 #: stopping) routinely leaves a few units, which the next frames absorb; tens of units mean the
 #: linearisation broke down, and the step is rejected (measured on the pipe at 5-45 mm/s).
 MAX_STEP_VIOLATION = 20.0
+#: Iteration cap of the sqp scheme's solve to convergence (a frame's recovery has its own, far
+#: smaller, ``mpc.recovery_sqp_iter``): SQP with a line search converges in a handful of
+#: iterations from a warm start; the cap only bounds a pathological solve.
+MAX_SQP_ITER = 30
+#: Iteration cap of IPOPT's solves (the first frame's cold solve, the ipopt scheme): IPOPT's own
+#: cap is 3000; a cold start of this problem converges in tens of iterations.
+MAX_IPOPT_ITER = 200
 #: IPOPT statuses that give a usable (if not fully converged) point.
 _IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded"}
 #: QP solvers the SQP schemes can use on the stage-wise layout.
@@ -464,8 +473,6 @@ class MPCSolver:
         The problem (stage-wise layout).
     scheme : {'rti', 'sqp', 'ipopt'}
         The per-frame scheme.
-    max_sqp_iter, max_ipopt_iter : int
-        Iteration caps.
     compile_dir : Path, optional
         Compile the NLP's derivative and value functions to C and cache them here (None: run
         them in CasADi's virtual machine).
@@ -477,8 +484,6 @@ class MPCSolver:
         self,
         ocp: OCP,
         scheme: str,
-        max_sqp_iter: int = 30,
-        max_ipopt_iter: int = 200,
         compile_dir: Path | None = None,
         qpsol: str = "hpipm",
     ) -> None:
@@ -488,18 +493,17 @@ class MPCSolver:
         self.ocp = ocp
         self.scheme = scheme
         self.qpsol = qpsol
-        self.max_sqp_iter = max_sqp_iter
         self.loaded_from_cache = False
         self.compiled = False
         t0 = time.perf_counter()
         self._ipopt = _nlpsol(
-            "mpc_ipopt", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, max_ipopt_iter, e, False)
+            "mpc_ipopt", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, MAX_IPOPT_ITER, e, False)
         )
         # The primal-dual warm-started IPOPT only where it runs every frame (0.08 s to build).
         self._ipopt_warm: ca.Function | None = None
         if scheme == "ipopt":
             self._ipopt_warm = _nlpsol(
-                "mpc_ipopt_warm", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, max_ipopt_iter, e, True)
+                "mpc_ipopt_warm", "ipopt", ocp.nlp, lambda e: _ipopt_options(ocp, MAX_IPOPT_ITER, e, True)
             )
         # Constant bounds converted once (converting NumPy arguments costs ~0.1 ms per call).
         self._bounds = {"lbg": ca.DM(ocp.lbg), "ubg": ca.DM(ocp.ubg)}
@@ -589,7 +593,7 @@ class MPCSolver:
     ) -> SolveResult:
         """Gauss-Newton SQP from ``w0`` with a backtracking line search on the l1 merit function
         ``f + sigma |violation|_1`` (``sigma`` above the largest QP multiplier), at most
-        ``max_iter`` iterations (default ``max_sqp_iter``). Succeeds when the last point's
+        ``max_iter`` iterations (default :data:`MAX_SQP_ITER`). Succeeds when the last point's
         violation is at most :data:`MAX_STEP_VIOLATION`; status 'converged' when the step and
         the violation are below the convergence tolerances.
 
@@ -597,7 +601,7 @@ class MPCSolver:
         end after this many ms (the first always runs). For a loop paced by the wall clock: it
         makes the result depend on the machine's speed, so simulations leave it None.
         """
-        iters = self.max_sqp_iter if max_iter is None else max_iter
+        iters = MAX_SQP_ITER if max_iter is None else max_iter
         t0 = time.perf_counter()
         w = np.asarray(w0, dtype=float)
         last = self._last_step

@@ -7,13 +7,13 @@ force moves the capsule, so the capsule sits stuck for a few tenths of a second 
 builds up, then lurches. What an operator does instead: pull the magnet ahead briskly until the
 capsule is about to go.
 
-With ``mpc.start_preload`` (a fraction of the believed breakaway), from the first frame of
+With ``break_loose.preload`` (a fraction of the believed breakaway), from the first frame of
 motion the EPM is driven time-optimally within ``limits.speed_mps``, ``limits.accel_mps2`` and
 ``limits.jerk_mps3`` (Ruckig, position interface) along the path's initial direction û to the
 lead at which the controller's force model plus its estimated constant disturbance, along û,
 reaches that fraction of the friction belief's breakaway force after the rest so far
 (:meth:`capsule_mpc.friction.FrictionBelief.breakaway_n`). It arrives there still speeding up:
-at ``mpc.start_preload_arrival`` times the fastest speed the limits reach from rest over that
+at ``break_loose.arrival`` times the fastest speed the limits reach from rest over that
 distance (:func:`fastest_arrival_mps`), but no faster than it can stop before the coupling limit,
 and never below the path's speed. Arriving at the path's speed
 instead would spend the last tenth of a second slowing down while the capsule, still stuck, falls
@@ -42,10 +42,10 @@ from ..config import Scenario
 from ..dynamics import normal_force_expr
 from ..friction import FrictionBelief
 from ..paths import ReferencePath
-from .approach import epm_ruckig
+from .belief import RigBelief
 from .contact import RestDetector
 
-__all__ = ["PRELOAD_MAX_S", "StartPreload", "fastest_arrival_mps"]
+__all__ = ["PRELOAD_MAX_S", "StartPreload", "epm_ruckig", "fastest_arrival_mps"]
 
 #: Longest pre-load from t = 0, s: the MPC takes over then whatever the capsule does.
 PRELOAD_MAX_S = 1.5
@@ -71,13 +71,29 @@ def fastest_arrival_mps(distance_m: float, jerk_mps3: float, accel_mps2: float, 
     return min(v, float(speed_mps))
 
 
+def epm_ruckig(
+    scenario: Scenario, dt_s: float
+) -> tuple[ruckig.Ruckig, ruckig.InputParameter, ruckig.OutputParameter]:
+    """Ruckig for the EPM's three axes at the frame period ``dt_s``, within ``limits.speed_mps``,
+    ``limits.accel_mps2`` and ``limits.jerk_mps3`` per axis, each axis on its own time-optimal
+    profile (synchronised, a millimetre's correction on one axis would stretch the motion on the
+    others); the position interface unless the caller sets another."""
+    lim = scenario.limits
+    inp = ruckig.InputParameter(3)
+    inp.synchronization = ruckig.Synchronization.No
+    inp.max_velocity = [lim.speed_mps] * 3
+    inp.max_acceleration = [lim.accel_mps2] * 3
+    inp.max_jerk = [lim.jerk_mps3] * 3
+    return ruckig.Ruckig(3, dt_s), inp, ruckig.OutputParameter(3)
+
+
 class StartPreload:
     """The start's pre-load phase of one run (see the module docstring).
 
     Parameters
     ----------
     scenario : Scenario
-        The controller's scenario (``mpc.start_preload``, the limits).
+        The controller's scenario (``break_loose.preload``, the limits).
     path : ReferencePath
         The reference; û is its direction at the start, the speed its nominal speed.
     force : casadi.Function
@@ -103,10 +119,7 @@ class StartPreload:
         dt_s: float,
     ) -> None:
         self.scenario = scenario
-        self.fraction = scenario.mpc.start_preload
-        self.force = force
-        self.lead_eq_m = np.asarray(lead_eq_m, dtype=float)
-        self.belief = belief
+        self.model = RigBelief(force, np.asarray(lead_eq_m, dtype=float), belief)
         self.rest = rest
         velocity = np.asarray(path.velocity(np.array([0.0]))[0], dtype=float)
         speed = float(np.linalg.norm(velocity))
@@ -116,13 +129,18 @@ class StartPreload:
         self.target_lead_m: np.ndarray | None = None
         self.arrival_mps = speed
         self.end_reason = ""
-        self._ruckig, self._in, self._out = epm_ruckig(scenario, dt_s)
+        self._otg = epm_ruckig(scenario, dt_s)
         self._state: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._target_m = np.zeros(3)
 
+    @property
+    def fraction(self) -> float | None:
+        """The pre-load's fraction of the believed breakaway (``break_loose.preload``; None: off)."""
+        return self.scenario.break_loose.preload
+
     def _along(self, lead: np.ndarray, height_m: float, disturbance_xy_n: np.ndarray) -> tuple[float, float]:
         """The believed lateral force along û at ``lead`` (N) and the normal force there (N)."""
-        f = np.asarray(self.force(lead, height_m)).ravel()
+        f = np.asarray(self.model.force(lead, height_m)).ravel()
         return float((f[0:2] + disturbance_xy_n) @ self.direction), float(
             normal_force_expr(self.scenario, f[2])
         )
@@ -135,12 +153,12 @@ class StartPreload:
         coupling limit if the force does not get there."""
         d = np.asarray(disturbance_xy_n, dtype=float)
         fraction = float(self.fraction or 0.0)
-        offset = float(np.linalg.norm(rest_lead_m - self.lead_eq_m))
+        offset = float(np.linalg.norm(rest_lead_m - self.model.lead_eq_m))
         reach = max(self.scenario.limits.max_lead_m - offset, 0.0)
 
         def excess(s: float) -> float:
             along, normal = self._along(rest_lead_m + s * self.direction, height_m, d)
-            return along - fraction * self.belief.breakaway_n(normal, rest_s)
+            return along - fraction * self.model.friction.breakaway_n(normal, rest_s)
 
         if excess(0.0) >= 0.0:
             return np.asarray(rest_lead_m, dtype=float).copy()
@@ -163,14 +181,14 @@ class StartPreload:
 
     def arrival_speed(self, rest_lead_m: np.ndarray, target_lead_m: np.ndarray) -> float:
         """The speed along û at the pre-load lead, m/s, for an EPM at rest at ``rest_lead_m`` (2,):
-        ``mpc.start_preload_arrival`` of the fastest it can reach over the way to
+        ``break_loose.arrival`` of the fastest it can reach over the way to
         ``target_lead_m``, and no faster than it can stop from before the coupling limit
         (``limits.max_lead_m`` around the model's equilibrium lead); never below the path's
         speed."""
-        fraction = float(self.scenario.mpc.start_preload_arrival)
+        fraction = float(self.scenario.break_loose.arrival)
         way = float(np.linalg.norm(target_lead_m - rest_lead_m))
         # Distance along û from the target lead to the coupling limit's circle.
-        offset = np.asarray(target_lead_m, dtype=float) - self.lead_eq_m
+        offset = np.asarray(target_lead_m, dtype=float) - self.model.lead_eq_m
         b = float(offset @ self.direction)
         room = -b + math.sqrt(max(b * b - float(offset @ offset) + self.scenario.limits.max_lead_m**2, 0.0))
         speed = min(fraction * self._fastest_along(way), self._fastest_along(max(room, 0.0)))
@@ -205,12 +223,12 @@ class StartPreload:
         # jerk-limited profile; the arm's lag does not restart it.
         if self._state is None:
             self._state = (np.asarray(epm_m, dtype=float), np.asarray(u_prev, dtype=float), np.zeros(3))
-        inp, out = self._in, self._out
+        otg, inp, out = self._otg
         inp.current_position, inp.current_velocity, inp.current_acceleration = (list(x) for x in self._state)
         inp.target_position = list(self._target_m)
         inp.target_velocity = list(cruise)
         inp.target_acceleration = [0.0, 0.0, 0.0]
-        result = self._ruckig.update(inp, out)
+        result = otg.update(inp, out)
         if result == ruckig.Result.Finished:  # pre-loaded: the MPC goes on from here
             self.active, self.end_reason = False, "pre-loaded"
         elif result != ruckig.Result.Working:
@@ -230,6 +248,6 @@ class StartPreload:
         rest_pos = self.rest.rest_position_m
         assert rest_pos is not None
         lead = epm_m[0:2] - rest_pos
-        if float(np.linalg.norm(lead - self.lead_eq_m)) > self.scenario.limits.max_lead_m:
+        if float(np.linalg.norm(lead - self.model.lead_eq_m)) > self.scenario.limits.max_lead_m:
             return "coupling limit"
         return ""

@@ -2,7 +2,8 @@
 
 The rig sends the hashes in its run info (:class:`~.messages.RunInfo`); a controller node built
 from another scenario refuses the run, naming the sections that differ. The plant's truth, the
-path (sent in the run info itself) and the rig's fault injection may differ.
+path (sent in the run info itself), the rig's fault injection and the scenario's name (informational)
+may differ.
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ from .messages import RunInfo
 
 __all__ = ["RIG_ONLY", "check_config", "config_hash", "config_sections"]
 
-#: Sections of a scenario that do not concern the controller.
-RIG_ONLY = ("plant", "path", "faults", "source_path")
+#: Sections of a scenario that do not concern the controller (``name`` is informational).
+RIG_ONLY = ("name", "plant", "path", "faults", "source_path")
 
 
 def config_sections(scenario: Scenario) -> dict[str, str]:

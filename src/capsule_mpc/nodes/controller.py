@@ -45,13 +45,23 @@ from ..interfaces import Command, Controller, Measurement, StepOutcome, StepStat
 from ..paths import ReferencePath
 from ..sim.runner import realtime_scenario
 from .config_check import check_config
-from .messages import PLATE_FRAME, ArmState, CameraFrame, EpmCommand, Event, RunInfo
+from .messages import PLATE_FRAME, ArmState, CameraFrame, EpmCommand, Event, RunInfo, wall_ns
+from .tokens import node_name, node_token
 from .transport import Transport
 
-__all__ = ["EXIT_ENDED", "EXIT_NO_RIG", "ControlOptions", "ControllerNode", "serve_controller"]
+__all__ = [
+    "EXIT_ENDED",
+    "EXIT_NO_RIG",
+    "EXIT_REFUSED",
+    "ControlOptions",
+    "ControllerNode",
+    "serve_controller",
+]
 
 #: Exit status: the rig's run ended / no rig had a run for the node in time.
 EXIT_ENDED, EXIT_NO_RIG = 0, 1
+#: Exit status of a controller node refused because another one drives the rig's run.
+EXIT_REFUSED = 2
 #: Arm states kept for pairing with frames.
 _ARM_STATES_KEPT = 64
 #: How long a frame waits for its arm state, in frame periods.
@@ -236,7 +246,9 @@ class ControllerNode:
         self.last: CameraFrame | None = None
         self.coasted = 0
         self.last_arrival = math.nan
-        self._token = self.transport.token(f"controller/{self.run_id}/{self.name}")
+        self.token_name = node_token(self.name, self._commands.publisher_id)
+        self.ready_ns = wall_ns()
+        self._token = self.transport.token(f"controller/{self.run_id}/{self.token_name}")
         self.event("controller_reset", f"{self.name!r} on run {self.run_id} ({info.state})")
 
     def _serve(self, info: RunInfo) -> int | RunInfo | None:
@@ -286,6 +298,8 @@ class ControllerNode:
         if frames:
             self._answer(frames)
         for item in items:
+            if isinstance(item, RunInfo) and self._refused(item):
+                return EXIT_REFUSED
             if isinstance(item, RunInfo) and item.header.run_id == self.run_id and item.state == "ended":
                 self.event("run_end", f"the rig ended run {self.run_id}")
                 return EXIT_ENDED
@@ -295,6 +309,20 @@ class ControllerNode:
                 self.event("rig_lost", "the rig node is gone: waiting for a rig's run")
                 return None
         return _GO_ON
+
+    def _refused(self, info: RunInfo) -> bool:
+        """Whether the rig gave this node's run to another controller node (said once)."""
+        other = info.controller_node
+        if info.header.run_id != self.run_id or not other or other == self.token_name:
+            return False
+        if info.header.stamp_ns < self.ready_ns:  # sent before this node was ready: not its answer
+            return False
+        self.event(
+            "controller_refused",
+            f"{self.name!r} refused: the rig's run {self.run_id} is driven by controller node "
+            f"{node_name(other)!r}; one controller node drives a run at a time (stop that one first)",
+        )
+        return True
 
     def _until_coasting(self) -> float:
         """Seconds until the next frame is overdue (``coast_periods`` after the last, then one

@@ -67,7 +67,7 @@ __all__ = [
 ]
 
 #: Version of the message schemas; a node drops messages of another version.
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 #: The ROS 2 package of the message types.
 PACKAGE = "capsule_mpc_msgs"
 #: Name of the coordinate frame of every position: x, y on the plate, m (the EPM: and its height).
@@ -212,6 +212,7 @@ class RunInfo:
     path_speed_mps: float = math.nan
     start_epm_position_m: np.ndarray = field(default_factory=_nan3)
     epm_position_m: np.ndarray = field(default_factory=_nan3)
+    controller_node: str = ""
 
 
 @dataclass

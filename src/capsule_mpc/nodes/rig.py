@@ -58,6 +58,7 @@ from ..sim.loop import ClosedLoop, Frame, Observer
 from .config_check import config_hash, config_sections
 from .messages import PLATE_FRAME, ArmState, CameraFrame, EpmCommand, Event, RunInfo
 from .streaming import StreamingActuator
+from .tokens import node_name, node_publisher
 from .transport import Transport
 
 __all__ = [
@@ -67,6 +68,7 @@ __all__ = [
     "RigLink",
     "RigOptions",
     "serve_rig",
+    "write_events",
     "write_rig_outputs",
 ]
 
@@ -124,17 +126,34 @@ class RigLink:
         This run's id.
     say : callable
         Prints one event line (default: stderr).
+    events : list, optional
+        The list the events are appended to (:attr:`events`; default a new one): the caller's
+        keeps them when the run is stopped.
     """
 
-    def __init__(self, transport: Transport, run_id: str, say: Callable[[str], None] = _stderr) -> None:
+    def __init__(
+        self,
+        transport: Transport,
+        run_id: str,
+        say: Callable[[str], None] = _stderr,
+        events: list[dict[str, Any]] | None = None,
+    ) -> None:
         self.transport, self.run_id, self.say = transport, run_id, say
         self.frames = transport.publisher("frame")
         self.arm = transport.publisher("arm_state")
         self.run = transport.publisher("run")
         self._events = transport.publisher("events", realtime=False)
         self.counts: Counter[str] = Counter()
-        self.events: list[dict[str, Any]] = []
+        self.events: list[dict[str, Any]] = [] if events is None else events
         self.controllers: set[str] = set()
+        #: The ready token of the controller node driving the run (None: none; the next ready one will).
+        self.driver: str | None = None
+        #: Whether the driving node has gone silent past the watchdog (a new node may take over).
+        self.driver_silent = False
+        #: The controller nodes that drove the run, in order, with the commands each had applied.
+        self.driven: dict[str, int] = {}
+        #: Whether the run info changed (a new driver) and is to be published again.
+        self.info_changed = False
         self.rig_time_s = math.nan
         self._cond = threading.Condition()
         self._event_lock = threading.Lock()
@@ -148,23 +167,53 @@ class RigLink:
     def event(self, kind: str, detail: str) -> None:
         """Log, count and publish one event (from the loop's thread or a Zenoh callback)."""
         t = self.rig_time_s
+        known = math.isfinite(t)  # not before the run's first frame
         with self._event_lock:
             self.counts[kind] += 1
-            self.events.append({"t_s": t, "wall_ns": time.time_ns(), "kind": kind, "detail": detail})
-        self.say(f"rig: t = {t:.3f} s: {kind}: {detail}")
+            self.events.append(
+                {"t_s": t if known else None, "wall_ns": time.time_ns(), "kind": kind, "detail": detail}
+            )
+        when = f"t = {t:.3f} s" if known else "before the first frame"
+        self.say(f"rig: {when}: {kind}: {detail}")
         msg = Event(source="rig", kind=kind, detail=detail, count=self.counts[kind])
         self._events.publish(msg, t if math.isfinite(t) else 0.0, self.run_id)
 
     def _on_controller(self, name: str, alive: bool) -> None:
-        who = name.rsplit("/", 1)[-1]
+        token = name.rsplit("/", 1)[-1]
+        who = node_name(token)
         with self._cond:
-            (self.controllers.add if alive else self.controllers.discard)(who)
+            (self.controllers.add if alive else self.controllers.discard)(token)
+            refused_by = self._choose(token, alive)
             self._cond.notify_all()
+        if refused_by is not None:
+            self.info_changed = True  # the run info names the driver: the refused node learns it
+            self.event(
+                "controller_refused",
+                f"controller node {who!r} refused: {node_name(refused_by)!r} drives run {self.run_id}; one "
+                "controller node drives a run at a time",
+            )
+            return
         self.event("controller_ready" if alive else "controller_lost", f"controller node {who!r}")
+
+    def _choose(self, token: str, alive: bool) -> str | None:
+        """Make ``token`` the driver if the run has none (or a silent one); the driver it is
+        refused for, else None. Holds ``_cond``."""
+        if not alive:
+            if token == self.driver:
+                self.driver = None
+            return None
+        if self.driver is not None and self.driver in self.controllers and not self.driver_silent:
+            return self.driver
+        self.driver, self.driver_silent, self.info_changed = token, False, True
+        return None
 
     def _on_command(self, msg: EpmCommand) -> None:
         if msg.header.run_id != self.run_id:
             self.counts["commands_other_run"] += 1
+            return
+        driver = self.driver
+        if driver is None or msg.header.publisher_id != node_publisher(driver):
+            self.counts["commands_other_controller"] += 1
             return
         with self._cond:
             if msg.frame_seq == self._waiting_seq and self._answer is None:
@@ -178,10 +227,18 @@ class RigLink:
         ] += 1
 
     def wait_controller(self, timeout_s: float) -> str | None:
-        """The name of a controller node ready for this run, waiting up to ``timeout_s``."""
+        """The name of the controller node that will drive this run (the first one ready),
+        waiting up to ``timeout_s``."""
         with self._cond:
-            self._cond.wait_for(lambda: bool(self.controllers), timeout=timeout_s)
-            return next(iter(sorted(self.controllers)), None)
+            self._cond.wait_for(lambda: self.driver is not None, timeout=timeout_s)
+            return None if self.driver is None else node_name(self.driver)
+
+    def credit(self) -> None:
+        """Count one command of the driving node applied (:attr:`driven`)."""
+        driver = self.driver
+        if driver is not None:
+            name = node_name(driver)
+            self.driven[name] = self.driven.get(name, 0) + 1
 
     def ask(
         self, frame: CameraFrame, rig_time_s: float, deadline: float, window_s: float
@@ -251,6 +308,7 @@ class RemoteController(Controller):
             path_speed_mps=path.speed_mps,
             start_epm_position_m=self.start_epm_m.copy(),
             epm_position_m=self.epm_m.copy(),
+            controller_node=self.link.driver or "",
         )
 
     def _rig_time(self) -> float:
@@ -316,11 +374,12 @@ class RemoteController(Controller):
 
     def _accept(self, answer: EpmCommand, round_trip: float) -> Command:
         self.round_trips_s.append(round_trip)
+        self.link.credit()
         if math.isfinite(answer.step_ms):
             self.transport_s.append(round_trip - answer.step_ms * 1e-3)
         self.last_answer_wall = time.perf_counter()
         if self.watchdog_active:
-            self.watchdog_active = False
+            self.watchdog_active = self.link.driver_silent = False
             self.link.event("watchdog_clear", "commands arrive again: the controller node has the EPM")
         self.late_streak = 0
         stats = StepStats(
@@ -347,7 +406,7 @@ class RemoteController(Controller):
         silent_s = time.perf_counter() - self.last_answer_wall
         if silent_s >= self.options.watchdog_timeout_s:
             if not self.watchdog_active:
-                self.watchdog_active = True
+                self.watchdog_active = self.link.driver_silent = True
                 self.link.event(
                     "watchdog_stop",
                     f"no command for {silent_s:.3f} s (timeout {self.options.watchdog_timeout_s:g} s): "
@@ -386,6 +445,9 @@ class RigObserver(Observer):
         remote.deadline = loop.wall0 + (frame.index - loop.first_frame + 1) * loop.frame_s
         remote.link.rig_time_s = frame.t_s
         remote.epm_m = act.position_m
+        if remote.link.info_changed:  # another node drives now: those waiting on the run learn it
+            remote.link.info_changed = False
+            remote.publish_run_info()
         q = getattr(act, "q_rad", None)
         names = getattr(getattr(act, "kin", None), "joint_names", ())
         state = ArmState(
@@ -405,6 +467,10 @@ class RigObserver(Observer):
         metrics.update(_latency_metrics("node_round_trip", remote.round_trips_s))
         metrics.update(_latency_metrics("node_transport", remote.transport_s))
         remote.state = "ended"
+        drivers = dict(remote.link.driven)
+        if drivers:  # the run is credited to every node that drove it, in order
+            loop.name = " then ".join(drivers)
+        loop.meta["controllers"] = [{"name": n, "frames": f} for n, f in drivers.items()]
         if loop.flags.arm_failure:
             remote.link.event("arm_stopped", loop.flags.arm_failure)
         remote.link.event("run_end", f"after {len(remote.round_trips_s)} commands in time")
@@ -435,6 +501,7 @@ def serve_rig(
     meta: dict[str, Any] | None = None,
     say: Callable[[str], None] = _stderr,
     observers: Sequence[Observer] = (),
+    events: list[dict[str, Any]] | None = None,
 ) -> tuple[RunResult, list[dict[str, Any]]]:
     """Run one real-time run with the controller on a controller node (module docstring).
 
@@ -454,6 +521,9 @@ def serve_rig(
     observers : sequence of Observer
         Called in every frame of the run too (e.g. the MCAP log and live view of
         :mod:`capsule_mpc.telemetry`).
+    events : list, optional
+        Where the events go as they come (default a new list), e.g. to write those of a run a
+        signal stopped.
 
     Returns
     -------
@@ -465,7 +535,7 @@ def serve_rig(
     NodeError
         No controller node became ready in time.
     """
-    link = RigLink(transport, secrets.token_hex(6), say)
+    link = RigLink(transport, secrets.token_hex(6), say, events)
     remote = RemoteController(link, options, seed, seed if plant_seed is None else plant_seed)
     loop = ClosedLoop(
         scenario, remote, path, seed, actuator=actuator, plant_seed=plant_seed, realtime=True, meta=meta
@@ -487,9 +557,20 @@ def write_rig_outputs(result: RunResult, events: list[dict[str, Any]], out: str 
     ``predictions.npz`` and ``mpc_prediction.png`` for a predicting controller) and the rig's
     events (:data:`EVENTS_FILE`) into ``out``; returns the folder."""
     folder = write_run(result, out)
+    controllers = result.meta.get("controllers")
+    if controllers is not None:  # every controller node that drove the run, with its frames
+        summary = json.loads((folder / "run.json").read_text(encoding="utf-8"))
+        summary["controllers"] = controllers
+        write_text_atomic(folder / "run.json", json.dumps(summary, indent=2) + "\n")
     logs = {result.controller: result.log}
     plot_trajectories(logs, result.path, folder / "trajectories.png")
     plot_errors(logs, result.path, folder / "errors.png", {result.controller: result.metrics["motion_end_s"]})
     write_prediction_figure(result, folder / PREDICTION_FIGURE)
-    write_text_atomic(folder / EVENTS_FILE, json.dumps(events, indent=2) + "\n")
+    write_events(events, folder)
     return folder
+
+
+def write_events(events: list[dict[str, Any]], out: str | Path) -> Path:
+    """Write the rig's events to :data:`EVENTS_FILE` in ``out`` (strict JSON: an event before the
+    run's first frame has ``t_s`` null); the file."""
+    return write_text_atomic(Path(out) / EVENTS_FILE, json.dumps(events, indent=2, allow_nan=False) + "\n")

@@ -38,7 +38,7 @@ from typing import Any
 
 import zenoh
 
-from ..errors import ConfigError
+from ..errors import ConfigError, library_error
 from . import DEFAULT_ENDPOINT, DEFAULT_PREFIX
 from .messages import (
     ArmState,
@@ -64,6 +64,7 @@ __all__ = [
     "Transport",
     "check_endpoint",
     "check_prefix",
+    "library_error",
 ]
 
 #: The message type of each topic.
@@ -233,8 +234,13 @@ class Transport:
         try:
             self.session = zenoh.open(conf)
         except zenoh.ZError as exc:
+            options = ", ".join(
+                f"{name} {' '.join(given)}"
+                for name, given in (("--listen", listen), ("--connect", connect))
+                if given
+            )
             raise ConfigError(
-                f"zenoh session (listen {list(listen)}, connect {list(connect)}): {exc}"
+                f"{options or 'the default endpoints'}: cannot open the zenoh session: {library_error(exc)}"
             ) from exc
         self.counts: Counter[str] = Counter()
         self._filters: dict[str, SequenceFilter] = {}

@@ -106,11 +106,13 @@ class PlanReplay(Controller):
         if plan is None:
             raise RuntimeError("PlanReplay.step: call reset() first (and it must not have raised)")
         if t_s < 0:
-            return self._emit(np.zeros(3), epm, StepStats(status="settle"))
+            return self._emit(np.zeros(3), epm, StepStats(status="settle", phase="settle"))
         now = plan.epm_position_at(t_s) + self.offset_m
         ahead = plan.epm_position_at(t_s + self.frame_s) + self.offset_m
         u = (ahead - now) / self.frame_s + self.position_gain_per_s * (now - epm)
-        return self._emit(u, epm, StepStats(status="replay" if t_s < plan.duration_s else "done"))
+        running = t_s < plan.duration_s  # the phases as the MPC's are named
+        stats = StepStats(status="replay" if running else "done", phase="slide" if running else "hold")
+        return self._emit(u, epm, stats)
 
     def predicted_capsule_path(self) -> np.ndarray | None:
         """The plan's predicted capsule positions (N+1, 2), m."""

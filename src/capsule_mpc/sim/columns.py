@@ -17,7 +17,7 @@ LOG_COLUMNS: tuple[str, ...] = (
     "cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps",
     "force_x_n", "force_y_n", "force_att_n", "normal_force_n",
     "plant_mu", "stuck", "progress_m",
-    "solve_ms", "solver_status", "solver_failed", "controller_ms",
+    "solve_ms", "solver_status", "solver_failed", "controller_ms", "phase",
 )  # fmt: skip
 #: Columns a log must have to be read (the interface other tools rely on).
 REQUIRED_COLUMNS: tuple[str, ...] = (
@@ -29,4 +29,4 @@ REQUIRED_COLUMNS: tuple[str, ...] = (
 #: Integer (0/1) columns.
 INT_COLUMNS: frozenset[str] = frozenset({"stuck", "solver_failed"})
 #: Text columns.
-STR_COLUMNS: frozenset[str] = frozenset({"solver_status"})
+STR_COLUMNS: frozenset[str] = frozenset({"solver_status", "phase"})

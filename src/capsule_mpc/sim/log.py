@@ -36,6 +36,10 @@ z is 0, the plane itself):
 ``solver_status``         the controller's status text
 ``solver_failed``         1 if the controller reported a failed solve, else 0
 ``controller_ms``         wall time of the controller's step call, ms
+``phase``                 the controller's phase at the frame (``settle``, ``break_loose``,
+                          ``slide``, ``place``, ``hold``, ``failed``; the baselines: ``slide``
+                          while the path runs, ``hold`` after; empty: none, or the frame the
+                          plant failed on)
 ========================  =====================================================
 """
 
@@ -108,7 +112,7 @@ def read_log(path: str | Path) -> dict[str, np.ndarray]:
     -------
     dict of str to numpy.ndarray
         One array per column: float for measurements, int for ``stuck`` / ``solver_failed``, str for
-        ``solver_status`` (and for any extra column that is not numeric).
+        ``solver_status`` and ``phase`` (and for any extra column that is not numeric).
 
     Raises
     ------

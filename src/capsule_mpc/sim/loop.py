@@ -112,6 +112,7 @@ from ..interfaces import (
     make_actuator,
     make_controller,
 )
+from ..metrics import end_metrics
 from ..paths import ReferencePath
 from .actuation import SimpleArm
 from .columns import INT_COLUMNS, LOG_COLUMNS, STR_COLUMNS
@@ -595,12 +596,13 @@ class ClosedLoop:
         row["meas_capture_t_s"], row["controller_ms"] = meas.capture_t_s, (c1 - c0) * 1e3
         row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), self.cmd_applied.tolist()))
         row["solve_ms"], row["solver_status"] = stats.solve_ms, stats.status
-        row["solver_failed"] = int(stats.failed)
+        row["solver_failed"], row["phase"] = int(stats.failed), stats.phase
         self.log.add(row)
         for obs in self.observers:
             obs.frame_end(self, frame)
         if self._at_rest_after_end(t, ctrl.finished):
             self.flags.at_rest = self.done = True
+            self.flags.gave_up = ctrl.gave_up
         elif j >= self.last_frame:
             self.flags.timed_out = self.done = True
         return frame
@@ -612,7 +614,7 @@ class ClosedLoop:
         flags.failure, flags.failure_t_s = plant.failure, frame.t_s
         row = frame.row
         row.update(zip(("cmd_vx_mps", "cmd_vy_mps", "cmd_vz_mps"), self.cmd_applied.tolist()))
-        row["solver_status"], row["solver_failed"] = "", 0
+        row["solver_status"], row["solver_failed"], row["phase"] = "", 0, ""
         self.log.add(row)
         self.predictions.append(None)
         self.done = True
@@ -631,6 +633,9 @@ class ClosedLoop:
         limits = self.actuator.limit_counts()
         metrics.update(limits)
         stats = self.step_stats
+        bias = np.array([self.truth.camera_bias_x_m, self.truth.camera_bias_y_m])
+        moves = max((int(st.extra.get("placement_moves", 0)) for st in stats), default=0)
+        metrics.update(end_metrics(arrays, self.path, bias, moves, self.flags.at_rest))
         metrics["measurements_rejected"] = sum(int(st.extra.get("measurement_rejected", 0)) for st in stats)
         for obs in self.observers:
             obs.on_end(self, metrics)

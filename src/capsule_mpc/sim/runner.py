@@ -105,6 +105,8 @@ class RunOutcome(enum.Enum):
     DECOUPLED = "decoupled"
     #: The capsule fell off the plate (the magnetic attraction vanished).
     DROPPED = "dropped"
+    #: At rest after the path, but the controller gave up placing it (its reason in the outcome).
+    GAVE_UP = "gave_up"
 
 
 @dataclass
@@ -121,6 +123,7 @@ class RunFlags:
     failure_t_s: float = math.nan
     invalid_commands: int = 0
     arm_failure: str = ""
+    gave_up: str = ""
 
     @property
     def outcome(self) -> RunOutcome:
@@ -129,6 +132,8 @@ class RunFlags:
             return RunOutcome.DECOUPLED
         if self.dropped:
             return RunOutcome.DROPPED
+        if self.gave_up:
+            return RunOutcome.GAVE_UP
         if self.completed:
             return RunOutcome.COMPLETED
         if self.stalled:
@@ -154,6 +159,8 @@ class RunFlags:
         if self.decoupled or self.dropped:
             return self.failure
         left = "" if math.isnan(path_left_mm) else f", {path_left_mm:.1f} mm of the path not covered"
+        if self.gave_up:
+            return f"gave up placing: {self.gave_up} (at rest {final_error_mm:.2f} mm from the end)"
         if self.completed:
             return f"completed: at rest {final_error_mm:.2f} mm from the end"
         if self.stalled:
@@ -450,7 +457,7 @@ def score_run(
     near = metrics["final_error_mm"] <= tol * 1e3
     progress = arrays["progress_m"]
     left_mm = max(path.length_m - float(progress[-1]), 0.0) * 1e3 if len(progress) else math.nan
-    flags.completed = flags.at_rest and near
+    flags.completed = flags.at_rest and near and not flags.gave_up
     flags.stalled = flags.at_rest and not near
     outcome = flags.describe(metrics["final_error_mm"], left_mm, end_s)
     metrics.update(

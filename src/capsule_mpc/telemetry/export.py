@@ -39,6 +39,11 @@ JOINTS_FILE = "joint_trajectory.csv"
 _REQUIRED = ("log.csv", "run.json", "config.yaml")
 
 
+#: How many frame periods a log's time span may differ from the run's length (the last step of a
+#: run that ends between frames, a failure row).
+_FRAMES_SLACK = 1.5
+
+
 class RunFolderError(ConfigError):
     """A run folder cannot be converted: a file is missing or unreadable (the message names it)."""
 
@@ -101,6 +106,22 @@ def _predictions(folder: Path, n_rows: int) -> np.ndarray | None:
     return xy
 
 
+def _check_complete(folder: Path, t_s: np.ndarray, summary: dict[str, Any], rate_hz: float) -> None:
+    """Refuse a log that covers less (or more) time than its run lasted (``run.json``'s
+    ``timing.sim_time_s``, from the first row): a file cut at a row boundary reads as a shorter run."""
+    timing = summary.get("timing")
+    lasted = timing.get("sim_time_s") if isinstance(timing, dict) else None
+    if not isinstance(lasted, int | float) or not math.isfinite(lasted):
+        return  # an older summary without the run's length: nothing to check against
+    covered = float(t_s[-1] - t_s[0])
+    if abs(covered - lasted) > _FRAMES_SLACK / rate_hz:
+        raise RunFolderError(
+            f"{folder / 'log.csv'}: covers {covered:.3f} s (t = {t_s[0]:.3f} to {t_s[-1]:.3f} s, "
+            f"{len(t_s)} rows) but {folder / 'run.json'} says the run lasted {lasted:.3f} s: the log is "
+            "cut short or not this run's"
+        )
+
+
 def read_run_folder(run_dir: str | Path) -> RunFolder:
     """Read and check a run folder (see the module docstring).
 
@@ -126,6 +147,7 @@ def read_run_folder(run_dir: str | Path) -> RunFolder:
         scenario = load_config(folder / "config.yaml")
     except ConfigError as exc:
         raise RunFolderError(f"{folder / 'config.yaml'}: {exc}") from None
+    _check_complete(folder, log["t_s"], summary, scenario.camera.rate_hz)
     joints = _joints(folder / JOINTS_FILE)
     return RunFolder(folder, log, summary, scenario, joints, _predictions(folder, len(log["t_s"])))
 

@@ -10,7 +10,7 @@ from typing import Any
 
 from foxglove.messages import LogLevel
 
-from ..errors import ConfigError
+from ..errors import ConfigError, library_error
 from ..estimation import CapsuleEstimator
 from ..interfaces import Controller
 from ..sim import ClosedLoop, Frame, Observer
@@ -96,6 +96,9 @@ class Telemetry(Observer):
         self.host = host
         self.publisher: RunPublisher | None = None
         self._faults_seen = 0
+        self._frames = 0
+        self._t_s = math.nan
+        self._ended = False
 
     @property
     def port(self) -> int | None:
@@ -105,7 +108,10 @@ class Telemetry(Observer):
     @property
     def live_url(self) -> str | None:
         """The live server's address for Foxglove's "Open connection" (None when not live)."""
-        return None if self.port is None else f"ws://{self.host}:{self.port}"
+        if self.port is None:
+            return None
+        host = f"[{self.host}]" if ":" in self.host else self.host  # an IPv6 address (RFC 3986)
+        return f"ws://{host}:{self.port}"
 
     def _asset(self, uri: str) -> bytes | None:
         """The live server's assets: the arm's meshes (none before a robot-arm run starts)."""
@@ -159,6 +165,8 @@ class Telemetry(Observer):
         if self._robot is not None:
             q, dq = loop.actuator.q_rad.tolist(), loop.actuator.dq_radps.tolist()  # type: ignore[attr-defined]
         pub.frame(frame.row, estimate_xy=estimate, q=q, dq=dq, prediction=frame.prediction)
+        self._frames += 1
+        self._t_s = frame.t_s
         injector = loop.injector
         if injector is not None and len(injector.events) > self._faults_seen:
             for ev in injector.events[self._faults_seen :]:
@@ -176,6 +184,7 @@ class Telemetry(Observer):
         if pub is None:
             return
         rms = metrics.get("tracking_rms_mm", math.nan)
+        self._ended = True
         text = f"run ended: {metrics.get('outcome', '')}; tracking RMS {rms:.2f} mm"
         pub.end(loop.k * loop.dt, end_level(loop.flags.outcome), text, finish=not self.hold)
 
@@ -190,7 +199,22 @@ class Telemetry(Observer):
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        self.close(complete=exc_type is None)
+        if isinstance(exc, KeyboardInterrupt):
+            self.interrupt(str(exc) or "SIGINT")
+        else:
+            self.close(complete=exc_type is None)
+
+    def interrupt(self, signal_name: str) -> None:
+        """End a run a signal stopped: the MCAP file, with an end event saying so, is closed and
+        kept (complete and readable) if at least one frame was recorded, else removed (a run that
+        had ended keeps its file as it is); the live server stops."""
+        pub = self.publisher
+        if pub is None or self._frames == 0 or self._ended:  # an ended run's file is complete
+            self.close(complete=self._ended)
+            return
+        text = f"run interrupted by {signal_name} after {self._frames} frames"
+        pub.end(self._t_s, LogLevel.Warning, text, finish=False)
+        self.close(complete=True)
 
 
 def telemetry_observers(
@@ -217,4 +241,6 @@ def telemetry_observers(
     try:
         return [Telemetry(mcap_path, address is not None, host=host, port=port)]
     except RuntimeError as exc:  # foxglove's server could not bind
-        raise ConfigError(f"--live: cannot serve on {host}:{port}: {exc}") from None
+        shown = f"[{host}]" if ":" in host else host
+        reason = library_error(exc).removeprefix("FoxgloveError: ")
+        raise ConfigError(f"--live: cannot serve on {shown}:{port}: {reason}") from None

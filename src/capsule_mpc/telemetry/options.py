@@ -65,8 +65,9 @@ def _live_option(text: str) -> str:
     return text
 
 
-def add_telemetry_arguments(p: argparse.ArgumentParser) -> None:
-    """Add ``--mcap PATH``, ``--no-mcap`` and ``--live [HOST:PORT]`` to a command's parser."""
+def add_telemetry_arguments(p: argparse.ArgumentParser, realtime_option: bool = True) -> None:
+    """Add ``--mcap PATH``, ``--no-mcap`` and ``--live [HOST:PORT]`` to a command's parser; the help
+    of ``--live`` points to ``--realtime`` if the command has that option (``realtime_option``)."""
     mcap = p.add_mutually_exclusive_group()
     mcap.add_argument(
         "--mcap",
@@ -84,5 +85,5 @@ def add_telemetry_arguments(p: argparse.ArgumentParser) -> None:
         metavar="HOST:PORT",
         type=_live_option,
         help=f"serve the run live to Foxglove over WebSocket (default address {DEFAULT_LIVE}; port 0: any "
-        "free port); best with --realtime",
+        "free port)" + ("; best with --realtime" if realtime_option else ""),
     )

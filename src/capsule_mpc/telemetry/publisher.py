@@ -127,6 +127,7 @@ class RunPublisher:
         self._epm_rotation = quaternion(rig.epm_rotation_xyzw)
         self._moving = False
         self._failing = False
+        self._phase = ""
 
     def _topics(self) -> list[Topic]:
         wanted = [
@@ -216,7 +217,8 @@ class RunPublisher:
         self.sinks.log(JOINT_STATES.name, JointStates(timestamp=stamp, joints=joints).encode(), ns)
 
     def _row_events(self, t: float, row: Mapping[str, Any]) -> None:
-        """The events a log row tells: the path's start, a controller failing or recovering."""
+        """The events a log row tells: the path's start, a controller failing or recovering, the
+        controller's phase changing (the ``phase`` column; ``failed`` as a warning)."""
         if not self._moving and t >= 0:
             self._moving = True
             self.event(t, LogLevel.Info, "path started (t = 0)")
@@ -226,6 +228,12 @@ class RunPublisher:
         elif self._failing and not failed and str(row.get("solver_status", "")):
             self.event(t, LogLevel.Info, f"controller recovered: {row.get('solver_status', '')}")
         self._failing = failed
+        phase = str(row.get("phase", ""))
+        if phase and self._phase and phase != self._phase:  # a change (the first phase is not one)
+            level = LogLevel.Warning if phase == "failed" else LogLevel.Info
+            status = f" ({row.get('solver_status', '')})" if phase == "failed" else ""
+            self.event(t, level, f"phase: {self._phase} -> {phase}{status}")
+        self._phase = phase or self._phase
 
     def end(
         self, t_s: float, level: LogLevel, message: str, complete: bool = True, finish: bool = True

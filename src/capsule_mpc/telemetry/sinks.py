@@ -8,6 +8,10 @@ fixed transforms) again without writing them twice into the file.
 from __future__ import annotations
 
 import contextlib
+import errno
+import logging
+import os
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +28,35 @@ __all__ = ["ChannelSpec", "Sinks"]
 
 #: The server's name, shown by Foxglove.
 SERVER_NAME = "capsule-mpc"
+#: The logger through which the Foxglove SDK reports a message it could not write to a sink.
+_SDK_LOGGER = "foxglove.log_sink_set"
+#: The operating system's error number in such a report (``Os { code: 28, ... }``).
+_OS_CODE = re.compile(r"Os \{ code: (\d+)")
+
+
+class _WriteErrors(logging.Filter):
+    """Keeps the SDK's reports of messages it could not write to the MCAP file (one per message:
+    hundreds on a full disk) off stderr, and remembers the first one."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.first: str | None = None
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if "McapError" not in text:
+            return True
+        if self.first is None:
+            self.first = text
+        return False
+
+    def error(self, path: Path | None) -> OSError | None:
+        """The failure to raise (an ``OSError`` naming ``path``), or None if every write went through."""
+        if self.first is None:
+            return None
+        code = _OS_CODE.search(self.first)
+        number = int(code.group(1)) if code else errno.EIO
+        return OSError(number, os.strerror(number), str(path) if path is not None else None)
 
 
 @dataclass(frozen=True)
@@ -77,6 +110,7 @@ class Sinks:
         self._static: dict[str, list[tuple[bytes, int]]] = {}
         self._stack = contextlib.ExitStack()
         self._writer: foxglove.mcap.MCAPWriter | None = None
+        self._errors = _WriteErrors()
         self.server: foxglove.WebSocketServer | None = None
         if live is not None:
             self.server = foxglove.start_server(
@@ -99,6 +133,8 @@ class Sinks:
             tmp = self._stack.enter_context(atomic_path(self.mcap_path))
             # Compression on the logging thread, at chunk boundaries: no extra threads beside the loop.
             options = MCAPWriteOptions(compression_threads=0)
+            logging.getLogger(_SDK_LOGGER).addFilter(self._errors)
+            self._stack.callback(logging.getLogger(_SDK_LOGGER).removeFilter, self._errors)
             self._writer = foxglove.open_mcap(tmp, context=self._file_ctx, writer_options=options)
         for spec in channels:
             made = []
@@ -115,9 +151,18 @@ class Sinks:
             self._channels[spec.topic] = made
 
     def log(self, topic: str, data: bytes, log_time_ns: int) -> None:
-        """Write one message (encoded) on ``topic`` at ``log_time_ns``."""
+        """Write one message (encoded) on ``topic`` at ``log_time_ns``.
+
+        Raises
+        ------
+        OSError
+            The MCAP file could not take it (a full disk): the file names it.
+        """
         for ch in self._channels[topic]:
             ch.log(data, log_time_ns)
+        failure = self._errors.error(self.mcap_path)
+        if failure is not None:
+            raise failure
 
     def log_static(self, topic: str, data: bytes, log_time_ns: int) -> None:
         """Write a message that a viewer connecting later to the live server is sent again."""
@@ -136,15 +181,32 @@ class Sinks:
             self._writer.write_metadata(name, values)
 
     def finish(self, complete: bool = True) -> None:
-        """Close the MCAP file: renamed into place if ``complete``, else removed."""
+        """Close the MCAP file: renamed into place if ``complete``, else removed.
+
+        Raises
+        ------
+        OSError
+            The file could not be written in full (a full disk): it is removed.
+        """
+        failure: OSError | None = None
         if self._writer is not None:
-            self._writer.close()
+            try:
+                self._writer.close()
+            except RuntimeError as exc:  # the SDK's error, e.g. the disk filled up on the last chunk
+                failure = self._errors.error(self.mcap_path) or OSError(
+                    errno.EIO, f"cannot finish the MCAP file: {exc}", str(self.mcap_path)
+                )
             self._writer = None
+        failure = failure or self._errors.error(self.mcap_path)
+        if failure is not None:
+            complete = False
         if complete:
             self._stack.close()
         else:
             error = RuntimeError("the run did not end")
             self._stack.__exit__(RuntimeError, error, None)
+        if failure is not None:
+            raise failure
 
     def close(self, complete: bool = True) -> None:
         """:meth:`finish` and stop the live server."""

@@ -45,7 +45,7 @@ from .results import (
     worst_table,
 )
 from .results import write_figures as write_figures
-from .tasks import Outcome, SeedTask, Variant, dask_client, run_on_dask, run_seed
+from .tasks import Outcome, SeedTask, Variant, dask_client, run_here, run_on_dask, run_seed
 from .vary import VaryRange, check_vary
 
 if TYPE_CHECKING:
@@ -92,7 +92,8 @@ def sweep(
         The study's variants (default the scenario as given), each run by ``controllers``.
     workers : int, optional
         Worker processes of the ``LocalCluster`` started when ``client`` is None (default the CPU
-        count; no more than there are runs to do).
+        count; no more than there are runs to do). A comparison with one worker runs its draws in
+        this process, one after the other, with no cluster.
     client : distributed.Client, optional
         The Dask cluster to run on; default a new ``LocalCluster``
         (:func:`~.tasks.dask_client`), started only if a run is left to do.
@@ -145,9 +146,13 @@ def sweep(
         for s in seeds
         if s not in done
     ]
-    _run(todo, out, done, runs, workers, client, progress, task)
-    if compare:
-        _adopt(out, [Path(f) for t in todo for f in (t.runs_dir, t.figures_dir) if f is not None])
+    # a comparison on one local worker runs here: a cluster would only add its start-up
+    here = compare and client is None and min(workers or os.cpu_count() or 1, len(todo)) == 1
+    try:
+        _run(todo, out, done, runs, workers, client, progress, task, here)
+    finally:  # also when stopped: the workers' runs then keep what they recorded (RunLogs)
+        if compare and not here:
+            _adopt(out, [Path(f) for t in todo for f in (t.runs_dir, t.figures_dir) if f is not None])
     per_seed = [done[s] for s in seeds]
     write_table(table_from_entries(per_seed), out / TABLE_FILE)
     summary = {**summary_header(meta, seed, path, runs, seeds), "controllers": aggregate_runs(per_seed)}
@@ -174,7 +179,12 @@ def _adopt(out: Path, folders: Sequence[Path]) -> None:
     """Put the files the workers wrote under ``folders`` into place again from this process, so
     that the output folder's manifest (:func:`capsule_mpc.outputs.output_folder`) lists them."""
     names = ("trajectories.png", "errors.png", PREDICTION_FIGURE)
-    files = {f for d in set(folders) for f in d.rglob("*") if f.is_file() and f.parent != out}
+    files = {
+        f
+        for d in set(folders)
+        for f in d.rglob("*")
+        if f.is_file() and f.parent != out and not f.name.startswith(".")  # not a killed write's temporary
+    }
     files |= {out / n for n in names if (out / n).is_file()}
     for file in sorted(files):
         with atomic_path(file) as tmp:
@@ -190,11 +200,15 @@ def _run(
     client: Client | None,
     progress: bool,
     task: Callable[[SeedTask], dict[str, Any]],
+    in_process: bool = False,
 ) -> None:
-    """Run ``todo`` on Dask, writing each draw's entry to ``runs/seed_<S>.json`` and into ``done``."""
+    """Run ``todo`` on Dask (in this process with ``in_process``), writing each draw's entry to
+    ``runs/seed_<S>.json`` and into ``done``."""
     with ExitStack() as stack:
         outcomes: Iterable[Outcome] = ()
-        if todo:
+        if todo and in_process:
+            outcomes = run_here(task, [replace(t, progress=progress) for t in todo])
+        elif todo:
             local = min(workers or os.cpu_count() or 1, len(todo))
             client = client if client is not None else stack.enter_context(dask_client(None, local))
             outcomes = stack.enter_context(closing(run_on_dask(task, todo, client)))

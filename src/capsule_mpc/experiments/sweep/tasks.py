@@ -15,8 +15,10 @@ worker processes of one thread each, started by nannies (a worker that dies is r
 as crashed at once, never retried on another worker), no per-worker memory limit (the sweep's
 memory is bounded by :mod:`capsule_mpc.budget` before it starts) and :func:`dask_setup` as the
 workers' preload: Ctrl-C and a hang-up sent to the terminal's process group are the
-``capsule-mpc`` process's to handle (it closes the cluster, which stops the workers). A cluster of
-one's own (``--scheduler``) keeps its scheduler's setting (Dask's default is 3 deaths).
+``capsule-mpc`` process's to handle (it closes the cluster, which stops the workers; a closing
+worker stops its run at the next frame, and the run keeps its log so far and a finalised MCAP,
+:func:`dask_teardown`). A cluster of one's own (``--scheduler``) keeps its scheduler's setting
+(Dask's default is 3 deaths).
 """
 
 from __future__ import annotations
@@ -40,14 +42,25 @@ import yaml
 from tqdm import tqdm
 
 from ...config import ConfigError, Scenario, config_from_dict
-from ...interrupt import raise_if_interrupted
+from ...interrupt import Interrupted, raise_if_interrupted
 from ...paths import ReferencePath
 from ...planner import cached_plan
 from ...plots import plot_errors, plot_trajectories
-from ...sim import CapsulePlant, Observer, PlantTruth, RunResult, draw_plant_truth, simulate, write_run
+from ...sim import (
+    CapsulePlant,
+    ClosedLoop,
+    Frame,
+    Observer,
+    PlantTruth,
+    RunResult,
+    draw_plant_truth,
+    simulate,
+    write_run,
+)
 from ...sim.oracle import oracle_friction_model
 from ...telemetry.observer import Telemetry
 from ...telemetry.options import MCAP_NAME
+from ...telemetry.partial import PartialRun
 from ..runs import PREDICTION_FIGURE, write_prediction_figure
 from ..table import NOMINAL, run_label
 from .vary import VaryRange, draw_varied, with_plant_values
@@ -68,10 +81,12 @@ __all__ = [
     "crashed_entry",
     "dask_client",
     "dask_setup",
+    "dask_teardown",
     "failure_line",
     "rescore_on_common_window",
     "run_entry",
     "run_folder",
+    "run_here",
     "run_on_dask",
     "run_seed",
     "variant_scenario",
@@ -99,7 +114,7 @@ ORACLE = "@oracle"
 class Variant:
     """A variant of a study: the scenario's overrides its controllers are given.
 
-    ``overrides`` maps dotted config keys (``mpc.start_preload``) to values. A value
+    ``overrides`` maps dotted config keys (``break_loose.preload``) to values. A value
     :data:`ORACLE` (for ``friction.learned``) is the draw's own friction, a text with ``{seed}``
     the YAML file of that draw's value (e.g. a model learned on it), both resolved per draw
     (:func:`variant_scenario`). ``controllers``: which run it (default the campaign's).
@@ -115,7 +130,8 @@ class SeedTask:
     """One draw of a campaign, what a worker is given: every variant and controller on one seed's
     plant draw. ``runs_dir``: write each run's folder (log, config, run.json, MCAP) under it;
     ``figures_dir``: write the draw's trajectory, error and prediction figures there; ``measure``:
-    an importable function adding entries to the runs from their results (label to entries)."""
+    an importable function adding entries to the runs from their results (label to entries);
+    ``progress``: show the planner's progress bar (a draw run in the ``capsule-mpc`` process)."""
 
     scenario: Scenario
     path: ReferencePath
@@ -127,6 +143,7 @@ class SeedTask:
     runs_dir: str | None = None
     figures_dir: str | None = None
     measure: Callable[[Mapping[str, RunResult]], Mapping[str, Mapping[str, Any]]] | None = None
+    progress: bool = False
 
 
 def _resolve(value: Any, scenario: Scenario, truth: PlantTruth, path: ReferencePath) -> Any:
@@ -208,7 +225,7 @@ def run_seed(task: SeedTask) -> dict[str, Any]:
                 if isinstance(scenario, Exception):
                     raise scenario
                 if name == PLANNING_CONTROLLER:
-                    cached_plan(scenario, task.path)
+                    cached_plan(scenario, task.path, progress=task.progress)
                 plant = CapsulePlant(plant_scenario, truth=truth)  # one rig for every run of the draw
                 results[label] = simulate(
                     scenario, name, task.path, task.seed, progress=False, meta=task.meta, plant=plant,
@@ -300,20 +317,26 @@ class RunLogs:
     """The MCAP logs of one draw's runs, each in its run's folder under ``base`` (none without).
 
     A log is kept when :meth:`keep` is called once its run's files are written; the others (a run
-    that raised, or all of them when the draw is interrupted) are removed on exit with the folders
-    made for them, so an unrecorded run leaves nothing behind.
+    that raised) are removed on exit with the folders made for them, so an unrecorded run leaves
+    nothing behind. When the draw is stopped (``KeyboardInterrupt``: a signal, or its worker
+    closing, :func:`dask_teardown`), each of its runs keeps its log so far and its finalised MCAP
+    (:class:`~capsule_mpc.telemetry.partial.PartialRun`).
     """
 
     def __init__(self, base: Path | None) -> None:
         self.base = base
         self.logs: dict[str, Telemetry] = {}
+        self.partial: dict[str, PartialRun] = {}
 
     def observers(self, name: str) -> list[Observer]:
-        """The observers of run ``name``: its MCAP log (none without a base folder)."""
+        """The observers of run ``name``: its MCAP log and what a stopped run keeps (none without a
+        base folder), and in a closing worker the check that stops it."""
+        watch: list[Observer] = [_StopWhenClosing()]
         if self.base is None:
-            return []
+            return watch
         log = self.logs[name] = Telemetry(run_folder(self.base, name) / MCAP_NAME, hold=True)
-        return [log]
+        partial = self.partial[name] = PartialRun()
+        return [log, partial, *watch]
 
     def keep(self, name: str) -> None:
         """Close ``name``'s log into its run folder."""
@@ -322,12 +345,29 @@ class RunLogs:
     def __enter__(self) -> RunLogs:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, *exc: Any) -> None:
+        base = self.base or Path()
         for name, log in self.logs.items():
+            if isinstance(exc[1], KeyboardInterrupt) and self.partial[name].write(run_folder(base, name)):
+                log.__exit__(*exc)  # the MCAP so far, finalised
+                continue
             log.close(complete=False)
             with contextlib.suppress(OSError):  # refused unless empty: the folder only held the log
-                run_folder(self.base or Path(), name).rmdir()
+                run_folder(base, name).rmdir()
         self.logs.clear()
+
+
+#: Set in a worker process asked to close (:func:`dask_teardown`): its run stops at its next frame.
+_closing = threading.Event()
+
+
+class _StopWhenClosing(Observer):
+    """Stops a run whose worker is closing, as a signal stops one in the ``capsule-mpc`` process
+    (a worker's task runs in a thread, which no signal reaches)."""
+
+    def frame_end(self, loop: ClosedLoop, frame: Frame) -> None:
+        if _closing.is_set():
+            raise Interrupted(signal.SIGTERM)
 
 
 def run_folder(base: Path, name: str) -> Path:
@@ -394,6 +434,28 @@ def dask_setup(worker: Worker) -> None:
         if signum is not None:
             signal.signal(signum, signal.SIG_IGN)
     tqdm.set_lock(threading.RLock())
+
+
+def dask_teardown(worker: Worker) -> None:
+    """Teardown of the preload (Dask calls it as the worker closes, before it waits for its
+    running task): the run in progress stops at its next frame and keeps what it recorded
+    (:class:`RunLogs`), as it would in the ``capsule-mpc`` process on Ctrl-C."""
+    _closing.set()
+
+
+def run_here(
+    fn: Callable[[SeedTask], dict[str, Any]], tasks: Sequence[SeedTask]
+) -> Generator[Outcome, None, None]:
+    """Run ``tasks`` one after the other in this process; yield each (task, result) as
+    :func:`run_on_dask` does (a task that raises is yielded as :func:`crashed_entry`; Ctrl-C stops
+    them all, its run keeping what it recorded, :class:`RunLogs`)."""
+    for task in tasks:
+        try:
+            result = fn(task)
+        except Exception as exc:  # as a worker reports a task that raised
+            raise_if_interrupted()
+            result = crashed_entry(task, f"{type(exc).__name__}: {exc}")
+        yield task, result
 
 
 def run_on_dask(

@@ -1,0 +1,100 @@
+"""The settings of the controller's phases besides the sliding MPC (``mpc``): its estimator, the
+start's break-loose, and the placement at the path's end (:mod:`capsule_mpc.mpc.supervisor`)."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from ._fields import Integer, Number, StrictModel
+
+__all__ = ["BreakLooseConfig", "EstimatorConfig", "PlaceConfig"]
+
+
+class EstimatorConfig(StrictModel):
+    """The controller's estimator (``capsule_mpc.mpc.estimator``): the Kalman filter and the
+    force-disturbance observer."""
+
+    accel_std_mps2: Number = Field(
+        0.3,
+        gt=0,
+        description="Kalman filter process noise: capsule acceleration standard deviation, m/s^2, > 0.",
+    )
+    disturbance_gain: Number = Field(
+        0.15,
+        ge=0,
+        le=1,
+        description="Gain of the force-disturbance observer (offset-free MPC), [0, 1]; 0 disables it.",
+    )
+    disturbance_max_n: Number = Field(
+        0.15, ge=0, description="Bound on each estimated disturbance force component, N, >= 0."
+    )
+
+
+class BreakLooseConfig(StrictModel):
+    """The start from rest (the ``BREAK_LOOSE`` phase, ``capsule_mpc.mpc.start``) and the
+    reference's join onto the path."""
+
+    preload: Number | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description=(
+            "Start from rest by pre-loading: from t = 0 the EPM is driven time-optimally (within "
+            "the limits) along the path's initial direction to the lead at which the believed force "
+            "is this fraction of the friction belief's breakaway force, arriving at the speed "
+            "break_loose.arrival sets (or until the camera sees the capsule break loose); then "
+            "the MPC takes over. (0, 1]; null: the MPC from the first frame."
+        ),
+    )
+    arrival: Number = Field(
+        0.9,
+        ge=0,
+        le=1,
+        description=(
+            "The pre-load's speed at its lead, along the path's initial direction, as a fraction of "
+            "the fastest speed the EPM can reach from rest over the pre-load's distance within "
+            "limits.speed_mps, limits.accel_mps2 and limits.jerk_mps3 (per axis, without a run-up); "
+            "never below the path's speed. 0: arrive at the path's speed (the EPM slows down before "
+            "the capsule breaks loose). [0, 1]."
+        ),
+    )
+    blend_s: Number = Field(
+        2.0,
+        ge=0,
+        le=10,
+        description=(
+            "Time over which the MPC's reference fades (half cosine) from where the capsule rests at "
+            "the start onto the path, s, [0, 10]; 0: the path from the first frame. Runs are scored "
+            "against the path."
+        ),
+    )
+
+
+class PlaceConfig(StrictModel):
+    """The placement after the path (the ``PLACE`` phase, ``capsule_mpc.mpc.place``): moves that
+    bring the capsule to rest on the path's last point."""
+
+    tolerance_m: Number = Field(
+        1.5e-4,
+        gt=0,
+        le=0.005,
+        description=(
+            "The capsule is placed when the mean of the camera's frames at rest is this close to the "
+            "path's last point, m, (0, 0.005]."
+        ),
+    )
+    max_moves: Integer = Field(
+        5,
+        ge=0,
+        le=50,
+        description=(
+            "Placement moves before the controller gives up (the run then fails with the reason), "
+            "[0, 50]; 0: no placement, the MPC holds the path's end."
+        ),
+    )
+    approach_speed_mps: Number = Field(
+        0.02,
+        gt=0,
+        le=0.1,
+        description="EPM speed of a move's last millimetres onto the target, m/s, (0, 0.1].",
+    )

@@ -1,0 +1,84 @@
+"""The sliding MPC's reference window: the path over the horizon, joined from where the capsule rests.
+
+At the start the offset of the rest position from the path's start fades out over
+``break_loose.blend_s`` (a half cosine), so the capsule breaks loose along the path and is steered
+onto it while it slides, instead of being dragged sideways out of the static-friction dead zone
+first (a breakaway across the path lurches millimetres on the soft axis). The run is still scored
+against the path itself. Before t = 0 (the rig holds the EPM) the reference stays at the start.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..friction import FrictionBelief
+from ..paths import ReferencePath
+from .problem import OCP
+
+__all__ = ["SlideReference"]
+
+
+class SlideReference:
+    """The reference of one run (see the module docstring).
+
+    Parameters
+    ----------
+    path : ReferencePath
+        The reference path.
+    ocp : OCP
+        The sliding MPC's problem (its stage times).
+    blend_s : float
+        ``break_loose.blend_s``, s (0: no join).
+    belief : FrictionBelief
+        The controller's friction belief (the tether drag's growth along the path).
+    """
+
+    def __init__(self, path: ReferencePath, ocp: OCP, blend_s: float, belief: FrictionBelief) -> None:
+        self.path = path
+        self.ocp = ocp
+        self.blend_s = float(blend_s)
+        self.belief = belief
+        self.start_offset_m: np.ndarray | None = None
+        self._started = False
+
+    def start(self, position_m: np.ndarray) -> None:
+        """At the first frame with t >= 0: join the path from ``position_m`` (once)."""
+        if self._started:
+            return
+        self._started = True
+        if self.blend_s > 0:
+            self.start_offset_m = np.asarray(position_m, dtype=float) - self.path.start_m
+
+    def window(self, t_s: float) -> np.ndarray:
+        """Capsule position and velocity at stages 1..N and the EPM feed-forward (the path's
+        velocity) of inputs 0..N-1 (6 x N)."""
+        n = self.ocp.horizon
+        times = t_s + self.ocp.node_times_s[1:]
+        if t_s < 0:  # the rig holds the EPM: plan to stay at the start
+            return np.vstack([self.path.position(np.zeros(n)).T, np.zeros((4, n))])
+        pos, vel = self.path.position(times).T, self.path.velocity(times).T
+        if self.start_offset_m is not None and times[0] < self.blend_s:  # after the blend: the path
+            pos, vel = self.join(times, pos, vel)
+        return np.vstack([pos, vel, vel])
+
+    def join(self, times: np.ndarray, pos: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The path's positions and velocities at ``times`` (2 x n) with the start offset faded out
+        over ``blend_s`` (a half cosine)."""
+        assert self.start_offset_m is not None
+        blend = self.blend_s
+        phase = np.clip(times / blend, 0.0, 1.0)
+        weight = 0.5 * (1.0 + np.cos(np.pi * phase))
+        rate = np.where(phase < 1.0, -0.5 * np.pi / blend * np.sin(np.pi * phase), 0.0)
+        offset = self.start_offset_m[:, None]
+        return pos + offset * weight, vel + offset * rate
+
+    def progress_m(self, t_s: float) -> float:
+        """The tether paid out at ``t_s``, m: the reference's progress along the path (the capsule
+        follows it within millimetres; a projection of the estimate would jump where a closed path
+        passes its start again)."""
+        duration = self.path.duration_s
+        return self.path.length_m * min(max(t_s, 0.0) / duration, 1.0) if duration > 0 else 0.0
+
+    def drag_growth_n(self, t_s: float) -> float:
+        """The believed tether drag's growth at ``t_s`` over its value at the start, N."""
+        return float(self.belief.drag_growth_n(self.progress_m(t_s)))

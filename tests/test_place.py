@@ -1,0 +1,190 @@
+"""Placement (capsule_mpc.mpc.place): the move's geometry against closed forms, the observation at
+rest, the adaptation, and placements from rest on the plant with the arm's limits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from capsule_mpc import Scenario
+from capsule_mpc.dynamics import normal_force_expr
+from capsule_mpc.friction import FrictionBelief
+from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
+from capsule_mpc.mpc import place as P
+from capsule_mpc.sim.actuation import SimpleArm
+from capsule_mpc.sim.plant import CapsulePlant
+from capsule_mpc.sim.truth import draw_plant_truth
+
+
+def linear_geometry(k_n_per_m: float, normal_n: float = 0.6) -> P.PlaceGeometry:
+    """A coupling whose force along x is k x (a linear spring), equilibrium at a lead of (-17, 0) mm."""
+    return P.PlaceGeometry(np.array([-0.017, 0.0]), np.array([1.0, 0.0]), lambda x: k_n_per_m * x, normal_n)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    k=st.floats(5.0, 100.0),
+    force=st.floats(0.0, 0.5),
+    direction=st.sampled_from([-1.0, 1.0]),
+)
+def test_offset_for_a_linear_spring_is_force_over_stiffness(k: float, force: float, direction: float) -> None:
+    geo = linear_geometry(k)
+    limit = 0.025
+    got = geo.offset_for(force, direction, limit)
+    assert got == pytest.approx(min(force / k, limit), abs=1e-6)
+
+
+def _belief(scenario: Scenario) -> FrictionBelief:
+    return FrictionBelief.from_scenario(scenario)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    k=st.floats(15.0, 60.0),
+    off_x=st.floats(-1.5e-3, 1.5e-3),
+    off_y=st.floats(-1.5e-3, 1.5e-3),
+    rest_s=st.floats(0.0, 100.0),
+    direction=st.sampled_from([-1.0, 1.0]),
+)
+def test_a_move_backs_off_beyond_the_breakaway_and_stops_at_the_drag_lead(
+    scenario: Scenario, k: float, off_x: float, off_y: float, rest_s: float, direction: float
+) -> None:
+    """Closed form of the spring-slider: breaking loose takes the lead F_break / k beyond the
+    equilibrium; the capsule stops where the spring force equals the drag, drag / k."""
+    geo = linear_geometry(k)
+    belief = _belief(scenario)
+    target = np.array([0.0, -0.03])
+    rest = target + np.array([off_x, off_y])
+    move = P.plan_move(
+        geo, belief, rest, target, direction, np.zeros(2), rest_s, 0.3, 1.0, 0.095, 0.025, 0.02
+    )
+    d = np.array([direction, 0.0])
+    back, slow, final, release = (np.asarray(w) for w in move.waypoints_m)
+    np.testing.assert_allclose(final[:2] - slow[:2], P.SLOW_M * d, atol=1e-12)
+    np.testing.assert_allclose(move.arrivals_mps[1][:2], 0.02 * d, atol=1e-12)
+    drag = belief.drag_n(0.3 + move.length_m - 0.0)  # bounded below by the drag before the move
+    stop = float((final[:2] - target - geo.lead_eq_m) @ d)
+    assert belief.drag_n(0.3) / k - 1e-9 <= stop <= drag / k + 1e-9
+    # From the capsule's rest, the back-off pulls the lead beyond the margin times the breakaway.
+    lead_back = float((back[:2] - rest - geo.lead_eq_m) @ d)
+    breakaway = P.BREAKAWAY_MARGIN * belief.breakaway_n(geo.normal_n, rest_s, 0.3)
+    assert -lead_back >= min(breakaway / k, 0.025) - 1e-9
+    # From the staging rest, the approach pulls it beyond the forward breakaway plus the run-up.
+    assert float((final - back)[:2] @ d) >= P.RUN_UP_M
+    # The release steps back along the approach, at the move's height; lateral stays put.
+    np.testing.assert_allclose(release[:2], final[:2] - P.RELEASE_M * d, atol=1e-12)
+    assert back[2] == final[2] == release[2] == 0.095
+    assert back[1] == pytest.approx(final[1])
+
+
+def test_a_target_far_ahead_needs_no_backoff(scenario: Scenario) -> None:
+    geo = linear_geometry(30.0)
+    target = np.array([0.0, 0.0])
+    move = P.plan_move(
+        geo,
+        _belief(scenario),
+        target - np.array([0.04, 0.0]),
+        target,
+        1.0,
+        np.zeros(2),
+        1.0,
+        0.0,
+        1.0,
+        0.095,
+        0.025,
+        0.02,
+    )
+    assert len(move.waypoints_m) == 3  # straight to the end (slowing down), then the release
+
+
+def test_the_residual_moves_the_end_one_for_one(scenario: Scenario) -> None:
+    geo = linear_geometry(30.0)
+    args = (geo, _belief(scenario), np.array([0.0005, 0.0]), np.zeros(2), 1.0)
+    a = P.plan_move(*args, np.zeros(2), 1.0, 0.3, 1.0, 0.095, 0.025, 0.02)
+    b = P.plan_move(*args, np.array([1e-3, -2e-4]), 1.0, 0.3, 1.0, 0.095, 0.025, 0.02)
+    np.testing.assert_allclose(b.final_m[:2] - a.final_m[:2], [1e-3, -2e-4], atol=1e-12)
+
+
+def test_observation_waits_for_enough_frames_and_flags_a_drift() -> None:
+    rng = np.random.default_rng(0)
+    obs = P._Observation(0.0)
+    target = np.zeros(2)
+    for i in range(P.MIN_FRAMES - 1):
+        obs.add(rng.normal(scale=3e-4, size=2))
+    assert obs.result(0.2, target, 1.5e-4)[0] is None
+    still = P._Observation(0.0)
+    for i in range(60):
+        still.add(np.array([1e-3, 0.0]) + rng.normal(scale=3e-4, size=2))
+    mean, kept_still = still.result(2.0, target, 1.5e-4)
+    assert mean is not None and kept_still
+    assert mean == pytest.approx([1e-3, 0.0], abs=2e-4)
+    drifting = P._Observation(0.0)
+    for i in range(60):
+        drifting.add(np.array([2e-5 * i, 0.0]) + rng.normal(scale=1e-4, size=2))
+    assert drifting.result(2.0, target, 1.5e-4)[1] is False
+
+
+def _place_on_plant(
+    scenario: Scenario, seed: int, offset_m: np.ndarray, belief: FrictionBelief, max_s: float = 40.0
+) -> tuple[P.Placement, np.ndarray, list[np.ndarray], list[np.ndarray]]:
+    """Run a placement against the plant drawn for ``seed`` (the simple arm with the draw's servo lag;
+    the camera with the draw's noise and bias); returns it, the capsule's final position, the
+    commands and the EPM positions."""
+    truth = draw_plant_truth(scenario, seed)
+    plant = CapsulePlant(scenario, truth=truth)
+    arm = SimpleArm(scenario, servo_bandwidth_hz=truth.servo_bandwidth_hz)
+    height = scenario.plate.epm_height_m
+    target = np.array([0.0, -0.03])
+    rest = target + offset_m
+    plant.reset(rest, theta_s=3.0)
+    arm.reset(np.array([*(rest + plant.equilibrium_lead_m), height]))
+    force = capsule_force_function(scenario)
+    geo = P.place_geometry(
+        force,
+        model_equilibrium_lead(scenario),
+        height,
+        np.zeros(2),
+        lambda f: float(normal_force_expr(scenario, f)),
+    )
+    placement = P.Placement(scenario, scenario.place, geo, belief, target)
+    placement.start(0.0, -3.0)
+    rng = np.random.default_rng(seed)
+    bias = np.array([truth.camera_bias_x_m, truth.camera_bias_y_m])
+    frame_s = 1.0 / scenario.camera.rate_hz
+    steps = round(frame_s * scenario.sim.plant_rate_hz)
+    dt = frame_s / steps
+    commands, epms = [], []
+    t = 0.0
+    while placement.outcome is P.PlaceOutcome.ACTIVE and t < max_s:
+        seen = plant.position_m + bias + rng.normal(scale=truth.camera_noise_std_m, size=2)
+        u = placement.command(t, seen, arm.position_m)
+        commands.append(u)
+        epms.append(arm.position_m)
+        arm.set_velocity_command(t, u)
+        for _ in range(steps):
+            assert plant.step(dt, *arm.step_xyz(dt)) == 0
+        t += frame_s
+    return placement, plant.position_m + bias - target, commands, epms
+
+
+def test_placement_from_rest_on_the_ideal_plant(scenario: Scenario) -> None:
+    """From rest a millimetre off, within tolerance (as the camera sees it) in at most three moves,
+    every command within the speed limit, the EPM within the workspace and the coupling limit."""
+    placement, seen_error, commands, epms = _place_on_plant(
+        scenario, 0, np.array([0.7e-3, -0.5e-3]), _belief(scenario)
+    )
+    assert placement.outcome is P.PlaceOutcome.PLACED, placement.reason
+    assert placement.moves <= 3
+    assert float(np.linalg.norm(seen_error)) <= 2 * scenario.place.tolerance_m
+    lim = scenario.limits
+    speeds = np.abs(np.array(commands))
+    # The trajectory is within the speed limit; the position correction adds a fraction of it.
+    assert speeds.max() <= lim.speed_mps * 1.05
+    epm = np.array(epms)
+    assert np.all(epm >= np.array(lim.workspace_min_m) - 1e-9)
+    assert np.all(epm <= np.array(lim.workspace_max_m) + 1e-9)
+    assert math.isfinite(float(speeds.sum()))
