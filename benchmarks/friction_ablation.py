@@ -85,8 +85,17 @@ SHARP_EPS_MPS = 0.002
 DEFAULT_PRELOAD = 1.0
 #: Variants run unless --variants says otherwise.
 DEFAULT_VARIANTS = BASE_VARIANTS
-#: The metrics of a draw's runs kept in the report.
-METRICS = ("tracking_rms_mm", "cross_track_rms_mm", "start_tracking_rms_mm", "final_error_mm")
+#: The metrics of a draw's runs kept in the report (runs.csv keeps every metric of run.json).
+METRICS = (
+    "tracking_rms_mm",
+    "cross_track_rms_mm",
+    "start_tracking_rms_mm",
+    "final_error_mm",
+    "final_error_seen_mm",
+    "camera_bias_mm",
+    "time_to_place_s",
+    "placement_moves",
+)
 #: Rest time at which the learned breakaway is checked against the plant's, s.
 CHECK_REST_S = 2.0
 ROOT = Path(__file__).resolve().parent.parent

@@ -166,7 +166,7 @@ class Controller(ABC):
         """Whether the controller is done moving the capsule (True unless it says otherwise).
 
         A run may end at rest after the path only when this is True: a controller still working
-        on the final position (the MPC's final approach) holds the end off (the run's timeout
+        on the final position (the MPC's placement) holds the end off (the run's timeout
         still applies).
         """
         return True

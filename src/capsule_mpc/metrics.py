@@ -3,12 +3,13 @@
 The scoring window
 ------------------
 Every window metric is taken over the frames with ``0 <= t <= window_end_s`` (t = 0 is when
-the reference starts moving; the settle phase before it is not scored). Runs end when the
-capsule has come to rest after the path's end (or at the tail cut-off), so two controllers
-usually stop at different times. To score them on the *same* window, a log that ends before
-``window_end_s`` is padded: its last row is held (the capsule and the EPM stay at rest where
-they ended) at the log's frame spacing up to ``window_end_s``; only the reference keeps being
-evaluated along the path (it holds the path's end after the nominal time, exactly as the
+the reference starts moving; the settle phase before it is not scored), and the window never
+extends past the path's nominal end: the path is scored over its own time, the same for every
+controller, and what happens after it (placing the capsule at rest) by :func:`end_metrics`. A
+run that ended earlier (decoupled, dropped) is scored on the window a comparison gives it: a
+log that ends before ``window_end_s`` is padded: its last row is held (the capsule and the EPM
+stay at rest where they ended) at the log's frame spacing up to ``window_end_s``; only the
+reference keeps being evaluated along the path (it holds the path's end after the nominal time, exactly as the
 runner logs it). A run that stopped early far from the goal thus keeps paying for it until the
 window closes. The solver statistics count the logged frames only (padding solves nothing).
 Without a window end, :func:`run_metrics` falls back to :func:`motion_end_s`.

@@ -41,7 +41,7 @@ frame).
 A run ends at the first of:
 
 * *at rest*: t >= the path's nominal duration, the controller says it is finished
-  (:attr:`~capsule_mpc.interfaces.Controller.finished`: the MPC's final approach is over) and the
+  (:attr:`~capsule_mpc.interfaces.Controller.finished`: the MPC's placement is over) and the
   capsule has been at rest (slower than ``sim.rest_speed_mps``) for ``sim.rest_hold_s``; never
   while it moves;
 * *decoupled* / *dropped*: the plant failed (see :mod:`.plant`); a last row is
@@ -51,9 +51,12 @@ A run ends at the first of:
 The run reports the arrival time (first frame within ``sim.completion_tol_m`` of
 the final waypoint with the progress at the path end), the final error at rest
 and whether it *stalled* (came to rest farther than that tolerance from the end);
-it is *completed* when it came to rest within it. Metrics cover the window from
-t = 0 to the run's end (:func:`capsule_mpc.metrics.run_metrics`); ``compare``
-scores the controllers of one draw on their common window.
+it is *completed* when it came to rest within it (and the controller did not give up, see
+:attr:`~capsule_mpc.interfaces.Controller.gave_up`). The path's metrics cover its nominal time,
+t = 0 to the path's end, for every controller (:func:`capsule_mpc.metrics.run_metrics`); the end at
+rest is scored from the plant's truth by :func:`capsule_mpc.metrics.end_metrics` (the final error
+as it is and as the camera sees it with the draw's bias, the time to place, the placement moves
+and the phase the run ended in).
 
 Real-time mode (``ClosedLoop(..., realtime=True)``, ``capsule-mpc simulate --realtime``): the
 loop is paced to the wall clock at the camera rate. Frame ``i`` (counted from the first frame) has
