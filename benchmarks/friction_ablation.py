@@ -24,19 +24,23 @@ robot``), once per friction model it is given:
     :data:`SHARP_EPS_MPS` (its friction force then holds up closer to rest);
 suffixes combine in that order (``+preload+sharp``).
 
-A draw's learned model is kept in ``--work``; with ``--reuse`` a model already there is used
-instead of demonstrating and learning again. ``--merge A.json B.json --out C.json`` writes one
-report from the outputs of a campaign run in parts (same config and plant; each seed once; the
-variants every draw ran; the parts' commands kept).
+Each variant is a set of scenario overrides (:func:`variant`; the draw's own friction and the
+model learned on it are resolved per draw by :func:`capsule_mpc.experiments.sweep.tasks.variant_scenario`),
+and the campaign runs on the sweep's runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep`,
+one Dask task per draw: a ``LocalCluster`` of ``--workers`` processes or the cluster at
+``--scheduler``) into ``--out``'s folder (``runs.csv``, ``summary.json``, resumable). The
+demonstrations and the learning of each draw run first, on the same cluster; a draw's learned model
+is kept in ``--work``, and with ``--reuse`` a model already there is used instead of learning again.
+``--merge A.json B.json --out C.json`` writes one report from the outputs of a campaign run in parts
+(same config and plant; each seed once; the variants every draw ran; the parts' commands kept).
 
 The ``paper_0.8v`` heuristic runs on the same draw, and every run of a draw is scored on one
 window: t = 0 to the latest end among them (:func:`capsule_mpc.experiments.compare.rescore_on_common_window`).
-Prints, per variant, mean +- sd (worst) over the draws of the tracking RMS, cross-track RMS, the
-start window's tracking RMS (first 1.5 s), the final error, the runs ending within
-``--final-tol``, stalls and solver failures, and the paired difference to ``paper``; the learned
-breakaway after 2 s at rest, and after the rest the draw's capsule had before its run, against the
-plant's at the path's start (``--learn-only``: only this, no controller runs). Writes it all, with
-each draw's numbers and the command, to ``--out`` (JSON).
+Writes the report to ``--out`` (JSON: each draw's numbers, its learning and the command; the
+campaign's folder beside it, ``--out`` without ``.json``), rendered into docs/results.md by
+``benchmarks/results_doc.py``: per variant mean ± sd (worst) over the draws and the paired difference
+to ``paper``; the learned breakaway after 2 s at rest, and after the rest the draw's capsule had
+before its run, against the plant's at the path's start (``--learn-only``: only this).
 
     .venv/bin/python benchmarks/friction_ablation.py --plant lab --draws 20 \\
         --out results/benchmarks/friction_ablation_lab.json
@@ -47,24 +51,23 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import math
 import os
 import platform
 import subprocess
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 
 from capsule_mpc.config import LearnedFrictionModel, Scenario, load_config
-from capsule_mpc.experiments.compare import rescore_on_common_window
+from capsule_mpc.experiments.sweep.campaign import sweep
+from capsule_mpc.experiments.sweep.tasks import ORACLE, Variant, dask_client
+from capsule_mpc.experiments.table import split_label
 from capsule_mpc.friction import FrictionBelief
 from capsule_mpc.paths import path_from_scenario
-from capsule_mpc.sim import CapsulePlant, draw_plant_truth, simulate
+from capsule_mpc.sim import draw_plant_truth
 from capsule_mpc.sim.oracle import oracle_friction_model
 
 BASE_VARIANTS = ("none", "paper", "learned", "oracle")
@@ -82,6 +85,7 @@ SHARP_EPS_MPS = 0.002
 DEFAULT_PRELOAD = 1.0
 #: Variants run unless --variants says otherwise.
 DEFAULT_VARIANTS = BASE_VARIANTS
+#: The metrics of a draw's runs kept in the report (runs.csv keeps every metric of run.json).
 METRICS = (
     "tracking_rms_mm",
     "cross_track_rms_mm",
@@ -97,27 +101,112 @@ CHECK_REST_S = 2.0
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _cli(*args: str, allowed: tuple[int, ...] = (0,)) -> int:
-    """Run a ``capsule-mpc`` command (the one next to this Python); its exit status, one of
-    ``allowed``, or a ``RuntimeError`` with its output."""
-    exe = Path(sys.executable).with_name("capsule-mpc")
-    proc = subprocess.run([str(exe), *args], capture_output=True, text=True, check=False)
-    if proc.returncode not in allowed:
-        raise RuntimeError(f"capsule-mpc {' '.join(args)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
-    return proc.returncode
-
-
 def plant_scenario(config: Path, preset: str) -> Scenario:
     scenario = load_config(config)
     return scenario.model_copy(update={"plant": scenario.plant.model_copy(update={"preset": preset})})
 
 
-def oracle_model(scenario: Scenario, seed: int) -> LearnedFrictionModel:
-    """The plant draw's own friction (the bound), its breakaway taken at the path's start."""
-    start = path_from_scenario(scenario).start_m
-    return oracle_friction_model(
-        scenario, draw_plant_truth(scenario, seed), (float(start[0]), float(start[1]))
+def variant(name: str, base: Scenario, learned_file: str, args: argparse.Namespace) -> Variant:
+    """The overrides of variant ``name`` (module docstring); ``learned_file`` the draws' learned
+    models, ``{seed}`` in place of the seed."""
+    base_name, *mods = name.split("+")
+    over: dict[str, Any] = {}
+    if base_name == "none":
+        none = LearnedFrictionModel(
+            coefficients=[0.0],
+            validity_mps=base.friction.paper_c.validity_mps,
+            mu0=0.0,
+            tether_drag_n=0.0,
+            force_model=base.force_model,
+        )
+        over["friction.learned"] = none.model_dump(mode="json", exclude_none=True)
+    elif base_name in ("learned", "oracle"):
+        over["friction.learned"] = ORACLE if base_name == "oracle" else learned_file
+    if mods:
+        over["break_loose.preload"] = args.preload if "preload" in mods else None
+    if "sharp" in mods:
+        over["mpc.friction_smoothing_eps_mps"] = SHARP_EPS_MPS
+    controllers = ("paper_0.8v", "mpc") if name == "paper" else ("mpc",)
+    return Variant(name, over, controllers)
+
+
+def learn_commands(args: argparse.Namespace, work: Path, seed: int) -> list[list[str]]:
+    """The ``capsule-mpc demonstrate`` and ``learn-friction`` commands that learn a draw's friction."""
+    exe = [sys.executable, "-c", "import sys; from capsule_mpc.cli import main; sys.exit(main())"]
+    config = work / "config.yaml"
+    work.mkdir(parents=True, exist_ok=True)
+    config.write_text(
+        yaml.safe_dump({"base": str(Path(args.config).resolve()), "plant": {"preset": args.plant}})
     )
+    demonstrate = [
+        *exe,
+        "demonstrate",
+        "--config",
+        str(config),
+        "--plant",
+        args.plant,
+        "--seed",
+        str(seed),
+        "--paths",
+        "straight_x",
+        "straight_y",
+        "--speeds",
+        *map(str, args.speeds),
+        "--out",
+        str(work / "demos"),
+    ]
+    if args.pull_preload is not None:
+        demonstrate += ["--pull-preload", str(args.pull_preload)]
+    learn = [*exe, "learn-friction", "--config", str(config), "--log", str(work / "demos")]
+    return [demonstrate, [*learn, "--out", str(work / "model.yaml")]]
+
+
+def learn_and_check(
+    args: argparse.Namespace, client: Any, base: Scenario, seeds: list[int]
+) -> dict[int, Any]:
+    """Learn each draw's friction on the cluster (``--reuse``: keep a model learned before); each draw's
+    learning and its breakaway against the plant's."""
+    works = {s: Path(args.work) / f"{args.plant}_{s}" for s in seeds}
+    todo = [s for s in seeds if not (args.reuse and (works[s] / "model.yaml").exists())]
+    # Exit status 1 of demonstrate: some demonstrations failed (on a hard rig a run may stall or
+    # decouple); the model is learned from the logs of those that ran, and the draw says so.
+    demos = {
+        s: client.submit(subprocess.run, learn_commands(args, works[s], s)[0], capture_output=True)
+        for s in todo
+    }
+    status = {s: f.result().returncode for s, f in demos.items()}
+    learns = {
+        s: client.submit(subprocess.run, learn_commands(args, works[s], s)[1], capture_output=True)
+        for s in todo
+        if status[s] in (0, 1)
+    }
+    status.update({s: 2 for s, f in learns.items() if f.result().returncode != 0})
+    start = path_from_scenario(base).start_m
+    out = {}
+    for s in seeds:
+        if status.get(s, 0) > 1:
+            print(f"draw {s}: learning failed", flush=True)
+            continue
+        learned = LearnedFrictionModel.model_validate(yaml.safe_load((works[s] / "model.yaml").read_text()))
+        truth = draw_plant_truth(base, s)
+        oracle = oracle_friction_model(base, truth, (float(start[0]), float(start[1])))
+        mine, plant = (FrictionBelief.from_scenario(with_friction(base, m)) for m in (learned, oracle))
+        static = learned.static_mu_1s is not None
+        rest = truth.rest_before_start_s
+        out[s] = {
+            "start_rest_s": rest,
+            "reused": s not in todo,
+            "demonstrations_failed": status.get(s) == 1,
+            "breakaway_mu_learned_start": mine.breakaway_mu(rest) if static else None,
+            "breakaway_mu_plant_start": plant.breakaway_mu(rest),
+            "breakaway_mu_learned": mine.breakaway_mu(CHECK_REST_S) if static else None,
+            "breakaway_mu_plant": plant.breakaway_mu(CHECK_REST_S),
+            "static_mu_1s": learned.static_mu_1s,
+            "static_healing": learned.static_healing,
+            "r2": learned.r2,
+            "rmse": learned.rmse,
+        }
+    return out
 
 
 def with_friction(base: Scenario, learned: LearnedFrictionModel) -> Scenario:
@@ -125,297 +214,25 @@ def with_friction(base: Scenario, learned: LearnedFrictionModel) -> Scenario:
     return base.model_copy(update={"friction": base.friction.model_copy(update={"learned": learned})})
 
 
-def variant_scenario(
-    base: Scenario,
-    variant: str,
-    learned_on_draw: LearnedFrictionModel | None,
-    oracle: LearnedFrictionModel,
-    preload: float = DEFAULT_PRELOAD,
-) -> Scenario:
-    """The controller's scenario of one variant (the plant is drawn from the base scenario)."""
-    fr = base.friction
-    if "+" in variant:
-        name, *mods = variant.split("+")
-        scenario = variant_scenario(base, name, learned_on_draw, oracle)
-        update: dict[str, Any] = {}
-        if "sharp" in mods:
-            update["friction_smoothing_eps_mps"] = SHARP_EPS_MPS
-        loose = scenario.break_loose.model_copy(update={"preload": preload if "preload" in mods else None})
-        return scenario.model_copy(
-            update={"mpc": scenario.mpc.model_copy(update=update), "break_loose": loose}
-        )
-    if variant == "paper":
-        return base
-    if variant == "none":
-        learned = LearnedFrictionModel(
-            coefficients=[0.0],
-            validity_mps=fr.paper_c.validity_mps,
-            mu0=0.0,
-            tether_drag_n=0.0,
-            force_model=base.force_model,
-        )
-    elif variant == "oracle":
-        learned = oracle
-    else:
-        assert learned_on_draw is not None
-        learned = learned_on_draw
-    return with_friction(base, learned)
+def draws_of(summary: dict[str, Any], learning: dict[int, Any]) -> list[dict[str, Any]]:
+    """The report's draws from the campaign's: per draw its runs by variant (``paper_0.8v`` by name)."""
+    draws = []
+    for entry in summary["runs"]:
+        runs = {}
+        for label, run in entry["controllers"].items():
+            v, controller = split_label(label)
+            key = controller if controller == "paper_0.8v" else v
+            runs[key] = (
+                run
+                if "error" in run
+                else {k: run.get(k) for k in (*METRICS, "stalled", "solver_failures", "arm_ok")}
+            )
+        draw = {"seed": entry["seed"], "window_end_s": entry["window_end_s"], "runs": runs}
+        draws.append({**draw, "learning": learning[entry["seed"]]} if entry["seed"] in learning else draw)
+    return draws
 
 
-def learn_on_draw(
-    args: argparse.Namespace, work: Path, base: Scenario, oracle: LearnedFrictionModel, seed: int
-) -> tuple[LearnedFrictionModel, dict[str, Any]]:
-    """Demonstrate on the draw and learn its friction (or, with ``--reuse``, the model learned
-    there before); the model and what the learning came to."""
-    t0 = time.perf_counter()
-    model_path = work / "model.yaml"
-    status = None
-    if not (args.reuse and model_path.exists()):
-        demo_cfg = work / "config.yaml"
-        work.mkdir(parents=True, exist_ok=True)
-        demo_cfg.write_text(
-            yaml.safe_dump({"base": str(Path(args.config).resolve()), "plant": {"preset": args.plant}})
-        )
-        # Exit status 1: some demonstrations failed (on a hard rig a run may stall or decouple); the
-        # model is learned from the logs of those that ran, and the draw says so.
-        status = _cli(
-            "demonstrate",
-            "--config",
-            str(demo_cfg),
-            "--plant",
-            args.plant,
-            "--seed",
-            str(seed),
-            "--paths",
-            "straight_x",
-            "straight_y",
-            "--speeds",
-            *map(str, args.speeds),
-            "--out",
-            str(work / "demos"),
-            *([] if args.pull_preload is None else ["--pull-preload", str(args.pull_preload)]),
-            allowed=(0, 1),
-        )
-        _cli(
-            "learn-friction",
-            "--config",
-            str(demo_cfg),
-            "--log",
-            str(work / "demos"),
-            "--out",
-            str(model_path),
-        )
-    learned = LearnedFrictionModel.model_validate(yaml.safe_load(model_path.read_text()))
-    mine = FrictionBelief.from_scenario(with_friction(base, learned))
-    truth = FrictionBelief.from_scenario(with_friction(base, oracle))
-    truth_mu = truth.breakaway_mu(CHECK_REST_S)
-    # The breakaway the start needs: after the rest the draw's capsule had before the run.
-    start_rest = draw_plant_truth(base, seed).rest_before_start_s
-    has_static = learned.static_mu_1s is not None
-    return learned, {
-        "start_rest_s": start_rest,
-        "breakaway_mu_learned_start": mine.breakaway_mu(start_rest) if has_static else None,
-        "breakaway_mu_plant_start": truth.breakaway_mu(start_rest),
-        "seconds": time.perf_counter() - t0,
-        "reused": status is None,
-        "demonstrations_failed": status == 1,
-        "breakaway_mu_learned": mine.breakaway_mu(CHECK_REST_S) if learned.static_mu_1s is not None else None,
-        "breakaway_mu_plant": truth_mu,
-        "static_mu_1s": learned.static_mu_1s,
-        "static_healing": learned.static_healing,
-        "r2": learned.r2,
-        "rmse": learned.rmse,
-    }
-
-
-def run_draw(args: argparse.Namespace, seed: int) -> dict[str, Any]:
-    """Every variant (and ``paper_0.8v``) on one draw, scored on the draw's common window."""
-    work = Path(args.work) / f"{args.plant}_{seed}"
-    base = plant_scenario(args.config, args.plant)
-    path = path_from_scenario(base)
-    oracle = oracle_model(base, seed)
-    out: dict[str, Any] = {"seed": seed}
-    learned: LearnedFrictionModel | None = None
-    if args.learn_only or "learned" in {v.split("+")[0] for v in args.variants}:
-        learned, out["learning"] = learn_on_draw(args, work, base, oracle, seed)
-    if args.learn_only:
-        ln = out["learning"]
-        mine, plant = ln["breakaway_mu_learned"], ln["breakaway_mu_plant"]
-        print(f"draw {seed}: breakaway learned {mine}, plant {plant:.3f}", flush=True)
-        out["runs"] = {}
-        return out
-    results = {
-        "paper_0.8v": simulate(
-            base,
-            "paper_0.8v",
-            path,
-            seed,
-            progress=False,
-            plant=CapsulePlant(base, truth=draw_plant_truth(base, seed)),
-        )
-    }
-    for variant in args.variants:
-        scenario = variant_scenario(
-            base,
-            variant,
-            learned,
-            oracle,
-            args.preload,
-        )
-        plant = CapsulePlant(base, truth=draw_plant_truth(base, seed))  # truth from the base: the same rig
-        results[variant] = simulate(scenario, "mpc", path, seed, progress=False, plant=plant)
-    out["window_end_s"] = rescore_on_common_window(results, path, base)
-    out["runs"] = {
-        name: {key: _num(r.metrics.get(key)) for key in (*METRICS, "stalled", "solver_failures", "arm_ok")}
-        for name, r in results.items()
-    }
-    print(
-        f"draw {seed}: " + ", ".join(f"{n} {r['tracking_rms_mm']:.2f}" for n, r in out["runs"].items()),
-        flush=True,
-    )
-    return out
-
-
-def _num(value: Any) -> Any:
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, float, np.integer, np.floating)):
-        return float(value) if math.isfinite(float(value)) else None
-    return value
-
-
-def _spread(values: list[float]) -> dict[str, float]:
-    a = np.asarray(values, dtype=float)
-    return {
-        "mean": float(a.mean()),
-        "sd": float(a.std(ddof=1)) if a.size > 1 else 0.0,
-        "worst": float(a.max()),
-        "n": int(a.size),
-    }
-
-
-def summarise(draws: list[dict[str, Any]], variants: list[str], final_tol_mm: float) -> dict[str, Any]:
-    summary: dict[str, Any] = {}
-    for v in variants:
-        runs = [d["runs"][v] for d in draws]
-        # Reports written before a metric existed lack it: summarise what every run has.
-        metrics = [m for m in METRICS if all(m in d["runs"][name] for d in draws for name in variants)]
-        entry: dict[str, Any] = {m: _spread([r[m] for r in runs]) for m in metrics}
-        entry["final_within_tol"] = sum(r["final_error_mm"] <= final_tol_mm for r in runs)
-        entry["stalled"] = sum(bool(r["stalled"]) for r in runs)
-        entry["solver_failures"] = int(sum(r["solver_failures"] or 0 for r in runs))
-        entry["arm_ok"] = sum(bool(r["arm_ok"]) for r in runs)
-        if v != "paper" and "paper" in variants:
-            entry["vs_paper"] = {}
-            for m in metrics:
-                diff = [d["runs"][v][m] - d["runs"]["paper"][m] for d in draws]
-                base = np.mean([d["runs"]["paper"][m] for d in draws])
-                entry["vs_paper"][m] = {
-                    **_spread(diff),
-                    "relative": float(np.mean(diff) / base),
-                    "better": int(sum(x < 0 for x in diff)),
-                }
-        summary[v] = entry
-    learning = [d["learning"] for d in draws if "learning" in d and d["learning"]["breakaway_mu_learned"]]
-    if learning:
-        rel = [abs(x["breakaway_mu_learned"] / x["breakaway_mu_plant"] - 1) for x in learning]
-        summary["breakaway"] = {
-            "rest_s": CHECK_REST_S,
-            "within_10pct": int(sum(r <= 0.1 for r in rel)),
-            "n": len(rel),
-            "relative_error": _spread(rel),
-        }
-        at_start = [x for x in learning if "breakaway_mu_plant_start" in x]
-        if at_start:
-            rel = [abs(x["breakaway_mu_learned_start"] / x["breakaway_mu_plant_start"] - 1) for x in at_start]
-            summary["breakaway_start_rest"] = {
-                "within_10pct": int(sum(r <= 0.1 for r in rel)),
-                "n": len(rel),
-                "relative_error": _spread(rel),
-            }
-    summary["learning_failed"] = sum(
-        1 for d in draws if "learning" in d and not d["learning"]["breakaway_mu_learned"]
-    )
-    return summary
-
-
-def _print_runs(summary: dict[str, Any], variants: list[str], n: int, final_tol_mm: float) -> None:
-    print(f"\n{n} draws; mean +- sd (worst); paired difference to paper: mean (better on k of {n})")
-    print(
-        "| model | tracking RMS (mm) | cross-track RMS (mm) | first 1.5 s (mm) | final error (mm) "
-        f"| final <= {final_tol_mm} mm | stalled | solver failures |"
-    )
-    print("|---|---|---|---|---|---|---|---|")
-    for v in variants:
-        s = summary[v]
-        cells = []
-        for m in METRICS:
-            c = f"{s[m]['mean']:.2f} +- {s[m]['sd']:.2f} ({s[m]['worst']:.2f})"
-            if "vs_paper" in s:
-                d = s["vs_paper"][m]
-                c += f"; {d['mean']:+.2f} ({d['better']})"
-            cells.append(c)
-        print(
-            f"| {v} | "
-            + " | ".join(cells)
-            + f" | {s['final_within_tol']}/{n} | {s['stalled']} | {s['solver_failures']} |"
-        )
-
-
-def print_table(summary: dict[str, Any], variants: list[str], n: int, final_tol_mm: float) -> None:
-    if variants:
-        _print_runs(summary, variants, n, final_tol_mm)
-    if "breakaway" in summary:
-        b = summary["breakaway"]
-        err = b["relative_error"]
-        print(
-            f"\nlearned breakaway after {b['rest_s']:g} s at rest within 10 % of the plant's: "
-            f"{b['within_10pct']}/{b['n']} (|relative error| {err['mean']:.3f} +- {err['sd']:.3f}, "
-            f"worst {err['worst']:.3f})"
-        )
-    if "breakaway_start_rest" in summary:
-        b = summary["breakaway_start_rest"]
-        err = b["relative_error"]
-        print(
-            "learned breakaway after the draw's rest before its run within 10 % of the plant's: "
-            f"{b['within_10pct']}/{b['n']} (|relative error| {err['mean']:.3f} +- {err['sd']:.3f}, "
-            f"worst {err['worst']:.3f})"
-        )
-
-
-def _report(
-    args: argparse.Namespace,
-    argv: list[str] | None,
-    seeds: list[int],
-    draws: list[dict[str, Any]],
-    seconds: float,
-    failed: list[dict[str, Any]],
-) -> dict[str, Any]:
-    """The report of the draws done so far, written to ``args.out``."""
-    report = {
-        "command": " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])]),
-        "config": str(args.config),
-        "plant": args.plant,
-        "seeds": seeds,
-        "draws_done": len(draws),
-        "draws_failed": failed,
-        "preload_fraction": args.preload,
-        "demonstration_speeds_mps": args.speeds,
-        "summary": summarise(draws, args.variants, args.final_tol) if draws else {},
-        "draws": draws,
-        "seconds": seconds,
-        "machine": {
-            "platform": platform.platform(),
-            "python": platform.python_version(),
-            "cpus": os.cpu_count(),
-        },
-    }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=1))
-    return report
-
-
-def merge_reports(paths: list[Path], final_tol_mm: float) -> dict[str, Any]:
+def merge_reports(paths: list[Path]) -> dict[str, Any]:
     """One report from the outputs of a campaign run in parts (see the module docstring)."""
     reports = [json.loads(p.read_text()) for p in paths]
     for key in ("config", "plant"):
@@ -427,7 +244,6 @@ def merge_reports(paths: list[Path], final_tol_mm: float) -> dict[str, Any]:
         for draw in report["draws"]:
             by_seed.setdefault(draw["seed"], draw)
     draws = [by_seed[seed] for seed in sorted(by_seed)]
-    variants = [v for v in VARIANTS if all(v in d["runs"] for d in draws)]
     return {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         "parts": [r["command"] for r in reports],
@@ -437,89 +253,105 @@ def merge_reports(paths: list[Path], final_tol_mm: float) -> dict[str, Any]:
         "draws_done": len(draws),
         # A draw that failed in one part and ran in another counts as run.
         "draws_failed": [f for r in reports for f in r.get("draws_failed", []) if f["seed"] not in by_seed],
-        "variants": variants,
-        "summary": summarise(draws, variants, final_tol_mm),
+        "variants": [v for v in VARIANTS if all(v in d["runs"] for d in draws)],
         "draws": draws,
         "seconds": sum(r["seconds"] for r in reports),
         "machine": reports[-1]["machine"],
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--config", type=Path, default=ROOT / "configs" / "rectangle.yaml")
-    parser.add_argument("--plant", choices=("lab", "hard"), default="lab")
-    parser.add_argument("--first", type=int, default=0, help="first draw's seed (default 0)")
-    parser.add_argument("--draws", type=int, default=20, help="plant draws (default 20)")
-    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(DEFAULT_VARIANTS))
-    parser.add_argument(
+    add = parser.add_argument
+    add("--config", type=Path, default=ROOT / "configs" / "rectangle.yaml")
+    add("--plant", choices=("lab", "hard"), default="lab")
+    add("--first", type=int, default=0, help="first draw's seed (default 0)")
+    add("--draws", type=int, default=20, help="plant draws (default 20)")
+    add("--variants", nargs="+", choices=VARIANTS, default=list(DEFAULT_VARIANTS))
+    add(
         "--preload",
         type=float,
         default=DEFAULT_PRELOAD,
         help=f"+preload: break_loose.preload, (0, 1] ({DEFAULT_PRELOAD})",
     )
-    parser.add_argument(
+    add(
         "--reuse",
         action="store_true",
         help="use a draw's model already learned in --work (default: learn anew)",
     )
-    parser.add_argument(
-        "--speeds",
-        type=float,
-        nargs="+",
-        default=[0.005, 0.01, 0.02, 0.04],
-        help="demonstration speeds, m/s (default 0.005 0.01 0.02 0.04)",
+    add(
+        "--speeds", type=float, nargs="+", default=[0.005, 0.01, 0.02, 0.04], help="demonstration speeds, m/s"
     )
-    parser.add_argument(
-        "--final-tol", type=float, default=0.5, help="final error counted as reached, mm (0.5)"
-    )
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument(
-        "--work", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation_work"
-    )
-    parser.add_argument(
-        "--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json"
-    )
-    parser.add_argument("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
-    parser.add_argument(
+    add("--workers", type=int, default=2, help="worker processes of the LocalCluster (2)")
+    add("--scheduler", help="address of a running Dask scheduler to run on instead")
+    add("--work", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation_work")
+    add("--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json")
+    add("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
+    add(
         "--learn-only",
         action="store_true",
-        help="demonstrate and learn on each draw and check its breakaway; run no controller",
+        help="learn on each draw and check its breakaway; run no controller",
     )
-    parser.add_argument(
-        "--pull-preload",
-        type=float,
-        default=None,
-        help="demonstrate --pull-preload (default: the command's default)",
-    )
+    add("--pull-preload", type=float, default=None, help="demonstrate --pull-preload (default: its default)")
     args = parser.parse_args(argv)
-    if args.learn_only:
-        args.variants = []
-    if args.merge:
-        merged = merge_reports(args.merge, args.final_tol)
-        args.out.write_text(json.dumps(merged, indent=1))
-        print_table(merged["summary"], merged["variants"], merged["draws_done"], args.final_tol)
-        print(f"wrote {args.out}")
-        return 0
     if args.draws < 1 or args.first < 0 or args.workers < 1:
         parser.error("--draws and --workers must be >= 1, --first >= 0")
-    seeds = list(range(args.first, args.first + args.draws))
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse(argv)
+    if args.merge:
+        args.out.write_text(json.dumps(merge_reports(args.merge), indent=1))
+        print(f"wrote {args.out}")
+        return 0
     t0 = time.perf_counter()
-    draws: list[dict[str, Any]] = []
-    failed: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(args.workers) as pool:
-        futures = {pool.submit(run_draw, args, seed): seed for seed in seeds}
-        for future in as_completed(futures):
-            try:
-                draws.append(future.result())
-            except Exception as exc:  # one draw's failure must not lose the others
-                failed.append({"seed": futures[future], "error": str(exc)[-2000:]})
-                print(f"draw {futures[future]}: failed: {str(exc).splitlines()[0]}", flush=True)
-            draws.sort(key=lambda d: d["seed"])
-            # Written after every draw: a long campaign stopped early keeps what it measured.
-            report = _report(args, argv, seeds, draws, time.perf_counter() - t0, failed)
-    if draws:
-        print_table(report["summary"], args.variants, len(draws), args.final_tol)
+    seeds = list(range(args.first, args.first + args.draws))
+    base = plant_scenario(args.config, args.plant)
+    learned_file = str(Path(args.work).resolve() / f"{args.plant}_{{seed}}" / "model.yaml")
+    variants = [] if args.learn_only else [variant(v, base, learned_file, args) for v in args.variants]
+    learns = args.learn_only or any(v.split("+")[0] == "learned" for v in args.variants)
+    with dask_client(args.scheduler, None if args.scheduler else args.workers) as client:
+        learning = learn_and_check(args, client, base, seeds) if learns else {}
+        ok = [s for s in seeds if not learns or s in learning]
+        summary = {"runs": []}
+        if variants and ok:  # the draws whose learning failed are left out
+            summary = sweep(
+                base,
+                path_from_scenario(base),
+                args.out.with_suffix(""),
+                ok[0],
+                ok[-1] - ok[0] + 1,
+                variants=variants,
+                client=client,
+                meta={"config": str(args.config)},
+            )
+    draws = (
+        [d for d in draws_of(summary, learning) if d["seed"] in ok]
+        if variants
+        else [{"seed": s, "runs": {}, "learning": learning[s]} for s in sorted(learning)]
+    )
+    report = {
+        "command": " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])]),
+        "config": str(args.config),
+        "plant": args.plant,
+        "seeds": seeds,
+        "draws_done": len(draws),
+        "draws_failed": [
+            {"seed": s, "error": "learning failed"} for s in seeds if learns and s not in learning
+        ],
+        "preload_fraction": args.preload,
+        "demonstration_speeds_mps": args.speeds,
+        "draws": draws,
+        "seconds": time.perf_counter() - t0,
+        "machine": {
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "cpus": os.cpu_count(),
+        },
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=1))
     print(f"wrote {args.out} ({report['seconds']:.0f} s)")
     return 0
 

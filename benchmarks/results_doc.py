@@ -1,11 +1,14 @@
-"""Render docs/results.md from the result JSON files in docs/results/.
+"""Render docs/results.md from the result files in docs/results/ and its template.
 
-Every number in docs/results.md comes from a JSON file written by a benchmark or a ``capsule-mpc``
+Every number in docs/results.md comes from a file written by a benchmark or a ``capsule-mpc``
 command, copied into ``docs/results/``. ``docs/results/sources.json`` lists, per section, the file
 it is rendered from and the provenance the file itself may not record (the command that wrote
-it, the date, the machine, its load). Tables over plant draws are computed here from the per-draw
-values, as mean ± sd (worst): the sample standard deviation (ddof 1) and the largest value. The
-output depends on the JSON only, so running this twice gives the same file.
+it, the date, the machine, its load); ``docs/results/sections.md`` holds the prose: each section's
+title, renderer and text. A campaign's data (a sweep's ``summary.json`` or ``runs.csv``, a friction
+ablation's or fault campaign's report) is read as a run table (:mod:`capsule_mpc.experiments.table`)
+and summarised by :func:`capsule_mpc.experiments.aggregate.aggregate` (mean ± sd (worst): the sample
+standard deviation, ddof 1, and the largest value) and :func:`~capsule_mpc.experiments.aggregate.paired`.
+The output depends on the files only, so running this twice gives the same file.
 
     python benchmarks/results_doc.py            # write docs/results.md
     python benchmarks/results_doc.py --check    # exit 1 if docs/results.md is not up to date
@@ -17,17 +20,23 @@ import argparse
 import json
 import math
 import shlex
-import statistics
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
+
+from capsule_mpc.experiments.aggregate import aggregate, mean_sd_worst, paired
+from capsule_mpc.experiments.table import run_label, table_from_entries
+
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "docs" / "results"
 OUT = ROOT / "docs" / "results.md"
-#: The manifest in the data folder: per section, its JSON file and provenance.
+#: The manifest in the data folder: per section, its data file and provenance.
 SOURCES = "sources.json"
+#: The template in the data folder: the prose and the sections in order.
+TEMPLATE = "sections.md"
 COMMAND = "python benchmarks/results_doc.py"
 
 #: Controllers of the comparison, in table order (others follow alphabetically).
@@ -58,43 +67,54 @@ ABLATION_METRICS = {
 }
 #: Final error counted as reached, mm (the benchmarks' default tolerance).
 FINAL_TOL_MM = 0.5
+#: The ablation's controller, and the baseline of its paired differences.
+ABLATION_CONTROLLER, BASELINE = "mpc", "paper"
 #: Typography of the Markdown, spelled out (ruff flags these characters in literals).
 DASH, TIMES, MINUS = "\u2013", "\u00d7", "\u2212"
 
 
-# ------------------------------------------------------------------------------------ arithmetic
-def spread(values: Sequence[float]) -> tuple[float, float, float]:
-    """(mean, sample sd with ddof 1 (0 for one value), worst = largest) of ``values``."""
-    if not values:
-        raise ValueError("spread: no values")
-    mean = statistics.fmean(values)
-    sd = statistics.stdev(values) if len(values) > 1 else 0.0
-    return mean, sd, max(values)
+# ------------------------------------------------------------------------------------ run tables
+def sweep_table(data: dict[str, Any]) -> pd.DataFrame:
+    """The run table of a sweep's ``summary.json``."""
+    return table_from_entries(data["runs"])
 
 
-def mean_sd_worst(values: Sequence[float], digits: int = 2) -> str:
-    """``mean ± sd (worst)`` of ``values``, each with ``digits`` decimals."""
-    mean, sd, worst = spread(values)
-    return f"{mean:.{digits}f} ± {sd:.{digits}f} ({worst:.{digits}f})"
+def ablation_table(data: dict[str, Any]) -> pd.DataFrame:
+    """The run table of a friction ablation's report: its variants run by the MPC, ``paper_0.8v``
+    on the paper's variant, each draw's learning as ``learning.*``."""
+    entries = []
+    for draw in data["draws"]:
+        runs = {
+            run_label(BASELINE, name) if name == "paper_0.8v" else run_label(name, ABLATION_CONTROLLER): run
+            for name, run in draw["runs"].items()
+        }
+        entries.append({**draw, "controllers": runs, "runs": None})
+    return table_from_entries(entries)
+
+
+def _cell(stats: pd.Series, metric: str, total: int, digits: int = 2) -> str:
+    """mean ± sd (worst) of a metric's finite values, with how many were finite when some were not."""
+    n = int(stats[(metric, "n")]) if (metric, "n") in stats else 0
+    if not n:
+        return "n/a"
+    text = mean_sd_worst(stats[(metric, "mean")], stats[(metric, "sd")], stats[(metric, "worst")], digits)
+    return text if n == total else f"{text} [{n}/{total}]"
+
+
+def _count(stats: pd.Series, flag: str) -> int:
+    return int(stats[(flag, "count")]) if (flag, "count") in stats and stats[(flag, "n")] else 0
+
+
+def _with_final_flag(table: pd.DataFrame) -> pd.DataFrame:
+    table = table.copy()
+    table["final_within_tol"] = (table["final_error_mm"] <= FINAL_TOL_MM).astype("boolean")
+    return table
 
 
 def _num(value: Any, digits: int = 2) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "n/a"
     return f"{value:.{digits}f}"
-
-
-def _finite(values: Sequence[Any]) -> list[float]:
-    return [float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(float(v))]
-
-
-def _cell(values: Sequence[Any], digits: int = 2) -> str:
-    """mean ± sd (worst) of the finite ``values``, with how many were finite when some were not."""
-    finite = _finite(values)
-    if not finite:
-        return "n/a"
-    text = mean_sd_worst(finite, digits)
-    return text if len(finite) == len(values) else f"{text} [{len(finite)}/{len(values)}]"
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
@@ -115,84 +135,66 @@ def _seeds(seeds: Sequence[int]) -> str:
 def render_sweep(data: dict[str, Any]) -> list[str]:
     """The controller comparison of a ``capsule-mpc sweep`` (its ``summary.json``), per controller
     over the runs: mean ± sd (worst)."""
-    runs = data["runs"]
-    names = sorted({n for r in runs for n in r["controllers"]})
-    names = [n for n in CONTROLLER_ORDER if n in names] + [n for n in names if n not in CONTROLLER_ORDER]
-    n = len(runs)
+    table = _with_final_flag(sweep_table(data))
+    stats = aggregate(table, by=["controller"])
+    present = list(stats.index)
+    others = sorted(n for n in present if n not in CONTROLLER_ORDER)
+    names = [n for n in CONTROLLER_ORDER if n in present] + others
     rows = []
     for name in names:
-        per = [r["controllers"][name] for r in runs if name in r["controllers"]]
-
-        def values(key: str, per: list[dict[str, Any]] = per) -> list[Any]:
-            return [m.get(key) for m in per]
-
-        finals = _finite(values("final_error_mm"))
+        st = stats.loc[name]
+        total = int(st[("runs", "n")] + st[("failed", "n")])
         rows.append(
             [
                 f"`{name}`",
-                _cell(values("tracking_rms_mm")),
-                _cell(values("cross_track_rms_mm")),
-                _cell(values("final_error_mm")),
-                f"{sum(f <= FINAL_TOL_MM for f in finals)}/{len(per)}",
-                f"{sum(bool(m.get('stalled')) for m in per)}/{len(per)}",
-                f"{sum(bool(m.get('decoupled')) for m in per)} / {sum(bool(m.get('dropped')) for m in per)}",
-                _cell(values("epm_jerk_rms_mps3")),
-                _cell(values("paper_std_mm")),
-                f"{sum(bool(m.get('arm_ok')) for m in per)}/{len(per)}",
+                *(_cell(st, m, total) for m in ("tracking_rms_mm", "cross_track_rms_mm", "final_error_mm")),
+                f"{_count(st, 'final_within_tol')}/{total}",
+                f"{_count(st, 'stalled')}/{total}",
+                f"{_count(st, 'decoupled')} / {_count(st, 'dropped')}",
+                _cell(st, "epm_jerk_rms_mps3", total),
+                _cell(st, "paper_std_mm", total),
+                f"{_count(st, 'arm_ok')}/{total}",
             ]
         )
-    seeds = [r["seed"] for r in runs]
+    seeds = [r["seed"] for r in data["runs"]]
     config = data.get("config")
     config = Path(config).name if isinstance(config, str) else "?"
     varied = "".join(
         f"; plant.{f} drawn from U({lo:g}, {hi:g})" for f, (lo, hi) in data.get("vary", {}).items()
     )
     head = [
-        f"{n} plant draws of `{data.get('plant_preset', '?')}` (seeds {_seeds(seeds)}){varied}; the path "
-        f"of `{config}`, {data['path_length_m'] * 1e3:.0f} mm at {data['speed_mps']:g} m/s. Every controller "
-        "runs on each draw, and the runs of a draw are scored on their common window.",
+        f"{len(seeds)} plant draws of `{data.get('plant_preset', '?')}` (seeds {_seeds(seeds)}){varied}; the "
+        f"path of `{config}`, {data['path_length_m'] * 1e3:.0f} mm at {data['speed_mps']:g} m/s. Every "
+        "controller runs on each draw, and the runs of a draw are scored on their common window.",
         "",
     ]
-    return head + _table(
-        [
-            "controller",
-            "tracking RMS (mm)",
-            "cross-track RMS (mm)",
-            "final error (mm)",
-            f"final ≤ {FINAL_TOL_MM:g} mm",
-            "stalled",
-            "decoupled / dropped",
-            "EPM jerk RMS (m/s³)",
-            "paper's STD (mm)",
-            "arm check passed",
-        ],
-        rows,
-    )
+    header = ["controller", "tracking RMS (mm)", "cross-track RMS (mm)", "final error (mm)"]
+    header += [f"final ≤ {FINAL_TOL_MM:g} mm", "stalled", "decoupled / dropped", "EPM jerk RMS (m/s³)"]
+    return head + _table([*header, "paper's STD (mm)", "arm check passed"], rows)
 
 
 def render_ablation(data: dict[str, Any]) -> list[str]:
     """The friction ablation (``benchmarks/friction_ablation.py``), per variant over the draws:
     mean ± sd (worst), and the paired difference to ``paper`` (mean, better on k of n)."""
-    draws = data["draws"]
-    n = len(draws)
-    variants = [v for v in ABLATION_VARIANTS if all(v in d["runs"] for d in draws)]
+    table = _with_final_flag(ablation_table(data))
+    table = table[table["controller"] == ABLATION_CONTROLLER]
+    n = int(table["seed"].nunique())
+    stats = aggregate(table, by=["variant"])
+    variants = [v for v in ABLATION_VARIANTS if v in stats.index and stats.loc[v, ("runs", "n")] == n]
+    diffs = paired(table, {"variant": BASELINE}, list(ABLATION_METRICS), by=["variant"])
     rows = []
     for v in variants:
         cells = [ABLATION_VARIANTS[v]]
         for metric in ABLATION_METRICS:
-            text = _cell([d["runs"][v][metric] for d in draws])
-            if v != "paper" and "paper" in variants:
-                diff = [d["runs"][v][metric] - d["runs"]["paper"][metric] for d in draws]
-                text += f"; {statistics.fmean(diff):+.2f} ({sum(x < 0 for x in diff)})"
+            text = _cell(stats.loc[v], metric, n)
+            if v != BASELINE and BASELINE in variants:
+                d = diffs.loc[v]
+                text += f"; {d[(metric, 'mean')]:+.2f} ({int(d[(metric, 'better')])})"
             cells.append(text)
-        per = [d["runs"][v] for d in draws]
-        cells += [
-            f"{sum(r['final_error_mm'] <= FINAL_TOL_MM for r in per)}/{n}",
-            f"{sum(bool(r['stalled']) for r in per)}/{n}",
-            str(int(sum(r.get("solver_failures") or 0 for r in per))),
-        ]
-        rows.append(cells)
-    seeds = [d["seed"] for d in draws]
+        failures = stats.loc[v, ("solver_failures", "sum")] if ("solver_failures", "sum") in stats else 0
+        cells += [f"{_count(stats.loc[v], 'final_within_tol')}/{n}", f"{_count(stats.loc[v], 'stalled')}/{n}"]
+        rows.append([*cells, str(int(failures))])
+    seeds = [d["seed"] for d in data["draws"]]
     started = data.get("seeds", seeds)
     failed = data.get("draws_failed", [])
     head = [
@@ -203,45 +205,36 @@ def render_ablation(data: dict[str, Any]) -> list[str]:
         "semicolon, the paired difference to the paper's c(v): mean (better on k draws).",
         "",
     ]
-    lines = head + _table(
-        [
-            "friction model",
-            *ABLATION_METRICS.values(),
-            f"final ≤ {FINAL_TOL_MM:g} mm",
-            "stalled",
-            "solver failures",
-        ],
-        rows,
-    )
-    lines += _breakaway_lines(draws)
-    partial = sum(bool(d.get("learning", {}).get("demonstrations_failed")) for d in draws)
+    header = ["friction model", *ABLATION_METRICS.values(), f"final ≤ {FINAL_TOL_MM:g} mm", "stalled"]
+    lines = head + _table([*header, "solver failures"], rows) + _breakaway_lines(data["draws"])
+    partial = sum(bool(d.get("learning", {}).get("demonstrations_failed")) for d in data["draws"])
     if partial:
-        lines += [
-            "",
-            f"On {partial} draws some demonstrations failed; the model was learned from those that ran.",
-        ]
+        what = "some demonstrations failed; the model was learned from those that ran."
+        lines += ["", f"On {partial} draws {what}"]
     return lines
 
 
 def _breakaway_lines(draws: list[dict[str, Any]]) -> list[str]:
     """The learned breakaway coefficient against the plant's at the path's start, after 2 s at rest
     and (where recorded) after the rest the draw's capsule had before its run."""
-    learning = [d["learning"] for d in draws if d.get("learning")]
-    learned = [x for x in learning if x.get("breakaway_mu_learned") is not None]
-    if not learned:
+    learning = pd.DataFrame([d["learning"] for d in draws if d.get("learning")])
+    if "breakaway_mu_learned" not in learning or learning["breakaway_mu_learned"].isna().all():
         return []
+    learned = learning[learning["breakaway_mu_learned"].notna()].copy()
     lines = [""]
     checks = [("after 2 s at rest", "breakaway_mu_learned", "breakaway_mu_plant")]
-    if all("breakaway_mu_plant_start" in x for x in learned):
+    if "breakaway_mu_plant_start" in learned and learned["breakaway_mu_plant_start"].notna().all():
         checks.append(
             ("after the rest before the draw's run", "breakaway_mu_learned_start", "breakaway_mu_plant_start")
         )
     for when, mine, plant in checks:
-        rel = [abs(x[mine] / x[plant] - 1) for x in learned]
+        errors = pd.DataFrame({"check": when, "error_pct": 100 * (learned[mine] / learned[plant] - 1).abs()})
+        errors["within"] = (errors["error_pct"] <= 10).astype("boolean")
+        st = aggregate(errors, by=["check"]).loc[when]
+        text = mean_sd_worst(*(st[("error_pct", k)] for k in ("mean", "sd", "worst")), 1)
         lines.append(
             f"Learned breakaway friction {when}, against the plant's at the path's start: within 10 % "
-            f"on {sum(r <= 0.1 for r in rel)} of {len(rel)} draws; |relative error| "
-            f"{mean_sd_worst([100 * r for r in rel], 1)} %."
+            f"on {_count(st, 'within')} of {len(errors)} draws; |relative error| {text} %."
         )
     if len(learned) < len(learning):
         lines.append(f"No static friction was learned on {len(learning) - len(learned)} draws.")
@@ -523,12 +516,23 @@ def render_learning(data: dict[str, Any]) -> list[str]:
     return lines
 
 
+def fault_table(data: dict[str, Any]) -> pd.DataFrame:
+    """The run table of a fault campaign's report: each seed with and without faults."""
+    rows = []
+    for run in data["per_run"]:
+        for variant, suffix in (("faults", ""), ("no faults", "_no_faults")):
+            metrics = {m: run[m + suffix] for m in ("tracking_rms_mm", "final_error_mm")}
+            rows.append({"seed": run["seed"], "variant": variant, "controller": "mpc", **metrics})
+    return pd.DataFrame(rows)
+
+
 def render_faults(data: dict[str, Any]) -> list[str]:
     """Solver-fault campaign (``benchmarks/fault_campaign.py``)."""
     checks = data["command_checks"]
     kinds = data["solver_faults_by_kind"]
     twin = data["recovery_vs_fault_free_s"]["all"]
-    per_run = data["per_run"]
+    stats = aggregate(fault_table(data), by=["variant"])
+    n = len(data["per_run"])
     return [
         f"{data['solver_faults_injected']} solver faults injected ("
         + ", ".join(f"{v} {k.replace('solver_', '').replace('_', ' ')}" for k, v in kinds.items())
@@ -544,16 +548,11 @@ def render_faults(data: dict[str, Any]) -> list[str]:
         *_table(
             ["", "with faults", "same seeds without faults"],
             [
-                [
-                    "tracking RMS (mm)",
-                    _cell([r["tracking_rms_mm"] for r in per_run]),
-                    _cell([r["tracking_rms_mm_no_faults"] for r in per_run]),
-                ],
-                [
-                    "final error (mm)",
-                    _cell([r["final_error_mm"] for r in per_run]),
-                    _cell([r["final_error_mm_no_faults"] for r in per_run]),
-                ],
+                [label, _cell(stats.loc["faults"], m, n), _cell(stats.loc["no faults"], m, n)]
+                for label, m in (
+                    ("tracking RMS (mm)", "tracking_rms_mm"),
+                    ("final error (mm)", "final_error_mm"),
+                )
             ],
         ),
         "",
@@ -674,289 +673,6 @@ def render_nodes(data: dict[str, Any]) -> list[str]:
     return lines
 
 
-# ---------------------------------------------------------------------------------------- layout
-#: Sections in the order they appear: (key in sources.json, title, renderer, what it measures).
-SECTIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], list[str]], str], ...] = (
-    (
-        "controllers_rectangle_lab",
-        "Controllers on the rectangle (`lab` plant)",
-        render_sweep,
-        f"The 100 {TIMES} 60 mm rectangle at 0.02 m/s with the UR5 in the loop (`sim.actuator: robot`). "
-        f"Tracking = |p(t) {MINUS} ref(t)| against the time-parameterised reference; cross-track = distance "
-        "to the path; final = distance to the last waypoint once at rest; stalled = came to rest "
-        "farther than `sim.completion_tol_m` from the end; arm check = the joint commands of the run "
-        "passed the checks of an arm export (`arm_ok`).",
-    ),
-    (
-        "controllers_pipe_0.005",
-        "Controllers on the pipe at 0.005 m/s (`lab` plant)",
-        render_sweep,
-        "The pipe-like centreline with three bends (`configs/pipe.yaml`), the UR5 in the loop, at the "
-        "slowest speed of the paper's range; metrics as above.",
-    ),
-    (
-        "controllers_pipe_0.02",
-        "Controllers on the pipe at 0.02 m/s (`lab` plant)",
-        render_sweep,
-        "The same pipe at the paper's operating speed.",
-    ),
-    (
-        "controllers_pipe_0.045",
-        "Controllers on the pipe at 0.045 m/s (`lab` plant)",
-        render_sweep,
-        "The same pipe at 0.045 m/s, where the bends ask the most of the arm.",
-    ),
-    (
-        "controllers_rectangle_jerk10",
-        "Jerk limit 10 m/s³ (rectangle, `lab`)",
-        render_sweep,
-        "The rectangle with the EPM jerk limit `limits.jerk_mps3` doubled from 5 to 10 m/s³ "
-        "(`benchmarks/configs/rectangle_jerk10.yaml`); same draws as the rectangle's table above, so "
-        "the two tables compare draw for draw.",
-    ),
-    (
-        "controllers_rectangle_jerk20",
-        "Jerk limit 20 m/s³ (rectangle, `lab`)",
-        render_sweep,
-        "The rectangle with the EPM jerk limit at 20 m/s³ (`benchmarks/configs/rectangle_jerk20.yaml`).",
-    ),
-    (
-        "controllers_rectangle_arm125hz",
-        "Arm at 125 Hz (rectangle, `lab`)",
-        render_sweep,
-        "The rectangle with the arm's setpoints streamed at 125 Hz, a CB3 UR5's RTDE rate (the default "
-        "is an e-Series' 500 Hz; `benchmarks/configs/rectangle_arm125hz.yaml`).",
-    ),
-    (
-        "controllers_rectangle_100hz",
-        "Localisation at 100 Hz (rectangle, `lab`)",
-        render_sweep,
-        "The rectangle with the capsule measured at 100 Hz with one frame of latency, as magnetic "
-        "localisation gives it (`configs/rectangle_100hz.yaml`: the MPC plans 21 stages, the first one "
-        "frame long, the others 20 ms).",
-    ),
-    (
-        "controllers_friction_step",
-        "A friction step (rectangle, `lab`)",
-        render_sweep,
-        "The rectangle with the plate's friction 50 % higher for x ≥ 0 (a raised-cosine edge 3 mm "
-        "wide), which only the plant knows: the controller must find the change from the "
-        "measurements (`configs/friction_step.yaml`).",
-    ),
-    (
-        "friction_ablation_lab",
-        "What the friction model is worth (`lab`)",
-        render_ablation,
-        "The MPC on the same plant draws with no friction model, the paper's c(v), the model learned "
-        "on each draw (demonstrations and breakaway experiments on that draw, then `learn-friction`), "
-        "learned + online (`mpc.adaptation.mode: rls` with the disturbance estimator as a "
-        "residual) and the plant's own friction (an oracle no real rig gives). The controller uses "
-        "the finite-magnet force map (`force_model: lookup`); the arm is in the loop.",
-    ),
-    (
-        "friction_ablation_hard",
-        "What the friction model is worth (`hard`)",
-        render_ablation,
-        "The same ablation on the `hard` preset: wider spreads of friction, drag and its growth, and "
-        "larger magnet and camera errors.",
-    ),
-    (
-        "friction_ablation_hard100",
-        "Stalls on 100 `hard` draws: the paper's c(v) against the learned model",
-        render_ablation,
-        "The `hard` ablation's paper and learned variants on 100 draws: the 38 draws above and 62 more "
-        "(seeds 38-99) run later with the same code for these two variants, merged with "
-        "`friction_ablation.py --merge`.",
-    ),
-    (
-        "breakaway_lab",
-        "The learned breakaway against the plant's (`lab`)",
-        render_breakaway,
-        "On each draw, `capsule-mpc demonstrate` (the follow runs and the breakaway experiments at the "
-        "path's start) and `capsule-mpc learn-friction`; the learned breakaway coefficient "
-        "μ_s(T) against the plant's own at the path's start, its friction field included "
-        "([friction.md](friction.md)). No controller runs.",
-    ),
-    (
-        "breakaway_hard",
-        "The learned breakaway against the plant's (`hard`)",
-        render_breakaway,
-        "The same on the `hard` preset: larger magnet and camera errors, a friction field of 15-30 %, "
-        "and rigs whose static friction is barely above their sliding friction, where the capsule "
-        "creeps off rather than slips.",
-    ),
-    (
-        "friction_options_lab",
-        "Static friction in the controller beyond the approach (`lab`)",
-        render_ablation,
-        "The learned model with the two optional uses of its breakaway: static friction in the MPC's "
-        "prediction of a resting capsule (`mpc.stick_prediction`) and the start's pre-load to 0.9 of "
-        "the believed breakaway (`mpc.start_preload: 0.9`); see [friction.md](friction.md).",
-    ),
-    (
-        "start_preload_lab",
-        "The start's pre-load (`lab`)",
-        render_ablation,
-        "The MPC with and without the start's pre-load (`mpc.start_preload: 1`, arriving at 0.9 of the "
-        "fastest speed the limits reach, `mpc.start_preload_arrival`), with the paper's c(v), whose "
-        "believed breakaway is μ0 F_N + f_s, and with the model learned on the draw, whose breakaway "
-        "is learned; see [friction.md](friction.md). Force map `lookup`, the arm in the loop.",
-    ),
-    (
-        "start_preload_hard",
-        "The start's pre-load (`hard`)",
-        render_ablation,
-        "The same on the `hard` preset.",
-    ),
-    (
-        "start_preload_rectangle_dipole",
-        "The start's pre-load with the point dipole (rectangle, `lab`)",
-        render_ablation,
-        "The paper's c(v) with and without the start's pre-load in the default controller "
-        "(`configs/rectangle.yaml`: the point-dipole force model), the arm in the loop. The MPC's own "
-        "start from rest is already closer with the dipole than with the force map (the first 1.5 s "
-        "of the paper's c(v) here against the section on the `lab` pre-load, draws 0-19 of the same "
-        "rigs), so the pre-load has less to gain.",
-    ),
-    (
-        "start_preload_pipe_dipole",
-        "The start's pre-load with the point dipole (pipe at 0.02 m/s, `lab`)",
-        render_ablation,
-        "The same on the pipe's centreline (`configs/pipe.yaml`).",
-    ),
-    (
-        "sharp_friction_lab",
-        "The learned friction held up closer to rest (`lab`)",
-        render_ablation,
-        "The learned model with the MPC's friction smoothed over 2 mm/s instead of 5 "
-        "(`mpc.friction_smoothing_eps_mps: 0.002`): its friction force then falls off only close to "
-        "rest, so the MPC keeps pushing a capsule that slows down near the end instead of expecting "
-        "it to coast; see [friction.md](friction.md). Force map `lookup`, the arm in the loop.",
-    ),
-    (
-        "sharp_friction_hard",
-        "The learned friction held up closer to rest (`hard`)",
-        render_ablation,
-        "The same on the `hard` preset.",
-    ),
-    (
-        "sharp_preload_lab",
-        "The learned friction with the start's pre-load and held up closer to rest (`lab`)",
-        render_ablation,
-        "Both options with the learned model (`mpc.start_preload: 1`, "
-        "`mpc.friction_smoothing_eps_mps: 0.002`) against the default controller with the paper's "
-        "c(v), on the same `lab` draws as the section on the held-up friction.",
-    ),
-    (
-        "final_stop_lab",
-        "The final stop planned with the friction held up closer to rest (`lab`)",
-        render_ablation,
-        "The MPC's friction smoothed over 2 mm/s only once its horizon reaches the path's end "
-        "(`mpc.final_friction_smoothing_eps_mps: 0.002`, a second solver; the run's solver keeps "
-        "5 mm/s): the final stop is planned for a capsule that sticks rather than coasts, while the "
-        "path in between keeps the smoothing the real-time steps need; see [friction.md](friction.md). "
-        "With the paper's c(v) it does harm (the capsule overshoots the end: 1.6-1.9 mm past it on "
-        "the five draws it harms most, traced); with the learned model it pays. Force map `lookup`, "
-        "the arm in the loop.",
-    ),
-    (
-        "final_stop_lab_new_draws",
-        "The final stop and the pre-load on new `lab` draws",
-        render_ablation,
-        "The combination of the section above on 30 `lab` draws none of the earlier sections ran "
-        "(seeds 50-79; the option's ε was chosen on draws 0-19), each with friction learned on it.",
-    ),
-    (
-        "final_stop_hard",
-        "The final stop planned with the friction held up closer to rest (`hard`)",
-        render_ablation,
-        "The same on the `hard` preset (the paper's c(v) without the option). Here the option ends "
-        "closer on as many draws as it ends farther and stalls more: a stick-slip lurch near the end "
-        "can carry the capsule past it, and it sticks there (traced on draw 39: 4.5 mm past the end, "
-        "where the wider smoothing's capsule still crept and was pulled back).",
-    ),
-    (
-        "oracle_options_lab",
-        "The plant's own friction with the same options (`lab`)",
-        render_ablation,
-        "The learned model with the pre-load and the final stop against the plant's own friction "
-        "(an oracle no real rig gives: its steady law and breakaway at the path's start) with the "
-        "same two options: what a perfect friction model would add to this controller on these rigs.",
-    ),
-    (
-        "oracle_options_hard",
-        "The plant's own friction with the pre-load (`hard`)",
-        render_ablation,
-        "The plant's own friction, alone and with the start's pre-load, against the paper's c(v) on "
-        "the `hard` preset (the final stop stays off: it does not pay on these rigs, section above). "
-        "The learned model's figures on the same draws are in the section on the start's pre-load "
-        "(`hard`).",
-    ),
-    (
-        "dipole_vs_finite",
-        "Point dipole against finite magnets",
-        render_dipole,
-        "How far the controller's default force model is from the plant's ([physics.md](physics.md)).",
-    ),
-    (
-        "mpc_bench",
-        "MPC step time",
-        render_mpc_bench,
-        "Build and start-up times and the per-frame step of the MPC on the rectangle. Step times "
-        "depend on the machine and on what else runs on it (the load average is given); on a shared "
-        "virtual machine they drift between runs of the same benchmark, so the spread of the repeats "
-        "is shown beside the median run.",
-    ),
-    (
-        "sim_speed",
-        "Simulator speed",
-        render_sim_speed,
-        "How many times faster than real time a closed-loop run is: the 1 kHz plant with the UR5 in the "
-        "loop (the default actuator), the `follow` baseline as the controller.",
-    ),
-    (
-        "nodes_latency",
-        "The loop over nodes",
-        render_nodes,
-        "The rig node and the controller node as two processes on this machine over Zenoh on the "
-        "loopback ([nodes.md](nodes.md)): the transport's latency, and the MPC over nodes against the "
-        "in-process loop on the same seeds. Wall-clock figures: they depend on the machine's load.",
-    ),
-    (
-        "planner_bench",
-        "Offline planner",
-        render_planner,
-        "Multiple shooting with IPOPT on the controller's model, fixed time and minimum time.",
-    ),
-    (
-        "arm_bench",
-        "Arm: Ruckig and inverse kinematics",
-        render_arm,
-        "Wall time and accuracy of the arm chain over 30 s of motion.",
-    ),
-    (
-        "learning_bench",
-        "Friction learning",
-        render_learning,
-        "Fitting time, recovery of a known c(v) from noisy samples, and c(v) learned end to end from "
-        "simulated demonstrations.",
-    ),
-    (
-        "fault_campaign",
-        "Injected solver faults",
-        render_faults,
-        "Solver failures, NaN solutions and late solves injected into the MPC; every command sent "
-        "checked against the limits from the logs.",
-    ),
-    (
-        "hpipm_mu0",
-        "HPIPM's initial barrier parameter",
-        render_hpipm,
-        "Interior-point iterations and accuracy of the QP at several starting barrier parameters.",
-    ),
-)
-
-
 def _provenance(entry: dict[str, Any], data: dict[str, Any], data_dir: Path) -> list[str]:
     """The command, date, machine and load of a section's data.
 
@@ -989,10 +705,33 @@ def _provenance(entry: dict[str, Any], data: dict[str, Any], data_dir: Path) -> 
     return lines
 
 
+#: The renderers a section of the template names.
+RENDERERS: dict[str, Callable[[dict[str, Any]], list[str]]] = {
+    name.removeprefix("render_"): fn for name, fn in globals().items() if name.startswith("render_")
+}
+
+
+def read_template(data_dir: Path) -> tuple[str, list[tuple[str, str, str, str]]]:
+    """The template's opening text and its sections: (key, renderer, title, text)."""
+    text = (data_dir / TEMPLATE).read_text(encoding="utf-8")
+    text = text[text.index("-->") + 3 :] if text.startswith("<!--") else text
+    opening, *blocks = text.split("\n## ")
+    sections = []
+    for block in blocks:
+        heading, _, prose = block.partition("\n")
+        key, renderer, title = (part.strip() for part in heading.split("|", 2))
+        if renderer not in RENDERERS:
+            known = sorted(RENDERERS)
+            raise ValueError(f"{TEMPLATE}: section {key}: no renderer {renderer!r}; one of {known}")
+        sections.append((key, renderer, title, prose.strip()))
+    return opening.strip(), sections
+
+
 def render(data_dir: Path) -> str:
-    """docs/results.md from the JSON in ``data_dir`` (its ``sources.json`` and the files it lists)."""
+    """docs/results.md from the files in ``data_dir`` (its ``sources.json``, template and data)."""
     sources = json.loads((data_dir / SOURCES).read_text(encoding="utf-8"))["sections"]
-    unknown = set(sources) - {key for key, *_ in SECTIONS}
+    opening, sections = read_template(data_dir)
+    unknown = set(sources) - {key for key, *_ in sections}
     if unknown:
         raise ValueError(f"{SOURCES}: sections without a renderer: {sorted(unknown)}")
     out = [
@@ -1000,20 +739,16 @@ def render(data_dir: Path) -> str:
         "",
         f"<!-- Generated by `{COMMAND}` from docs/results/*.json; do not edit by hand. -->",
         "",
-        f"This file is generated by `{COMMAND}` from the JSON files in `docs/results/`; edit those "
-        "(or the script), not this file. Every section gives the command that wrote its data, the "
-        "date, the machine and the load it ran under. Tables over plant draws give mean ± sd (worst): "
-        "the sample standard deviation and the worst draw. The runs are deterministic for a seed; only "
-        "wall-clock figures (step and solve times, real-time factors) depend on the machine and its "
-        "load. The physics behind the simulated rig is in [physics.md](physics.md).",
+        opening,
         "",
     ]
-    present = [s for s in SECTIONS if s[0] in sources]
-    out += [f"- [{title}](#{_anchor(title)})" for _, title, _, _ in present]
-    for key, title, renderer, what in present:
+    present = [s for s in sections if s[0] in sources]
+    out += [f"- [{title}](#{_anchor(title)})" for _, _, title, _ in present]
+    for key, renderer, title, what in present:
         entry = sources[key]
         data = json.loads((data_dir / entry["file"]).read_text(encoding="utf-8"))
-        out += ["", f"## {title}", "", what, "", *renderer(data), "", *_provenance(entry, data, data_dir)]
+        rendered = RENDERERS[renderer](data)
+        out += ["", f"## {title}", "", what, "", *rendered, "", *_provenance(entry, data, data_dir)]
     return "\n".join(out) + "\n"
 
 

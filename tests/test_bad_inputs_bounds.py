@@ -42,8 +42,8 @@ def _refuse(name: str):
 WORK = [
     ("capsule_mpc.experiments.runs", "force_map"),
     ("capsule_mpc.experiments.demo", "force_map"),
-    ("capsule_mpc.experiments.compare", "simulate"),
-    ("capsule_mpc.experiments.compare", "cached_plan"),
+    ("capsule_mpc.experiments.sweep.tasks", "simulate"),
+    ("capsule_mpc.experiments.sweep.tasks", "cached_plan"),
     ("capsule_mpc.magnetics", "force_map"),
     ("capsule_mpc.experiments.runs", "check_epm_height"),
     ("capsule_mpc.experiments.runs", "simulate"),
@@ -75,6 +75,7 @@ PREIMPORT = [
     "capsule_mpc.experiments.runs",
     "capsule_mpc.experiments.demo",
     "capsule_mpc.experiments.compare",
+    "capsule_mpc.experiments.sweep.tasks",
     "capsule_mpc.experiments.demonstrate",
     "capsule_mpc.experiments.plan",
     "capsule_mpc.experiments.arm_export",

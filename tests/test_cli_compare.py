@@ -13,9 +13,10 @@ from mcap.reader import make_reader
 from capsule_mpc.cli import main
 from capsule_mpc.config import load_config
 from capsule_mpc.experiments.compare import RUNS_FOLDER, aggregate_runs, compare_controllers, summary_table
+from capsule_mpc.experiments.sweep.tasks import SeedTask, run_seed
+from capsule_mpc.experiments.table import read_table
 from capsule_mpc.metrics import run_metrics
 from capsule_mpc.paths import ReferencePath
-from capsule_mpc.planner import PlannerOptions
 from capsule_mpc.sim import read_log
 
 
@@ -163,21 +164,37 @@ def rectangle_config():
 SHORT = ReferencePath(np.array([[0.0, 0.0], [0.02, 0.0], [0.02, 0.015]]), False, 0.02)
 
 
-def test_several_seeds_are_scored_on_a_common_window(tmp_path, table, rectangle_config, monkeypatch):
-    import capsule_mpc.sim as sim
+def flaky_paper_on_seed_4(task: SeedTask) -> dict:
+    """A draw whose paper_0.8v run raises on seed 4 (in the worker that runs it)."""
+    import capsule_mpc.experiments.sweep.tasks as tasks
 
-    real = sim.simulate
+    real = tasks.simulate
 
     def flaky(scenario, name, path, seed, **kw):
         if name == "paper_0.8v" and seed == 4:
             raise RuntimeError("boom")
         return real(scenario, name, path, seed, **kw)
 
-    monkeypatch.setattr("capsule_mpc.experiments.compare.simulate", flaky)
+    tasks.simulate = flaky
+    try:
+        return run_seed(task)
+    finally:
+        tasks.simulate = real
+
+
+def test_several_seeds_are_scored_on_a_common_window(tmp_path, table, rectangle_config):
     scenario = load_config(rectangle_config)
     out = tmp_path / "cmp"
     summary = compare_controllers(
-        scenario, SHORT, out, 3, controllers=["follow", "paper_0.8v"], progress=False, runs=2
+        scenario,
+        SHORT,
+        out,
+        3,
+        controllers=["follow", "paper_0.8v"],
+        progress=False,
+        runs=2,
+        workers=2,
+        task=flaky_paper_on_seed_4,
     )
     assert summary["runs_requested"] == 2 and summary["seeds"] == [3, 4]
     assert [r["seed"] for r in summary["runs"]] == [3, 4]
@@ -201,7 +218,8 @@ def test_several_seeds_are_scored_on_a_common_window(tmp_path, table, rectangle_
             )
             assert entries[name]["tracking_rms_mm"] == pytest.approx(again["tracking_rms_mm"])
             run_json = json.loads((dirs[name] / "run.json").read_text())
-            # The path's metrics stop at the path's nominal end (the end at rest is scored apart).
+            assert run_json["metrics"]["motion_end_s"] == pytest.approx(window)
+            # the path's metrics cover the path: the common window, no longer than its nominal time
             assert run_json["metrics"]["window_end_s"] == pytest.approx(min(window, SHORT.duration_s))
             assert "decoupled" in entries[name]  # the runner's flags are kept
             assert _mcap_frames(dirs[name] / "run.mcap") == len(log["t_s"])  # its MCAP log, a message a frame
@@ -235,29 +253,39 @@ def test_cli_runs_two_seeds(tmp_path, table, rectangle_config, capsys):
     assert summary["seed"] == 3 and summary["seeds"] == [3, 4]
 
 
-def test_a_failed_planner_is_a_failed_row_not_a_result(
-    tmp_path, table, rectangle_config, capsys, monkeypatch
-):
-    """The plan controller whose solve fails has no metrics, says why, exit 1."""
+def planner_stops_after_2_iterations(task: SeedTask) -> dict:
+    """A draw whose planner gives up after 2 iterations (in the worker that runs it)."""
     import capsule_mpc.planner.core as core
 
-    monkeypatch.setattr(core, "PlannerOptions", lambda: PlannerOptions(max_iter=2))
-    short = tmp_path / "short.csv"
-    short.write_text("x_m,y_m\n0.0,0.0\n0.02,0.0\n0.02,0.015\n")
+    real = core.PlannerOptions
+    core.PlannerOptions = lambda: real(max_iter=2)
+    try:
+        return run_seed(task)
+    finally:
+        core.PlannerOptions = real
+
+
+def test_a_failed_planner_is_a_failed_row_not_a_result(tmp_path, table, rectangle_config):
+    """The plan controller whose solve fails has no metrics, says why, in a row of its own."""
     out = tmp_path / "cmp"
-    args = ["compare", "--config", str(rectangle_config), "--out", str(out), "--waypoints", str(short)]
-    assert main([*args, "--controllers", "follow", "plan", "--no-progress"]) == 1
-    captured = capsys.readouterr()
+    summary = compare_controllers(
+        load_config(rectangle_config),
+        SHORT,
+        out,
+        0,
+        controllers=["follow", "plan"],
+        progress=False,
+        workers=1,
+        task=planner_stops_after_2_iterations,
+    )
     why = "did not converge: IPOPT returned Maximum_Iterations_Exceeded after 2 iterations"
-    row = next(line for line in captured.out.splitlines() if line.startswith("| plan |"))
+    row = next(line for line in (out / "summary.md").read_text().splitlines() if line.startswith("| plan |"))
     assert (
         row.startswith("| plan | failed: PlanError: plan controller: no plan to replay: the fixed plan")
         and why in row
     )
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[0] == "plan" and why in cells[1] and cells[2:] == [""] * (len(cells) - 2)  # no numbers
-    assert "controller 'plan' failed (seed" in captured.err and why in captured.err
-    summary = json.loads((out / "summary.json").read_text())
     plan, follow = summary["controllers"]["plan"], summary["controllers"]["follow"]
     assert (
         plan["status"] == "failed" and why in plan["error"] and (plan["n_runs"], plan["n_failed"]) == (0, 1)
@@ -265,11 +293,9 @@ def test_a_failed_planner_is_a_failed_row_not_a_result(
     assert not {"tracking_rms_mm", "final_error_mm", "solver_failures"} & set(plan)
     assert set(summary["runs"][0]["controllers"]["plan"]) == {"error", "traceback"}
     assert follow["status"] == "ok" and follow["tracking_rms_mm"] > 0
-    md_row = next(
-        line for line in (out / "summary.md").read_text().splitlines() if line.startswith("| plan |")
-    )
-    assert md_row == row
     assert not (out / "plan").exists() and (out / "follow" / "log.csv").exists()
+    rows = read_table(out / "runs.csv")  # the failed run is a row too, with its error
+    assert list(rows["controller"]) == ["follow", "plan"] and why in rows["error"].iloc[1]
 
 
 def test_compare_into_a_folder_another_command_writes_is_refused(tmp_path, capsys):

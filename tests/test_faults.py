@@ -273,7 +273,7 @@ def test_fault_counts_reach_the_summary_of_compare_and_sweep(tmp_path, command, 
     import capsule_mpc.experiments.sweep.campaign as campaign
 
     # the sweep's 12 figures are not the subject (test_sweep.py checks them)
-    monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed: [])
+    monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed, **kw: [])
     config = tmp_path / "c.yaml"
     config.write_text(
         "base: paper\nsim:\n  settle_s: 0.2\n  tail_s: 1.0\n"

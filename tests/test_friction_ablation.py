@@ -1,4 +1,5 @@
-"""benchmarks/friction_ablation.py: a campaign run in parts merges into one report."""
+"""benchmarks/friction_ablation.py: a campaign run in parts merges into one report; the variants are
+scenario overrides resolved per draw."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import json
 from pathlib import Path
 
 import pytest
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -51,22 +53,18 @@ def _report(path: Path, seeds: list[int], variants: list[str], plant: str = "har
 def test_parts_merge_into_one_report(ablation, tmp_path):
     a = _report(tmp_path / "a.json", [0, 1], ["paper", "learned", "oracle"])
     b = _report(tmp_path / "b.json", [1, 2, 3], ["paper", "learned"])
-    merged = ablation.merge_reports([a, b], 0.5)
+    merged = ablation.merge_reports([a, b])
     assert [d["seed"] for d in merged["draws"]] == [0, 1, 2, 3]  # seed 1 once
     assert merged["variants"] == ["paper", "learned"]  # what every draw ran
     assert merged["parts"] == ["part 0", "part 1"] and merged["seconds"] == 20.0
     assert [f["seed"] for f in merged["draws_failed"]] == [9]  # seed 1 ran in a part
-    s = merged["summary"]
-    assert s["paper"]["stalled"] == 2 and s["learned"]["stalled"] == 2  # seeds 0 and 2
-    assert s["learned"]["vs_paper"]["tracking_rms_mm"]["better"] == 0
-    assert s["paper"]["tracking_rms_mm"]["worst"] == pytest.approx(4.0)
 
 
 def test_parts_of_other_plants_are_refused(ablation, tmp_path):
     a = _report(tmp_path / "a.json", [0], ["paper"])
     b = _report(tmp_path / "b.json", [1], ["paper"], plant="lab")
     with pytest.raises(SystemExit, match="plant"):
-        ablation.merge_reports([a, b], 0.5)
+        ablation.merge_reports([a, b])
 
 
 def _learning(learned: float, plant: float, start_learned: float, start_plant: float) -> dict:
@@ -78,49 +76,60 @@ def _learning(learned: float, plant: float, start_learned: float, start_plant: f
     }
 
 
-def test_learn_only_parts_merge_into_the_breakaway_check(ablation, tmp_path):
-    parts = []
-    for name, seeds, learning in (
-        ("a", [0, 1], [_learning(0.20, 0.21, 0.2, 0.21), _learning(0.30, 0.25, 0.3, 0.28)]),
-        ("b", [2], [_learning(None, 0.25, None, 0.25)]),  # no static part learned
-    ):
-        draws = [{"seed": s, "runs": {}, "learning": ln} for s, ln in zip(seeds, learning)]
-        data = {"command": name, "config": "c.yaml", "plant": "lab", "seeds": seeds, "draws": draws}
-        parts.append(tmp_path / f"{name}.json")
-        parts[-1].write_text(json.dumps({**data, "seconds": 1.0, "machine": {}}))
-    merged = ablation.merge_reports(parts, 0.5)
-    s = merged["summary"]
-    assert merged["variants"] == []
-    assert s["breakaway"]["n"] == 2 and s["breakaway"]["within_10pct"] == 1  # 0.30 / 0.25 is +20 %
-    assert s["breakaway_start_rest"]["within_10pct"] == 2  # 0.3 / 0.28 is +7 %
-    assert s["learning_failed"] == 1
+def _scenario(ablation, name, base, model_file, **options):
+    """The controller's scenario of variant ``name`` on draw 0 of ``base``."""
+    import argparse
+
+    from capsule_mpc.experiments.sweep.tasks import variant_scenario
+    from capsule_mpc.paths import path_from_scenario
+    from capsule_mpc.sim import draw_plant_truth
+
+    args = argparse.Namespace(preload=1.0)
+    vars(args).update(options)
+    v = ablation.variant(name, base, str(model_file), args)
+    return variant_scenario(base, v, draw_plant_truth(base, 0), path_from_scenario(base))
 
 
-def test_the_approach_fraction_goes_to_the_variants_with_the_draws_static_friction(ablation):
-    from capsule_mpc.config import LearnedFrictionModel, load_config
+@pytest.fixture
+def learned(tmp_path):
+    """A learned model in the draws' file (``{seed}`` for the seed); the model and the file."""
+    from capsule_mpc.config import LearnedFrictionModel
 
-    base = load_config(REPO / "configs" / "rectangle_lookup.yaml")
     model = LearnedFrictionModel(
         coefficients=[0.03], validity_mps=(0.005, 0.04), static_mu_1s=0.25, static_healing=0.01,
         force_model="lookup",
     )  # fmt: skip
-    for variant in ("paper", "none", "learned", "oracle"):
-        scenario = ablation.variant_scenario(base, variant, model, model)
-        assert scenario.place == base.place, variant
-    preload = ablation.variant_scenario(base, "learned+preload", model, model)
-    assert preload.break_loose.preload is not None
+    (tmp_path / "lab_0").mkdir()
+    (tmp_path / "lab_0" / "model.yaml").write_text(yaml.safe_dump(model.model_dump(mode="json")))
+    return model, tmp_path / "lab_{seed}" / "model.yaml"
 
 
-def test_variant_suffixes_combine(ablation):
-    from capsule_mpc.config import LearnedFrictionModel, load_config
+def test_the_variants_leave_the_placement_alone_and_preload_sets_the_break_loose(ablation, learned):
+    from capsule_mpc.config import load_config
 
     base = load_config(REPO / "configs" / "rectangle_lookup.yaml")
-    model = LearnedFrictionModel(coefficients=[0.03], validity_mps=(0.005, 0.04), force_model="lookup")
-    plain = ablation.variant_scenario(base, "learned", model, model)
-    both = ablation.variant_scenario(base, "learned+preload+sharp", model, model, preload=0.8)
+    for variant in ("paper", "none", "learned", "oracle"):
+        scenario = _scenario(ablation, variant, base, learned[1])
+        assert scenario.place == base.place, variant
+    preload = _scenario(ablation, "learned+preload", base, learned[1])
+    assert preload.break_loose.preload is not None
+    assert preload.friction.learned == learned[0]  # the draw's file, read for seed 0
+
+
+def test_variant_suffixes_combine(ablation, learned):
+    from capsule_mpc.config import load_config
+
+    base = load_config(REPO / "configs" / "rectangle_lookup.yaml")
+    plain = _scenario(ablation, "learned", base, learned[1])
+    both = _scenario(ablation, "learned+preload+sharp", base, learned[1], preload=0.8)
     assert plain.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
     assert plain.break_loose.preload is None
     assert both.mpc.friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
     assert both.break_loose.preload == 0.8
-    assert both.friction.learned == model
+    assert both.friction.learned == learned[0]
     assert "learned+preload+sharp" in ablation.VARIANTS and "learned+sharp+preload" not in ablation.VARIANTS
+    none = _scenario(ablation, "none", base, learned[1])
+    assert none.friction.learned.mu0 == 0.0 and none.friction.learned.tether_drag_n == 0.0
+    oracle = _scenario(ablation, "oracle", base, learned[1])
+    assert oracle.friction.learned.mu0 > 0  # the draw's own friction
+    assert ablation.variant("paper", base, "", None).controllers == ("paper_0.8v", "mpc")

@@ -429,6 +429,52 @@ def test_a_sweep_stopped_by_a_signal_exits_128_plus_n_and_leaves_no_process(tmp_
     assert _alive(children) == [], [p.pid for p in _alive(children)]
 
 
+@pytest.mark.slow
+def test_a_compare_stopped_while_its_workers_run_keeps_their_runs_logs(tmp_path):
+    """``compare --runs 2 --workers 2``: the seeds run in a LocalCluster's workers; a signal to the
+    command closes the cluster, and each run in progress keeps its log so far and a finalised MCAP,
+    listed in the manifest."""
+    from mcap.reader import make_reader
+
+    out = tmp_path / "cmp"
+    args = ["compare", "--config", str(QUICK), "--plant", "ideal", "--controllers", "follow", "paper_0.8v"]
+    args += ["--runs", "2", "--workers", "2", "--no-progress", "--out", str(out)]
+    env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))
+    code = "import sys; from capsule_mpc.cli import main; sys.exit(main())"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, *args],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        deadline = time.monotonic() + 4 * START_TIMEOUT_S
+        while not any((out / "runs").glob("seed_*/*/.run.tmp*.mcap")):  # a run is logging
+            assert proc.poll() is None, proc.stderr.read().decode()[-2000:]  # type: ignore[union-attr]
+            assert time.monotonic() < deadline, "no run started"
+            time.sleep(0.05)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGTERM)
+        status = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = proc.stderr.read().decode()  # type: ignore[union-attr]
+    assert status == 143, err
+    manifest = read_manifest(out)
+    assert manifest["status"] == "interrupted"
+    stopped = [d for d in (out / "runs").glob("seed_*/*") if not (d / "run.json").exists()]
+    assert stopped, "no run was in progress"
+    for run in stopped:
+        rel = run.relative_to(out).as_posix()
+        assert sorted(p.name for p in run.iterdir()) == ["config.yaml", "log.csv", "run.mcap"]
+        assert {f"{rel}/{f}" for f in ("config.yaml", "log.csv", "run.mcap")} <= set(manifest["files"])
+        with (run / "run.mcap").open("rb") as fh:
+            assert make_reader(fh).get_summary() is not None
+    assert not list(out.rglob(".run.tmp*"))
+
+
 def test_version_prints_the_installed_package_version(capsys):
     from importlib.metadata import version
 

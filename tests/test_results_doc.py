@@ -34,10 +34,11 @@ def test_generator_is_deterministic(results_doc):
     assert results_doc.render(data) == results_doc.render(data)
 
 
-def test_mean_sd_worst_arithmetic(results_doc):
-    # mean 2, sample sd 1 (ddof 1), worst 3
-    assert results_doc.mean_sd_worst([1.0, 2.0, 3.0]) == "2.00 ± 1.00 (3.00)"
-    assert results_doc.mean_sd_worst([0.5]) == "0.50 ± 0.00 (0.50)"
+def test_every_section_of_the_template_has_a_renderer_and_data(results_doc):
+    opening, sections = results_doc.read_template(REPO / "docs" / "results")
+    sources = json.loads((REPO / "docs" / "results" / "sources.json").read_text())["sections"]
+    assert opening.startswith("This file is generated")
+    assert {key for key, *_ in sections} == set(sources)
 
 
 def _draw(seed: int, paper: float, learned: float) -> dict:
@@ -67,6 +68,8 @@ def test_ablation_row_from_synthetic_json(results_doc, tmp_path):
         }
     }
     (tmp_path / "sources.json").write_text(json.dumps(sources), encoding="utf-8")
+    template = REPO / "docs" / "results" / results_doc.TEMPLATE
+    (tmp_path / results_doc.TEMPLATE).write_text(template.read_text(encoding="utf-8"), encoding="utf-8")
     text = results_doc.render(tmp_path)
     # paper: 1, 2, 3 -> mean 2, sd 1, worst 3; learned: 1.5, 1, 5 -> mean 2.5, sd 2.18, worst 5;
     # learned - paper: +0.5, -1, +2 -> mean +0.5, better on 1 draw

@@ -15,6 +15,7 @@ from contextlib import redirect_stdout
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import capsule_mpc
@@ -26,6 +27,7 @@ from capsule_mpc.experiments.sweep.campaign import sweep
 from capsule_mpc.experiments.sweep.results import SPEC_FILE, spec_difference, worst_runs
 from capsule_mpc.experiments.sweep.tasks import WALL_CLOCK_KEYS, SeedTask, run_seed
 from capsule_mpc.experiments.sweep.vary import draw_varied, parse_vary, with_plant_values
+from capsule_mpc.experiments.table import NOMINAL, TABLE_FILE, read_table
 from capsule_mpc.outputs import read_manifest
 from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim import draw_plant_truth
@@ -71,7 +73,7 @@ def no_figures(monkeypatch):
     sweep is checked by test_cli_sweep_writes_a_file_per_run_and_compares_schema)."""
     import capsule_mpc.experiments.sweep.campaign as campaign
 
-    monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed: [])
+    monkeypatch.setattr(campaign, "write_figures", lambda out, per_seed, **kw: [])
 
 
 def crash_on_seed_1(task: SeedTask) -> dict:
@@ -109,7 +111,7 @@ def test_controllers_get_the_nominal_scenario_only_the_plant_the_varied_value(
         seen.append((scenario, kw["plant"].truth))
         return real(scenario, name, path, seed, **kw)
 
-    monkeypatch.setattr("capsule_mpc.experiments.compare.simulate", spy)
+    monkeypatch.setattr("capsule_mpc.experiments.sweep.tasks.simulate", spy)
     task = SeedTask(quick, SHORT, LAB_SEED, ("follow",), (parse_vary(MU0),))
     entry = run_seed(task)
     (scenario, truth), varied = seen[0], entry["varied"]["mu0_scale"]
@@ -166,7 +168,21 @@ def test_cli_sweep_writes_a_file_per_run_and_compares_schema(cli_sweep, table):
         assert (out / name).stat().st_size > 0
     manifest = read_manifest(out)
     assert manifest["status"] == "complete" and f"{RUNS_FOLDER}/seed_{LAB_SEED}.json" in manifest["files"]
-    assert SPEC_FILE in manifest["files"]
+    assert SPEC_FILE in manifest["files"] and TABLE_FILE in manifest["files"]
+
+
+def test_the_sweeps_table_has_a_row_per_draw_and_controller_with_every_metric(cli_sweep):
+    _, out, _ = cli_sweep
+    rows = read_table(out / TABLE_FILE)
+    pairs = [(s, c) for s in (LAB_SEED, LAB_SEED + 1) for c in CONTROLLERS]
+    assert list(zip(rows["seed"], rows["controller"])) == pairs and set(rows["variant"]) == {NOMINAL}
+    for seed, name in pairs:
+        run = json.loads((out / RUNS_FOLDER / f"seed_{seed}.json").read_text())
+        row = rows[(rows["seed"] == seed) & (rows["controller"] == name)].iloc[0]
+        for key, value in run["controllers"][name].items():  # every metric the run recorded, as recorded
+            assert row[key] == value or (value is None and pd.isna(row[key])), key
+        assert row["plant.mu0_scale"] == row["varied.mu0_scale"] == run["varied"]["mu0_scale"]
+        assert row["plant.epm_tilt_rad"] == run["plant"]["epm_tilt_rad"] and row["error"] == ""
 
 
 @pytest.mark.slow  # ~20 s quiet (a Dask cluster's start and a second sweep); `make test-slow`
@@ -337,3 +353,42 @@ def test_spec_difference_names_the_argument_or_the_config_field():
     other = {**base, "config": {"plant": {"preset": "hard", "mu0_scale": None}, "name": "x"}}
     assert spec_difference(base, other) == 'config plant.preset: "lab" in the folder, "hard" now'
     assert spec_difference(base, {**base, "vary": {"mu0_scale": [0.8, 1.2]}}).startswith("--vary: {}")
+
+
+@pytest.fixture
+def own_cluster(tmp_path):
+    """A Dask scheduler and one worker started as processes of their own; the scheduler's address."""
+    env = dict(os.environ, PYTHONPATH=str(Path(capsule_mpc.__file__).resolve().parents[1]))
+    file = tmp_path / "scheduler.json"
+    common = {"cwd": tmp_path, "env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    scheduler = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--scheduler-file", str(file), "--port", "0",
+         "--no-dashboard"], **common,
+    )  # fmt: skip
+    worker = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(file),
+         "--nthreads", "1",
+         "--no-dashboard"], **common,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while not file.exists() or not file.read_text():
+            assert time.monotonic() < deadline and scheduler.poll() is None
+            time.sleep(0.1)
+        yield json.loads(file.read_text())["address"]
+    finally:
+        for proc in (worker, scheduler):
+            proc.terminate()
+            proc.wait(timeout=30)
+
+
+def test_a_scheduler_of_ones_own_and_the_local_cluster_give_the_same_table(tmp_path, own_cluster, no_figures):
+    (tmp_path / "wp.csv").write_text(SHORT_CSV)
+    args = ["sweep", "--config", str(QUICK), "--waypoints", str(tmp_path / "wp.csv"), "--plant", "ideal"]
+    args += ["--controllers", "follow", "--runs", "2", "--seed", "0", "--no-progress"]
+    assert main([*args, "--out", str(tmp_path / "local"), "--workers", "1"]) == 0
+    assert main([*args, "--out", str(tmp_path / "own"), "--scheduler", own_cluster]) == 0
+    local, own = (read_table(tmp_path / name / TABLE_FILE) for name in ("local", "own"))
+    assert len(local) == 2 and "tracking_rms_mm" in local
+    wall_clock = [c for c in local.columns if c in WALL_CLOCK_KEYS]
+    pd.testing.assert_frame_equal(local.drop(columns=wall_clock), own.drop(columns=wall_clock))

@@ -12,7 +12,7 @@ from typing import Any
 from ..experiments.sweep.vary import parse_vary
 from .arguments import add_run_arguments, int_at_least, refuse_seed_overflow, run_count
 
-__all__ = ["register", "run"]
+__all__ = ["add_dask_arguments", "register", "run"]
 
 
 def register(sub: Any) -> None:
@@ -25,8 +25,9 @@ def register(sub: Any) -> None:
             "...; --vary plant.FIELD=LO:HI draws that field from U(LO, HI) instead of the preset's range; "
             "the controllers keep the nominal scenario), one Dask task per seed, on a LocalCluster of "
             "--workers processes or on the cluster at --scheduler. Writes runs/seed_<S>.json as each run "
-            "finishes, then summary.json (the schema of compare --runs, plus the worst runs' seeds), "
-            "summary.md, metrics.png and distribution_<metric>.png. Re-run with the same arguments, an "
+            "finishes, then runs.csv (the run table: a row per draw and controller), summary.json (the "
+            "schema of compare --runs, plus the worst runs' seeds), summary.md, metrics.png and "
+            "distribution_<metric>.png. Re-run with the same arguments, an "
             "interrupted sweep resumes and skips its finished runs. A worker that dies loses its run only "
             "(recorded as crashed; exit status 1)."
         ),
@@ -42,6 +43,12 @@ def register(sub: Any) -> None:
         help="draw this plant field uniformly from [LO, HI] in every run (repeatable); FIELD is a drawable "
         "field of the plant section and LO, HI lie in its allowed range (docs/config.md)",
     )
+    add_dask_arguments(p)
+    p.set_defaults(func=run)
+
+
+def add_dask_arguments(p: argparse.ArgumentParser) -> None:
+    """``--scheduler`` and ``--workers``: where a campaign's draws run."""
     p.add_argument(
         "--scheduler",
         metavar="ADDRESS",
@@ -55,7 +62,6 @@ def register(sub: Any) -> None:
         help="worker processes of the LocalCluster, >= 1 (default: the CPU count; no more than --runs); "
         "not with --scheduler; at most as many as half the memory available holds (capsule_mpc.budget)",
     )
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,7 +5,8 @@ Run ``k`` of ``--runs N`` uses the seed ``seed + k``. As in ``compare --runs``, 
 plant drawn around the nominal scenario (the ``plant`` section,
 :func:`capsule_mpc.sim.draw_plant_truth`), the start offset and the camera noise; every controller
 runs on that draw and the runs of one seed are scored on their common window
-(:func:`capsule_mpc.experiments.compare.run_seed_controllers`). ``--vary plant.FIELD=LO:HI``
+(:func:`.tasks.run_seed`). A study's variants (:class:`.tasks.Variant`: scenario overrides, resolved
+per draw) run on the same draws. ``--vary plant.FIELD=LO:HI``
 replaces that field's draw by a uniform draw in [LO, HI] from the run's own stream (:mod:`.vary`):
 the other fields draw as they would without it, and the controllers are given the nominal
 scenario only (their belief), never the plant's values.
@@ -24,6 +25,8 @@ Writes, into ``--out`` (:func:`.campaign.sweep`; :mod:`.results` reads and write
 * ``runs/seed_<S>.json``, one per run as soon as it finishes (written atomically): the seed, the
   common window, each controller's metrics and flags as in ``compare``'s ``runs`` (or its
   ``error``), the plant's drawn values (``plant``) and the varied ones (``varied``);
+* ``runs.csv``, the run table: one row per draw and controller (and variant) with every metric
+  of the run, the draw's plant values and the seed (:mod:`capsule_mpc.experiments.table`);
 * ``summary.json``, in the schema of ``compare --runs`` (``controllers.NAME.METRIC`` means,
   ``controllers.NAME.spread.METRIC`` ``{sd, min, max, n}``, ``runs``: every seed's file;
   :func:`capsule_mpc.experiments.compare.aggregate_runs`), plus ``plant_preset``, ``vary`` and

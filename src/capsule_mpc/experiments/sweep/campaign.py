@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from contextlib import ExitStack, closing
@@ -15,11 +16,12 @@ from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
-from ...atomic import write_text_atomic
+from ...atomic import atomic_path, write_text_atomic
 from ...budget import Workload, check_processes
 from ...config import ConfigError, Scenario
 from ...outputs import output_folder
 from ...paths import ReferencePath
+from ...sim import RunResult
 from ..compare import (
     RUNS_FOLDER,
     aggregate_runs,
@@ -28,20 +30,22 @@ from ..compare import (
     json_value,
     run_figures,
     summary_header,
+    summary_markdown,
     summary_table,
 )
-from ..runs import prepare_run
+from ..runs import PREDICTION_FIGURE, prepare_run
+from ..table import TABLE_FILE, table_from_entries, write_table
 from .results import (
     SPEC_FILE,
     check_resume,
     finished_runs,
-    summary_markdown,
     sweep_spec,
+    worst_markdown,
     worst_runs,
     worst_table,
-    write_figures,
 )
-from .tasks import Outcome, SeedTask, dask_client, run_on_dask, run_seed
+from .results import write_figures as write_figures
+from .tasks import Outcome, SeedTask, Variant, dask_client, run_here, run_on_dask, run_seed
 from .vary import VaryRange, check_vary
 
 if TYPE_CHECKING:
@@ -59,13 +63,16 @@ def sweep(
     *,
     controllers: Sequence[str] | None = None,
     vary: Sequence[VaryRange] = (),
+    variants: Sequence[Variant] = (),
     workers: int | None = None,
     client: Client | None = None,
     meta: dict[str, Any] | None = None,
     progress: bool = True,
     task: Callable[[SeedTask], dict[str, Any]] = run_seed,
+    measure: Callable[[Mapping[str, RunResult]], Mapping[str, Mapping[str, Any]]] | None = None,
+    command: str = "sweep",
 ) -> dict[str, Any]:
-    """Run a sweep into ``out`` (resuming the one there), write its runs, summary and figures.
+    """Run a campaign into ``out`` (resuming the one there), write its runs, table, summary and figures.
 
     Parameters
     ----------
@@ -81,9 +88,12 @@ def sweep(
         As for :func:`capsule_mpc.experiments.compare.compare_controllers`.
     vary : sequence of VaryRange
         Plant fields drawn from these ranges instead of the preset's (:func:`parse_vary`).
+    variants : sequence of Variant
+        The study's variants (default the scenario as given), each run by ``controllers``.
     workers : int, optional
         Worker processes of the ``LocalCluster`` started when ``client`` is None (default the CPU
-        count; no more than there are runs to do).
+        count; no more than there are runs to do). A comparison with one worker runs its draws in
+        this process, one after the other, with no cluster.
     client : distributed.Client, optional
         The Dask cluster to run on; default a new ``LocalCluster``
         (:func:`~.tasks.dask_client`), started only if a run is left to do.
@@ -93,6 +103,11 @@ def sweep(
         A progress bar over the runs.
     task : callable
         What runs one seed (:func:`run_seed`); must be importable by the workers.
+    measure : callable, optional
+        Entries added to a draw's runs from their results (:class:`~.tasks.SeedTask`).
+    command : str
+        ``"sweep"``, or ``"compare"``: each run's folder is written (under ``out`` for one run,
+        ``out/runs/seed_<S>/`` for several) with the first seed's figures, no resume.
 
     Returns
     -------
@@ -106,26 +121,99 @@ def sweep(
     ConfigError
         ``out`` holds a sweep with other arguments.
     """
-
     if runs < 1:
         raise ValueError(f"runs: must be an integer >= 1, got {runs}")
     out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
     names = controller_names(controllers)
     seeds = [seed + k for k in range(runs)]
-    spec = sweep_spec(scenario, path, seed, runs, names, vary)
-    check_resume(out, spec)
-    write_text_atomic(out / SPEC_FILE, json.dumps(spec, indent=2) + "\n")
-    done = finished_runs(out, seeds)
-    todo = [SeedTask(scenario, path, s, tuple(names), tuple(vary), meta) for s in seeds if s not in done]
+    compare = command == "compare"
+    done: dict[int, dict[str, Any]] = {}
+    if not compare:
+        spec = sweep_spec(scenario, path, seed, runs, names, vary, variants)
+        check_resume(out, spec)
+        write_text_atomic(out / SPEC_FILE, json.dumps(spec, indent=2) + "\n")
+        done = finished_runs(out, seeds)
+
+    def folders(s: int) -> tuple[str | None, str | None]:
+        if not compare:
+            return None, None
+        return str(out if runs == 1 else out / RUNS_FOLDER / f"seed_{s}"), str(out) if s == seed else None
+
+    todo = [
+        SeedTask(scenario, path, s, tuple(names), tuple(vary), meta, tuple(variants), *folders(s), measure)
+        for s in seeds
+        if s not in done
+    ]
+    # a comparison on one local worker runs here: a cluster would only add its start-up
+    here = compare and client is None and min(workers or os.cpu_count() or 1, len(todo)) == 1
+    try:
+        _run(todo, out, done, runs, workers, client, progress, task, here)
+    finally:  # also when stopped: the workers' runs then keep what they recorded (RunLogs)
+        if compare and not here:
+            _adopt(out, [Path(f) for t in todo for f in (t.runs_dir, t.figures_dir) if f is not None])
+    per_seed = [done[s] for s in seeds]
+    write_table(table_from_entries(per_seed), out / TABLE_FILE)
+    summary = {**summary_header(meta, seed, path, runs, seeds), "controllers": aggregate_runs(per_seed)}
+    if compare and runs == 1:  # one run: its text entries (run_dir, failure, traceback) beside its metrics
+        for name, entry in summary["controllers"].items():
+            single = per_seed[0]["controllers"][name]
+            entry.update({key: value for key, value in single.items() if key not in entry})
+    firsts = [n for n in ("trajectories.png", "errors.png") if compare and (out / n).exists()]
+    figures = firsts + write_figures(out, per_seed, distributions=not compare)
+    figures += [PREDICTION_FIGURE] if compare and (out / PREDICTION_FIGURE).exists() else []
+    if not compare:
+        summary.update(plant_preset=scenario.plant.preset, vary={v.field: [v.lo, v.hi] for v in vary})
+        summary["worst"] = worst_runs(per_seed)
+    summary.update(runs=per_seed, figures=figures)
+    write_text_atomic(out / "summary.json", json.dumps(json_value(summary), indent=2) + "\n")
+    markdown = summary_markdown(command, scenario, path, summary) + (
+        "" if compare else worst_markdown(summary)
+    )
+    write_text_atomic(out / "summary.md", markdown)
+    return summary
+
+
+def _adopt(out: Path, folders: Sequence[Path]) -> None:
+    """Put the files the workers wrote under ``folders`` into place again from this process, so
+    that the output folder's manifest (:func:`capsule_mpc.outputs.output_folder`) lists them."""
+    names = ("trajectories.png", "errors.png", PREDICTION_FIGURE)
+    files = {
+        f
+        for d in set(folders)
+        for f in d.rglob("*")
+        if f.is_file() and f.parent != out and not f.name.startswith(".")  # not a killed write's temporary
+    }
+    files |= {out / n for n in names if (out / n).is_file()}
+    for file in sorted(files):
+        with atomic_path(file) as tmp:
+            shutil.copyfile(file, tmp)
+
+
+def _run(
+    todo: Sequence[SeedTask],
+    out: Path,
+    done: dict[int, dict[str, Any]],
+    runs: int,
+    workers: int | None,
+    client: Client | None,
+    progress: bool,
+    task: Callable[[SeedTask], dict[str, Any]],
+    in_process: bool = False,
+) -> None:
+    """Run ``todo`` on Dask (in this process with ``in_process``), writing each draw's entry to
+    ``runs/seed_<S>.json`` and into ``done``."""
     with ExitStack() as stack:
         outcomes: Iterable[Outcome] = ()
-        if todo:
+        if todo and in_process:
+            outcomes = run_here(task, [replace(t, progress=progress) for t in todo])
+        elif todo:
             local = min(workers or os.cpu_count() or 1, len(todo))
             client = client if client is not None else stack.enter_context(dask_client(None, local))
             outcomes = stack.enter_context(closing(run_on_dask(task, todo, client)))
         bar = stack.enter_context(
-            tqdm(total=runs, initial=len(done), desc="sweep", unit="run", disable=not progress)
+            tqdm(total=runs, initial=len(done), desc="runs", unit="draw", disable=not progress)
         )
         for finished, entry in outcomes:
             write_text_atomic(
@@ -134,20 +222,6 @@ def sweep(
             done[finished.seed] = entry
             bar.set_postfix_str(f"seed {finished.seed}")
             bar.update(1)
-    per_seed = [done[s] for s in seeds]
-    aggregated = aggregate_runs(per_seed)
-    summary = {
-        **summary_header(meta, seed, path, runs, seeds),
-        "plant_preset": scenario.plant.preset,
-        "vary": spec["vary"],
-        "controllers": aggregated,
-        "runs": per_seed,
-        "worst": worst_runs(per_seed),
-        "figures": write_figures(out, per_seed),
-    }
-    write_text_atomic(out / "summary.json", json.dumps(json_value(summary), indent=2) + "\n")
-    write_text_atomic(out / "summary.md", summary_markdown(scenario, path, seeds, summary))
-    return summary
 
 
 def local_workers(runs: int, workers: int | None, scheduler: str | None) -> int | None:

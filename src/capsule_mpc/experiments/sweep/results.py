@@ -11,7 +11,8 @@ from typing import Any
 from ...config import ConfigError, Scenario
 from ...paths import ReferencePath
 from ...plots import plot_metrics
-from ..compare import RUNS_FOLDER, SUMMARY_COLUMNS, json_value, summary_table
+from ..compare import RUNS_FOLDER, SUMMARY_COLUMNS, json_value
+from .tasks import Variant
 from .vary import VaryRange
 
 __all__ = [
@@ -20,8 +21,8 @@ __all__ = [
     "check_resume",
     "finished_runs",
     "spec_difference",
-    "summary_markdown",
     "sweep_spec",
+    "worst_markdown",
     "worst_runs",
     "worst_table",
     "write_figures",
@@ -44,6 +45,7 @@ def sweep_spec(
     runs: int,
     controllers: Sequence[str],
     vary: Sequence[VaryRange],
+    variants: Sequence[Variant] = (),
 ) -> dict[str, Any]:
     """What a sweep is, as kept in ``sweep.json`` (JSON-ready): a resumed sweep must match it."""
     spec = {
@@ -59,6 +61,10 @@ def sweep_spec(
         "controllers": list(controllers),
         "vary": {v.field: [v.lo, v.hi] for v in vary},
     }
+    if variants:
+        spec["variants"] = {
+            v.name: {"overrides": dict(v.overrides), "controllers": v.controllers} for v in variants
+        }
     return dict(json.loads(json.dumps(json_value(spec))))
 
 
@@ -69,6 +75,7 @@ _SPEC_ARGUMENTS = (
     ("runs", "--runs"),
     ("controllers", "--controllers"),
     ("vary", "--vary"),
+    ("variants", "the variants"),
     ("path", "the path (--waypoints, --speed or the config's path)"),
     ("config", "config"),
 )
@@ -205,31 +212,17 @@ def worst_table(worst: Mapping[str, Mapping[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def summary_markdown(
-    scenario: Scenario, path: ReferencePath, seeds: Sequence[int], summary: Mapping[str, Any]
-) -> str:
-    """summary.md: the table of ``compare --runs`` and the worst runs."""
-    runs = len(seeds)
-    varied = ", ".join(f"plant.{f} ~ U({lo:g}, {hi:g})" for f, (lo, hi) in summary["vary"].items())
-    title = (
-        f"# sweep: {scenario.name}, plant {scenario.plant.preset}, v = {path.speed_mps} m/s, "
-        f"seeds {seeds[0]}..{seeds[-1]}\n\n"
-    )
-    what = f"Varied: {varied}.\n\n" if varied else ""
-    note = (
-        f"\nMean ± sd (ddof 1) over the {runs} runs; `(n/N)`: only n runs had a value (e.g. arrived); "
-        "flags: runs where true. Each seed's runs are scored on a common window (t = 0 to the latest end "
-        "among them).\n"
-    )
-    worst = (
+def worst_markdown(summary: Mapping[str, Any]) -> str:
+    """The worst-runs section of a sweep's summary.md."""
+    return (
         f"\n## Worst runs\n\nPer controller and metric, the seeds of the {WORST_COUNT} largest values; "
         "flags and failures: every seed where raised.\n\n" + worst_table(summary["worst"])
     )
-    return title + what + summary_table(summary["controllers"], runs) + note + worst
 
 
-def write_figures(out: Path, per_seed: Sequence[Mapping[str, Any]]) -> list[str]:
-    """metrics.png and one distribution_<metric>.png per metric of the table; the file names."""
+def write_figures(out: Path, per_seed: Sequence[Mapping[str, Any]], distributions: bool = True) -> list[str]:
+    """metrics.png and, with ``distributions``, one distribution_<metric>.png per metric of the
+    table; the file names."""
 
     done: dict[str, list[Mapping[str, Any]]] = {}
     for seed in per_seed:
@@ -239,7 +232,8 @@ def write_figures(out: Path, per_seed: Sequence[Mapping[str, Any]]) -> list[str]
     if not done:  # no controller finished a run: nothing to draw
         return []
     draw: dict[str, Sequence[tuple[str, str]] | None] = {"metrics.png": None}
-    draw.update({f"distribution_{key}.png": [(key, header)] for key, header in _RANKED})
+    if distributions:
+        draw.update({f"distribution_{key}.png": [(key, header)] for key, header in _RANKED})
     for name, keys in draw.items():  # each figure complete or absent (written atomically)
         plot_metrics(done, out / name, keys)
     return list(draw)

@@ -15,29 +15,54 @@ worker processes of one thread each, started by nannies (a worker that dies is r
 as crashed at once, never retried on another worker), no per-worker memory limit (the sweep's
 memory is bounded by :mod:`capsule_mpc.budget` before it starts) and :func:`dask_setup` as the
 workers' preload: Ctrl-C and a hang-up sent to the terminal's process group are the
-``capsule-mpc`` process's to handle (it closes the cluster, which stops the workers). A cluster of
-one's own (``--scheduler``) keeps its scheduler's setting (Dask's default is 3 deaths).
+``capsule-mpc`` process's to handle (it closes the cluster, which stops the workers; a closing
+worker stops its run at the next frame, and the run keeps its log so far and a finalised MCAP,
+:func:`dask_teardown`). A cluster of one's own (``--scheduler``) keeps its scheduler's setting
+(Dask's default is 3 deaths).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import math
 import os
 import signal
 import threading
+import traceback
 import uuid
 from collections import deque
-from collections.abc import Callable, Generator, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import yaml
 from tqdm import tqdm
 
-from ...config import ConfigError, Scenario
+from ...config import ConfigError, Scenario, config_from_dict
+from ...interrupt import Interrupted, raise_if_interrupted
 from ...paths import ReferencePath
-from ...sim import draw_plant_truth
-from ..compare import json_value, run_seed_controllers
+from ...planner import cached_plan
+from ...plots import plot_errors, plot_trajectories
+from ...sim import (
+    CapsulePlant,
+    ClosedLoop,
+    Frame,
+    Observer,
+    PlantTruth,
+    RunResult,
+    draw_plant_truth,
+    simulate,
+    write_run,
+)
+from ...sim.oracle import oracle_friction_model
+from ...telemetry.observer import Telemetry
+from ...telemetry.options import MCAP_NAME
+from ...telemetry.partial import PartialRun
+from ..runs import PREDICTION_FIGURE, write_prediction_figure
+from ..table import NOMINAL, run_label
 from .vary import VaryRange, draw_varied, with_plant_values
 
 if TYPE_CHECKING:
@@ -45,15 +70,26 @@ if TYPE_CHECKING:
 
 __all__ = [
     "LOCAL_ALLOWED_FAILURES",
+    "ORACLE",
+    "PLANNING_CONTROLLER",
     "SCHEDULER_TIMEOUT_S",
     "WALL_CLOCK_KEYS",
     "Outcome",
+    "RunLogs",
     "SeedTask",
+    "Variant",
     "crashed_entry",
     "dask_client",
     "dask_setup",
+    "dask_teardown",
+    "failure_line",
+    "rescore_on_common_window",
+    "run_entry",
+    "run_folder",
+    "run_here",
     "run_on_dask",
     "run_seed",
+    "variant_scenario",
 ]
 
 #: Metrics measured on the wall clock, which differ between two runs of the same seed.
@@ -68,11 +104,34 @@ SCHEDULER_TIMEOUT_S = 10.0
 LOCAL_ALLOWED_FAILURES = 0
 #: The preload of a ``LocalCluster``'s workers (the module holding :func:`dask_setup`).
 WORKER_PRELOAD = __name__
+#: The controller that needs the offline plan (solved once per worker process, then cached).
+PLANNING_CONTROLLER = "plan"
+#: An override value standing for the draw's own friction (an oracle no real rig gives).
+ORACLE = "@oracle"
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A variant of a study: the scenario's overrides its controllers are given.
+
+    ``overrides`` maps dotted config keys (``break_loose.preload``) to values. A value
+    :data:`ORACLE` (for ``friction.learned``) is the draw's own friction, a text with ``{seed}``
+    the YAML file of that draw's value (e.g. a model learned on it), both resolved per draw
+    (:func:`variant_scenario`). ``controllers``: which run it (default the campaign's).
+    """
+
+    name: str
+    overrides: Mapping[str, Any] = field(default_factory=dict)
+    controllers: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
 class SeedTask:
-    """One run of a sweep: every controller on one seed's plant draw (what a worker is given)."""
+    """One draw of a campaign, what a worker is given: every variant and controller on one seed's
+    plant draw. ``runs_dir``: write each run's folder (log, config, run.json, MCAP) under it;
+    ``figures_dir``: write the draw's trajectory, error and prediction figures there; ``measure``:
+    an importable function adding entries to the runs from their results (label to entries);
+    ``progress``: show the planner's progress bar (a draw run in the ``capsule-mpc`` process)."""
 
     scenario: Scenario
     path: ReferencePath
@@ -80,49 +139,283 @@ class SeedTask:
     controllers: tuple[str, ...]
     vary: tuple[VaryRange, ...] = ()
     meta: dict[str, Any] = field(default_factory=dict)
+    variants: tuple[Variant, ...] = ()
+    runs_dir: str | None = None
+    figures_dir: str | None = None
+    measure: Callable[[Mapping[str, RunResult]], Mapping[str, Mapping[str, Any]]] | None = None
+    progress: bool = False
+
+
+def _resolve(value: Any, scenario: Scenario, truth: PlantTruth, path: ReferencePath) -> Any:
+    if value == ORACLE:
+        start = (float(path.start_m[0]), float(path.start_m[1]))
+        return oracle_friction_model(scenario, truth, start).model_dump(mode="json")
+    if isinstance(value, str) and "{seed}" in value:
+        return yaml.safe_load(Path(value.format(seed=truth.seed)).read_text(encoding="utf-8"))
+    return value
+
+
+def variant_scenario(
+    scenario: Scenario, variant: Variant, truth: PlantTruth, path: ReferencePath
+) -> Scenario:
+    """``scenario`` with ``variant``'s overrides (resolved for the draw ``truth``), validated.
+
+    Raises
+    ------
+    ConfigError
+        An override the scenario does not take, naming its key.
+    """
+    if not variant.overrides:
+        return scenario
+    data = scenario.model_dump(mode="json", exclude_none=True)
+    for key, value in variant.overrides.items():
+        *parents, last = key.split(".")
+        node = data
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[last] = _resolve(value, scenario, truth, path)
+    return config_from_dict(data)
+
+
+def _arms(task: SeedTask, truth: PlantTruth) -> list[tuple[str, str, Scenario | Exception]]:
+    """(label, controller, the controller's scenario or why it has none) of every run of the draw."""
+    arms: list[tuple[str, str, Scenario | Exception]] = []
+    for variant in task.variants or (Variant(NOMINAL),):
+        try:
+            scenario: Scenario | Exception = variant_scenario(task.scenario, variant, truth, task.path)
+        except (ConfigError, OSError, ValueError) as exc:
+            scenario = exc
+        for name in variant.controllers or task.controllers:
+            arms.append((run_label(variant.name, name), name, scenario))
+    return arms
+
+
+def run_entry(result: RunResult) -> dict[str, Any]:
+    """A run's entry of its draw: every metric of its ``run.json``, its limit counts, ``failure``
+    and ``realtime_factor``."""
+    limits = {f"limit_counts.{k}": v for k, v in result.limit_counts.items()}
+    return {
+        **result.metrics,
+        **limits,
+        "failure": result.flags.failure,
+        "realtime_factor": result.realtime_factor,
+    }
 
 
 def run_seed(task: SeedTask) -> dict[str, Any]:
-    """Run a :class:`SeedTask`; the run's entry of ``summary.json``'s ``runs`` (JSON-ready).
+    """Run a :class:`SeedTask`; the draw's entry (JSON-ready; ``runs/seed_<S>.json`` of a sweep).
 
     Returns
     -------
     dict
-        ``{"seed", "window_end_s", "controllers": {name: metrics + flags + ``failure`` +
-        ``realtime_factor``, or {"error", "traceback"}}, "plant": the drawn truth
-        (:meth:`~capsule_mpc.sim.PlantTruth.summary`), "varied": {field: value}}``.
+        ``{"seed", "window_end_s", "controllers": {label (:func:`~..table.run_label`): the run's
+        entries (:func:`run_entry`; ``run_dir`` with ``runs_dir``), or {"error", "traceback"}},
+        "plant": the drawn truth (:meth:`~capsule_mpc.sim.PlantTruth.summary`), "varied": {field:
+        value}}``; the runs are scored on their common window (:func:`rescore_on_common_window`).
     """
     varied = draw_varied(task.vary, task.seed)
-    plant_scenario = with_plant_values(task.scenario, varied) if varied else None
-    results, entries, window_end = run_seed_controllers(
-        task.scenario, task.path, task.seed, task.controllers, meta=task.meta, plant_scenario=plant_scenario
-    )
-    for name, result in results.items():
-        entries[name] = {
-            **result.metrics,
-            "failure": result.flags.failure,
-            "realtime_factor": result.realtime_factor,
-        }
-    truth = draw_plant_truth(plant_scenario or task.scenario, task.seed)
+    plant_scenario = with_plant_values(task.scenario, varied) if varied else task.scenario
+    truth = draw_plant_truth(plant_scenario, task.seed)
+    results: dict[str, RunResult] = {}
+    entries: dict[str, dict[str, Any]] = {}
+    base = None if task.runs_dir is None else Path(task.runs_dir)
+    with RunLogs(base) as logs:
+        for label, name, scenario in _arms(task, truth):
+            try:
+                if isinstance(scenario, Exception):
+                    raise scenario
+                if name == PLANNING_CONTROLLER:
+                    cached_plan(scenario, task.path, progress=task.progress)
+                plant = CapsulePlant(plant_scenario, truth=truth)  # one rig for every run of the draw
+                results[label] = simulate(
+                    scenario, name, task.path, task.seed, progress=False, meta=task.meta, plant=plant,
+                    observers=logs.observers(label),
+                )  # fmt: skip
+            except Exception as exc:  # one broken controller must not hide the others' results
+                raise_if_interrupted()  # ... but Ctrl-C (which CasADi may turn into any error) stops all
+                entries[label] = {"error": failure_line(name, exc), "traceback": traceback.format_exc()}
+        window_end = rescore_on_common_window(results, task.path, task.scenario)
+        for label, result in results.items():
+            entries[label] = run_entry(result)
+            if base is not None:
+                entries[label]["run_dir"] = str(write_run(result, run_folder(base, label)))
+                logs.keep(label)
+    extra = task.measure(results) if task.measure is not None and results else {}
+    for label, values in extra.items():
+        entries[label].update(values)
+    if task.figures_dir is not None and results:
+        draw_figures(results, task.path, Path(task.figures_dir))
+    order = [label for label, _, _ in _arms(task, truth)]
     return json_value(
         {
             "seed": task.seed,
             "window_end_s": window_end,
-            "controllers": {n: entries[n] for n in task.controllers},
+            "controllers": {label: entries[label] for label in order},
             "plant": truth.summary(),
             "varied": varied,
         }
     )
 
 
+def draw_figures(results: Mapping[str, RunResult], path: ReferencePath, out: Path) -> list[str]:
+    """``trajectories.png``, ``errors.png`` and, when a run predicts, ``mpc_prediction.png`` of one
+    draw's runs; the file names."""
+    logs = {n: r.log for n, r in results.items()}
+    plot_trajectories(logs, path, out / "trajectories.png")
+    plot_errors(logs, path, out / "errors.png", {n: r.metrics["motion_end_s"] for n, r in results.items()})
+    names = ["trajectories.png", "errors.png"]
+    for result in results.values():
+        if write_prediction_figure(result, out / PREDICTION_FIGURE) is not None:
+            return [*names, PREDICTION_FIGURE]
+    return names
+
+
+def rescore_on_common_window(
+    results: Mapping[str, RunResult], path: ReferencePath, scenario: Scenario
+) -> float:
+    """Re-score one draw's runs on a common window; returns its end, s (NaN without runs).
+
+    The window ends at the latest ``motion_end_s`` (the time a run ended at rest) among the
+    runs; each run's metrics are recomputed on it with :func:`capsule_mpc.metrics.run_metrics`
+    (arrival tolerance ``sim.completion_tol_m``, deadline one camera period) and written into
+    its ``metrics`` dict, which keeps the runner's other entries (flags, limit counts).
+    """
+    from ...metrics import run_metrics
+
+    ends = [float(r.metrics["motion_end_s"]) for r in results.values()]
+    ends = [e for e in ends if math.isfinite(e)]
+    if not ends:
+        return math.nan
+    common = max(ends)
+    for result in results.values():
+        result.metrics.update(
+            run_metrics(
+                result.log,
+                path,
+                window_end_s=common,
+                arrival_tol_m=scenario.sim.completion_tol_m,
+                deadline_ms=1e3 / scenario.camera.rate_hz,
+            )
+        )
+    return common
+
+
+def json_value(value: Any) -> Any:
+    """``value`` made JSON-ready: numpy scalars as Python ones, non-finite floats as None."""
+    if isinstance(value, dict):
+        return {str(k): json_value(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_value(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if hasattr(value, "item"):  # numpy scalars
+        return json_value(value.item())
+    return value
+
+
+class RunLogs:
+    """The MCAP logs of one draw's runs, each in its run's folder under ``base`` (none without).
+
+    A log is kept when :meth:`keep` is called once its run's files are written; the others (a run
+    that raised) are removed on exit with the folders made for them, so an unrecorded run leaves
+    nothing behind. When the draw is stopped (``KeyboardInterrupt``: a signal, or its worker
+    closing, :func:`dask_teardown`), each of its runs keeps its log so far and its finalised MCAP
+    (:class:`~capsule_mpc.telemetry.partial.PartialRun`).
+    """
+
+    def __init__(self, base: Path | None) -> None:
+        self.base = base
+        self.logs: dict[str, Telemetry] = {}
+        self.partial: dict[str, PartialRun] = {}
+
+    def observers(self, name: str) -> list[Observer]:
+        """The observers of run ``name``: its MCAP log and what a stopped run keeps (none without a
+        base folder), and in a closing worker the check that stops it."""
+        watch: list[Observer] = [_StopWhenClosing()]
+        if self.base is None:
+            return watch
+        log = self.logs[name] = Telemetry(run_folder(self.base, name) / MCAP_NAME, hold=True)
+        partial = self.partial[name] = PartialRun()
+        return [log, partial, *watch]
+
+    def keep(self, name: str) -> None:
+        """Close ``name``'s log into its run folder."""
+        self.logs.pop(name).close(complete=True)
+
+    def __enter__(self) -> RunLogs:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        base = self.base or Path()
+        for name, log in self.logs.items():
+            if isinstance(exc[1], KeyboardInterrupt) and self.partial[name].write(run_folder(base, name)):
+                log.__exit__(*exc)  # the MCAP so far, finalised
+                continue
+            log.close(complete=False)
+            with contextlib.suppress(OSError):  # refused unless empty: the folder only held the log
+                run_folder(base, name).rmdir()
+        self.logs.clear()
+
+
+#: Set in a worker process asked to close (:func:`dask_teardown`): its run stops at its next frame.
+_closing = threading.Event()
+
+
+class _StopWhenClosing(Observer):
+    """Stops a run whose worker is closing, as a signal stops one in the ``capsule-mpc`` process
+    (a worker's task runs in a thread, which no signal reaches)."""
+
+    def frame_end(self, loop: ClosedLoop, frame: Frame) -> None:
+        if _closing.is_set():
+            raise Interrupted(signal.SIGTERM)
+
+
+def run_folder(base: Path, name: str) -> Path:
+    """The folder of run ``name`` under ``base``."""
+    return base / name.replace("/", "_").replace(":", "_")
+
+
+#: Longest reason kept in a failure line, characters.
+_REASON_CHARS = 240
+#: Markers of the informative line in a CasADi error (the rest is its call stack).
+_CASADI_REASON = ("returned flag", "Error in Function::", "error:")
+
+
+def failure_line(name: str, exc: BaseException) -> str:
+    """One line saying which controller failed, why, and what to try; never a solver's dump.
+
+    A CasADi error is a stack of ``Error in Function::call ...`` lines with the cause deep
+    inside (e.g. a root finder's status flag); the line with the cause is kept, cut to a
+    readable length. The full traceback stays in ``summary.json``.
+    """
+    lines = [" ".join(line.split()) for line in str(exc).splitlines() if line.strip()]
+    reason = lines[0] if lines else type(exc).__name__
+    flagged = [line for line in lines if "returned flag" in line or "returned status" in line]
+    if flagged:
+        reason = flagged[-1]
+    elif len(lines) > 1 and any(m in lines[0] for m in _CASADI_REASON):
+        reason = lines[-1]
+    if len(reason) > _REASON_CHARS:
+        reason = reason[: _REASON_CHARS - 1] + "…"
+    return (
+        f"{type(exc).__name__}: {reason} (traceback in summary.json; to see it alone: "
+        f"capsule-mpc simulate --controller {name} with the same config and seed)"
+    )
+
+
 def crashed_entry(task: SeedTask, reason: str) -> dict[str, Any]:
-    """The entry of a run whose worker died or could not run it: every controller failed."""
+    """The entry of a draw whose worker died or could not run it: every run failed."""
     error = f"run crashed: {reason}"
+    labels = [
+        run_label(v.name, n)
+        for v in task.variants or (Variant(NOMINAL),)
+        for n in v.controllers or task.controllers
+    ]
     return {
         "seed": task.seed,
         "window_end_s": None,
         "crashed": reason,
-        "controllers": {n: {"error": error} for n in task.controllers},
+        "controllers": {label: {"error": error} for label in labels},
         "plant": None,
         "varied": draw_varied(task.vary, task.seed),
     }
@@ -141,6 +434,28 @@ def dask_setup(worker: Worker) -> None:
         if signum is not None:
             signal.signal(signum, signal.SIG_IGN)
     tqdm.set_lock(threading.RLock())
+
+
+def dask_teardown(worker: Worker) -> None:
+    """Teardown of the preload (Dask calls it as the worker closes, before it waits for its
+    running task): the run in progress stops at its next frame and keeps what it recorded
+    (:class:`RunLogs`), as it would in the ``capsule-mpc`` process on Ctrl-C."""
+    _closing.set()
+
+
+def run_here(
+    fn: Callable[[SeedTask], dict[str, Any]], tasks: Sequence[SeedTask]
+) -> Generator[Outcome, None, None]:
+    """Run ``tasks`` one after the other in this process; yield each (task, result) as
+    :func:`run_on_dask` does (a task that raises is yielded as :func:`crashed_entry`; Ctrl-C stops
+    them all, its run keeping what it recorded, :class:`RunLogs`)."""
+    for task in tasks:
+        try:
+            result = fn(task)
+        except Exception as exc:  # as a worker reports a task that raised
+            raise_if_interrupted()
+            result = crashed_entry(task, f"{type(exc).__name__}: {exc}")
+        yield task, result
 
 
 def run_on_dask(

@@ -1,0 +1,170 @@
+"""The one aggregation of run tables (:mod:`.table`): mean ± sd, worst and paired differences.
+
+Every summary of a campaign -- ``compare``'s and ``sweep``'s ``summary.json`` and ``summary.md``,
+the benchmarks' reports and the tables of ``docs/results.md`` -- is computed here with pandas
+``groupby`` over the rows of the runs that finished (``error`` empty):
+
+* a numeric metric: ``mean``, ``sd`` (sample standard deviation, ddof 1; 0 for one value),
+  ``min``, ``worst`` (the largest: every metric is worse when larger), ``n`` (finite values;
+  NaN values are left out) and ``sum``;
+* a true/false flag: ``count`` (runs where true) and ``n``;
+* per group ``runs`` (rows that finished) and ``failed`` (rows whose controller raised).
+
+:func:`paired` gives, per group, the difference to a baseline run on the same seed: ``mean``,
+``sd``, ``worst``, ``n``, ``better`` (draws where it is below the baseline's) and ``relative``
+(the mean difference over the baseline's mean on the same draws).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import pandas as pd
+from pandas.api.types import is_bool_dtype, is_numeric_dtype
+
+from .table import KEYS
+
+__all__ = [
+    "aggregate",
+    "flag_columns",
+    "mean_sd",
+    "mean_sd_worst",
+    "metric_columns",
+    "paired",
+    "succeeded",
+]
+
+#: The numeric statistics of a metric, as pandas names them, and their names here.
+_STATS = {"mean": "mean", "std": "sd", "min": "min", "max": "worst", "count": "n", "sum": "sum"}
+#: Columns that describe a row rather than measure it.
+_NOT_METRICS = frozenset({*KEYS, "error", "window_end_s"})
+
+
+def succeeded(table: pd.DataFrame) -> pd.DataFrame:
+    """The rows of runs that finished (``error`` empty or absent)."""
+    return table if "error" not in table else table[table["error"].fillna("") == ""]
+
+
+def flag_columns(table: pd.DataFrame) -> list[str]:
+    """The true/false columns of ``table`` (outside the row's keys)."""
+    return [c for c in table.columns if c not in _NOT_METRICS and is_bool_dtype(table[c])]
+
+
+def metric_columns(table: pd.DataFrame) -> list[str]:
+    """The numeric columns of ``table`` that are metrics (not flags, keys or draw values)."""
+    return [
+        c
+        for c in table.columns
+        if c not in _NOT_METRICS
+        and not c.startswith(("plant.", "varied."))
+        and is_numeric_dtype(table[c])
+        and not is_bool_dtype(table[c])
+    ]
+
+
+def aggregate(
+    table: pd.DataFrame, by: Sequence[str] = ("variant", "controller"), metrics: Sequence[str] | None = None
+) -> pd.DataFrame:
+    """Per group of ``by``: the statistics of every metric and flag (module docstring).
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        A run table.
+    by : sequence of str
+        The grouping columns; groups in order of first appearance.
+    metrics : sequence of str, optional
+        Numeric columns to summarise (default :func:`metric_columns`); flags are always counted.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Indexed by ``by``; columns ``(metric, stat)``, ``(flag, "count" | "n")``, ``("runs", "n")``
+        and ``("failed", "n")``. A group none of whose runs finished has NaN statistics.
+    """
+    keys = list(by)
+    ok = succeeded(table)
+    metrics = metric_columns(table) if metrics is None else list(metrics)
+    flags = flag_columns(table)
+    groups = table.groupby(keys, sort=False).size().index
+    parts = []
+    if metrics:
+        stats = ok.groupby(keys, sort=False)[metrics].agg(list(_STATS)).rename(columns=_STATS, level=1)
+        for m in metrics:  # one value: sd 0 (pandas gives NaN for ddof 1)
+            stats[(m, "sd")] = stats[(m, "sd")].where(stats[(m, "n")] != 1, 0.0)
+        parts.append(stats)
+    if flags:
+        counted = ok[[*keys, *flags]].astype({f: "float" for f in flags}).groupby(keys, sort=False)[flags]
+        parts.append(counted.agg(["sum", "count"]).rename(columns={"sum": "count", "count": "n"}, level=1))
+    done = ok.groupby(keys, sort=False).size().reindex(groups, fill_value=0)
+    total = table.groupby(keys, sort=False).size().reindex(groups, fill_value=0)
+    counts = pd.DataFrame({("runs", "n"): done, ("failed", "n"): total - done})
+    return pd.concat([p.reindex(groups) for p in parts] + [counts], axis=1)
+
+
+def paired(
+    table: pd.DataFrame,
+    baseline: Mapping[str, str],
+    metrics: Sequence[str],
+    by: Sequence[str] = ("variant", "controller"),
+) -> pd.DataFrame:
+    """Per group, each metric's difference to the baseline's run on the same seed.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        A run table with a ``seed`` column.
+    baseline : mapping of column to value
+        The rows of the baseline, e.g. ``{"variant": "paper", "controller": "mpc"}``.
+    metrics : sequence of str
+        The metrics compared.
+    by : sequence of str
+        The grouping columns.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Indexed by ``by`` (the baseline's own group included, its differences 0); columns
+        ``(metric, stat)`` for ``mean``, ``sd``, ``worst``, ``n``, ``better`` and ``relative``, over
+        the seeds where both finished.
+    """
+    ok = succeeded(table)
+    mask = pd.Series(True, index=ok.index)
+    for column, value in baseline.items():
+        mask &= ok[column] == value
+    base = ok.loc[mask, ["seed", *metrics]]
+    merged = ok[[*by, "seed", *metrics]].merge(base, on="seed", suffixes=("", "@base"))
+    out = {}
+    for m in metrics:
+        merged[m + "@diff"] = merged[m] - merged[m + "@base"]
+        g = merged.groupby(list(by), sort=False)
+        diff = g[m + "@diff"]
+        sd = diff.std().where(diff.count() != 1, 0.0)
+        out.update(
+            {
+                (m, "mean"): diff.mean(),
+                (m, "sd"): sd,
+                (m, "worst"): diff.max(),
+                (m, "n"): diff.count(),
+                (m, "better"): g[m + "@diff"].agg(lambda d: int((d < 0).sum())),
+                (m, "relative"): diff.mean() / g[m + "@base"].mean(),
+            }
+        )
+    return pd.DataFrame(out)
+
+
+def _finite(value: float) -> bool:
+    return value is not None and isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def mean_sd_worst(mean: float, sd: float, worst: float, digits: int = 2) -> str:
+    """``mean ± sd (worst)``, each with ``digits`` decimals; ``n/a`` when the mean is not finite."""
+    if not _finite(mean):
+        return "n/a"
+    return f"{mean:.{digits}f} ± {sd:.{digits}f} ({worst:.{digits}f})"
+
+
+def mean_sd(mean: float, sd: float, fmt: str = "{:.2f}") -> str:
+    """``mean ± sd``, each formatted with ``fmt``; ``n/a`` when the mean is not finite."""
+    return "n/a" if not _finite(mean) else f"{fmt.format(mean)} ± {fmt.format(sd)}"
