@@ -51,7 +51,8 @@ from scipy.interpolate import RectBivariateSpline
 
 from ..config import Scenario
 from ..friction import RateStateFriction
-from ..magnetics import ForceMap, equilibrium_lead, force_map
+from ..magnetics import ForceMap, equilibrium_lead
+from .magnet_table import drawn_force_map
 from .truth import PlantTruth, nominal_plant_truth
 
 __all__ = [
@@ -162,7 +163,10 @@ class UniformForce:
 
 
 class TrueForces:
-    """The plant's force field: the table of the EPM as mounted, scaled by the true remanences.
+    """The plant's force field: the magnets as drawn, from the plant's table of the nominal magnets.
+
+    The draw's remanence scales, height offset, tilt and yaw are applied to the shared table
+    (:func:`~.magnet_table.drawn_force_map`); the map is read at the commanded EPM height.
 
     Parameters
     ----------
@@ -173,20 +177,13 @@ class TrueForces:
     """
 
     def __init__(self, scenario: Scenario, truth: PlantTruth) -> None:
-        rotation = truth.epm_rotation
-        identity = np.allclose(rotation.as_matrix(), np.eye(3), atol=1e-15)
-        self.table = force_map(scenario, epm_orientation=None if identity else rotation)
+        self.table = drawn_force_map(scenario, truth)
         self._map = MapForces(self.table)
-        self.scale = truth.epm_remanence_scale * truth.ipm_remanence_scale
-        self.height_offset_m = truth.epm_height_offset_m
+        self.force = self._map.force  # type: ignore[method-assign]
 
     def force(self, lead_x_m: float, lead_y_m: float, height_m: float) -> tuple[float, float, float] | None:
         """``(F_x, F_y, F_att)``, N, with the EPM commanded at ``height_m`` (its true height is offset)."""
-        f = self._map.force(lead_x_m, lead_y_m, height_m + self.height_offset_m)
-        if f is None:
-            return None
-        s = self.scale
-        return s * f[0], s * f[1], s * f[2]
+        return self._map.force(lead_x_m, lead_y_m, height_m)
 
 
 def _field_equilibrium(field: ForceField, height_m: float) -> np.ndarray:
