@@ -15,7 +15,9 @@ the setpoints. The joint setpoints are recorded and can be exported
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 
@@ -140,6 +142,44 @@ class RobotArmActuator(Actuator):
     def step(self, dt_s: float) -> np.ndarray:
         """Advance by ``dt_s`` (s); returns the EPM position (x, y, height), m."""
         return np.array(self.step_xyz(dt_s))
+
+    def snapshot(self) -> Any:
+        """The arm's state, for :meth:`restore` (the loop steps the arm ahead of the plant).
+
+        Restoring makes Ruckig plan again from the restored state: the same motion, to rounding.
+        """
+        sm, tr = self.smoother, self.tracker
+        inp = sm._inp
+        ruck = [list(inp.current_position), list(inp.current_velocity), list(inp.current_acceleration)]
+        smoother = (ruck, sm._target.copy(), sm._position, sm._velocity, sm._acceleration, sm.t_s)
+        counts = (sm.clipped_commands, sm.braking_ticks)
+        tracker = ([*tr._hist_t], [*tr._hist_q], dataclasses.replace(tr.stats), tr.position_m)
+        own = (
+            self._q_reached.copy(),
+            self._t,
+            self._ticks,
+            self._t_offset,
+            self._xyz,
+            self._q,
+            self._dq,
+            self._v,
+        )
+        return smoother, counts, tracker, own, {k: len(v) for k, v in self._log.items()}
+
+    def restore(self, state: Any) -> None:
+        """Go back to a :meth:`snapshot`."""
+        smoother, counts, tracker, own, lengths = state
+        sm, tr = self.smoother, self.tracker
+        ruck, target, sm._position, sm._velocity, sm._acceleration, sm.t_s = smoother
+        sm._inp.current_position, sm._inp.current_velocity, sm._inp.current_acceleration = ruck
+        sm._target = target.copy()
+        sm.clipped_commands, sm.braking_ticks = counts
+        hist_t, hist_q, stats, tr.position_m = tracker
+        tr._hist_t, tr._hist_q, tr.stats = [*hist_t], [*hist_q], dataclasses.replace(stats)
+        q_reached, self._t, self._ticks, self._t_offset, self._xyz, self._q, self._dq, self._v = own
+        self._q_reached = q_reached.copy()
+        for key, n in lengths.items():
+            del self._log[key][n:]
 
     @property
     def position_m(self) -> np.ndarray:
