@@ -500,9 +500,17 @@ class ClosedLoop:
             self._epm_buffer = np.empty((n, 3))
         epm = self._epm_buffer[:n]
         calls: list[tuple[int, float, np.ndarray]] = []
-        for i in range(n):
+        advance = getattr(self.actuator, "advance_xyz", None)
+        i = 0
+        while i < n:  # the arm in compiled spans between the steps at which commands reach it
             self._arm_inputs(k + i, calls, i)
-            epm[i] = self.actuator.step_xyz(self.dt)
+            if advance is None:
+                epm[i] = self.actuator.step_xyz(self.dt)
+                i += 1
+                continue
+            j = self._next_arm_input(k + i, k_to) - k
+            advance(self.dt, epm[i:j])
+            i = j
         steps, status = self.plant.advance(self.dt, epm)
         if steps < n:  # the plant failed early: the arm only reached the failing step
             self.actuator.restore(state)  # type: ignore[attr-defined]
@@ -511,6 +519,15 @@ class ClosedLoop:
                     self.actuator.set_velocity_command(t_s, vel)
                 self.actuator.step_xyz(self.dt)
         return k + steps, status
+
+    def _next_arm_input(self, k: int, k_to: int) -> int:
+        """The first plant step after ``k`` (and at most ``k_to``) at which a command reaches the arm."""
+        nxt = k_to
+        if self.pending:
+            nxt = min(nxt, self.pending[0][0])
+        if self.stall_end_k > k:
+            nxt = min(nxt, self.stall_end_k)
+        return max(nxt, k + 1)
 
     def _arm_inputs(self, k: int, calls: list[tuple[int, float, np.ndarray]], i: int) -> None:
         """Commands due at plant step ``k`` reach the arm (recorded in ``calls`` at index ``i``)."""
