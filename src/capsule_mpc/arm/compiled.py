@@ -149,11 +149,18 @@ class CompiledTicks:
             np.zeros(3),
         )
         self._log = np.zeros((64, LOG_COLUMNS))
+        #: Whether the kernel's arrays hold the arm's state (the Python objects then lag: :meth:`flush`).
+        self.owns = False
+        self._ticks_unflushed = 0
 
     def _load(self, act: Any) -> bool:
-        """The actuator's state into the kernel's arrays; False if Ruckig cannot plan from it."""
+        """The actuator's state into the kernel's arrays (unless they hold it already: :attr:`owns`);
+        the Ruckig trajectory to sample. False if Ruckig cannot plan from the state."""
         st, (hist_t, hist_q, xyz, q_reached, smo, q_last, dq_last, fk_last) = self.st, self.arrays
         sm, tr = act.smoother, act.tracker
+        if self.owns:
+            st[S_T] = act._t
+            return self._plan(act)
         st[S_T], st[S_TICKS] = act._t, float(act._ticks)
         n = len(tr._hist_t)
         st[S_NHIST] = n
@@ -168,6 +175,11 @@ class CompiledTicks:
         xyz[:], q_reached[:] = act._xyz, act._q_reached
         smo[0], smo[1], smo[2] = sm._position, sm._velocity, sm._acceleration
         q_last[:], dq_last[:], fk_last[:] = act._q, act._dq, tr.position_m
+        return self._plan(act)
+
+    def _plan(self, act: Any) -> bool:
+        """Keep sampling the current trajectory, or plan a new one if the target or state changed."""
+        sm, smo = act.smoother, self.arrays[4]
         key = (*smo.ravel().tolist(), *sm._target.tolist())
         if self._segment is not None and self._segment[2] == key:
             return True  # the trajectory being sampled goes on (Ruckig would not plan again)
@@ -179,17 +191,50 @@ class CompiledTicks:
             return False
         rows, duration = pack_trajectory(self._traj)
         self._segment = (rows, duration, key)
-        st[S_SEG_TIME] = 0.0
+        self.st[S_SEG_TIME] = 0.0
         return True
 
     def _store(self, act: Any, ticks: int) -> None:
-        """The kernel's state back into the actuator after ``ticks`` ticks."""
-        st, (hist_t, hist_q, xyz, q_reached, smo, q_last, dq_last, fk_last) = self.st, self.arrays
+        """What the loop reads every frame back into the actuator after ``ticks`` ticks; the rest
+        stays here until :meth:`flush`."""
+        st, xyz, smo = self.st, self.arrays[2], self.arrays[4]
         act._t = float(st[S_T])
         if ticks == 0:
             return
-        sm, tr = act.smoother, act.tracker
         act._ticks = int(st[S_TICKS])
+        act._xyz = (float(xyz[0]), float(xyz[1]), float(xyz[2]))
+        act._v = smo[1].copy()
+        self._ticks_unflushed += ticks
+        if act.record:
+            act._rows.append(self._log[:ticks].copy())
+        self.owns = True
+        if self._segment is not None:
+            key = (*smo.ravel().tolist(), *act.smoother._target.tolist())
+            self._segment = (self._segment[0], self._segment[1], key)
+
+    def snapshot(self) -> tuple[Any, ...] | None:
+        """The state the kernel holds and the Python objects lack (None if it holds none)."""
+        if not self.owns:
+            return None
+        return self.st.copy(), [a.copy() for a in self.arrays], self._segment, self._ticks_unflushed
+
+    def restore(self, state: tuple[Any, ...]) -> None:
+        """Go back to a :meth:`snapshot` (not None)."""
+        st, arrays, self._segment, self._ticks_unflushed = state
+        self.st[:] = st
+        for mine, saved in zip(self.arrays, arrays, strict=True):
+            mine[...] = saved
+        self.owns = True
+
+    def flush(self, act: Any) -> None:
+        """The kernel's whole state back into the actuator's Python objects (before Python ticks,
+        a snapshot or a read of the trajectory)."""
+        if not self.owns:
+            return
+        self.owns = False
+        st, (hist_t, hist_q, _, q_reached, smo, q_last, dq_last, fk_last) = self.st, self.arrays
+        sm, tr = act.smoother, act.tracker
+        ticks, self._ticks_unflushed = self._ticks_unflushed, 0
         sm._position, sm._velocity, sm._acceleration = smo[0].copy(), smo[1].copy(), smo[2].copy()
         inp = sm._inp
         inp.current_position, inp.current_velocity = smo[0].tolist(), smo[1].tolist()
@@ -204,13 +249,7 @@ class CompiledTicks:
         stats.max_position_error_m, stats.max_orientation_error_rad = float(st[S_MAX_EP]), float(st[S_MAX_ER])
         tr.position_m = fk_last.copy()
         act._q_reached = q_reached.copy()
-        act._xyz = (float(xyz[0]), float(xyz[1]), float(xyz[2]))
-        act._q, act._dq, act._v = q_last.copy(), dq_last.copy(), smo[1].copy()
-        if act.record:
-            act._rows.append(self._log[:ticks].copy())
-        key = (*smo.ravel().tolist(), *sm._target.tolist())
-        if self._segment is not None:
-            self._segment = (self._segment[0], self._segment[1], key)
+        act._q, act._dq = q_last.copy(), dq_last.copy()
 
     def run(self, act: Any, dt_s: float, out: np.ndarray) -> tuple[int, int]:
         """Advance the arm over ``len(out)`` plant steps, EPM positions into ``out``.

@@ -95,6 +95,7 @@ class RobotArmActuator(Actuator):
         p = np.asarray(position_m, dtype=float).ravel()
         if p.shape != (3,):
             raise ValueError(f"position_m: must have 3 entries (x, y, height), got {p.shape[0]}")
+        self._drop_compiled()
         self.smoother.reset(p)
         q, dq = self.tracker.reset(0.0, p)
         self._q_reached = np.array(q, dtype=float)
@@ -144,8 +145,19 @@ class RobotArmActuator(Actuator):
                 out[s] = self.step_xyz(dt_s)
                 s += 1
 
+    def _drop_compiled(self) -> None:
+        """Forget the compiled ticks' state (the Python objects are set anew)."""
+        if self._compiled is not None:
+            self._compiled.owns, self._compiled._ticks_unflushed = False, 0
+
+    def _flush(self) -> None:
+        """The compiled ticks' state into the Python objects (:meth:`CompiledTicks.flush`)."""
+        if self._compiled is not None:
+            self._compiled.flush(self)
+
     def _run_due_ticks(self) -> tuple[float, float, float]:
         """Every arm tick due by the actuator's time; returns the EPM position (FK), m."""
+        self._flush()
         tick = self.tick_s
         while (self._ticks + 1) * tick <= self._t + _TICK_EPS_S:
             t_tick = (self._ticks + 1) * tick
@@ -164,6 +176,7 @@ class RobotArmActuator(Actuator):
 
         Restoring makes Ruckig plan again from the restored state: the same motion, to rounding.
         """
+        compiled = None if self._compiled is None else self._compiled.snapshot()
         sm, tr = self.smoother, self.tracker
         inp = sm._inp
         ruck = [list(inp.current_position), list(inp.current_velocity), list(inp.current_acceleration)]
@@ -180,11 +193,15 @@ class RobotArmActuator(Actuator):
             self._dq,
             self._v,
         )
-        return smoother, counts, tracker, own, len(self._rows), len(self._rows[-1]) if self._rows else 0
+        rows = len(self._rows), len(self._rows[-1]) if self._rows else 0
+        return smoother, counts, tracker, own, rows, compiled
 
     def restore(self, state: Any) -> None:
         """Go back to a :meth:`snapshot`."""
-        smoother, counts, tracker, own, chunks, last_rows = state
+        smoother, counts, tracker, own, (chunks, last_rows), compiled = state
+        self._drop_compiled()
+        if self._compiled is not None and compiled is not None:
+            self._compiled.restore(compiled)
         sm, tr = self.smoother, self.tracker
         ruck, target, sm._position, sm._velocity, sm._acceleration, sm.t_s = smoother
         sm._inp.current_position, sm._inp.current_velocity, sm._inp.current_acceleration = ruck
@@ -211,11 +228,13 @@ class RobotArmActuator(Actuator):
     @property
     def q_rad(self) -> np.ndarray:
         """Latest joint positions (6,), rad."""
+        self._flush()
         return np.array(self._q)
 
     @property
     def dq_radps(self) -> np.ndarray:
         """Latest joint velocities (6,), rad/s."""
+        self._flush()
         return np.array(self._dq)
 
     def limit_counts(self) -> dict[str, int]:
@@ -236,6 +255,7 @@ class RobotArmActuator(Actuator):
         """The EPM setpoints of every arm tick since :meth:`reset` (times on the simulator's clock)."""
         if not self.record:
             raise RuntimeError("RobotArmActuator(record=False) keeps no trajectory")
+        self._flush()
         log = self._log()
         return CartesianTrajectory(
             t_s=self._times(log),
@@ -248,6 +268,7 @@ class RobotArmActuator(Actuator):
         """The joint commands of every arm tick since :meth:`reset` (times on the simulator's clock)."""
         if not self.record:
             raise RuntimeError("RobotArmActuator(record=False) keeps no trajectory")
+        self._flush()
         log = self._log()
         return joint_trajectory(
             self.kin, self._times(log), log[:, 10:16], log[:, 16:22], log[:, 22:25], self.tracker.stats
