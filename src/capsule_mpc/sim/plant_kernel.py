@@ -83,6 +83,25 @@ def bispline(tx: np.ndarray, ty: np.ndarray, c: np.ndarray, x: float, y: float) 
 
 
 @njit(cache=True)
+def _bispline3(tx: np.ndarray, ty: np.ndarray, c: np.ndarray, x: float, y: float, out: np.ndarray) -> None:
+    """:func:`bispline` of three coefficient sets ``c`` (3, n) on one knot grid, into ``out`` (3,)."""
+    nx, ny = tx.shape[0] - _K - 1, ty.shape[0] - _K - 1
+    lx, ly = _span(tx, nx, x), _span(ty, ny, y)
+    hx, hy = np.empty(_K + 1), np.empty(_K + 1)
+    _basis(tx, lx, x, hx)
+    _basis(ty, ly, y, hy)
+    for k in range(3):
+        s = 0.0
+        for i in range(_K + 1):
+            row = (lx - _K + i) * ny + ly - _K
+            acc = 0.0
+            for j in range(_K + 1):
+                acc += c[k, row + j] * hy[j]
+            s += acc * hx[i]
+        out[k] = s
+
+
+@njit(cache=True)
 def _force(fm: tuple, lx: float, ly: float, h: float, out: np.ndarray) -> bool:
     """Force map at (lead, height) into ``out`` (3,); False outside the map (MapForces.force)."""
     tx, ty, coef, heights, bounds = fm
@@ -98,9 +117,12 @@ def _force(fm: tuple, lx: float, ly: float, h: float, out: np.ndarray) -> bool:
     w = (h - heights[k]) / (heights[k + 1] - heights[k])
     if w >= 1.0:
         k, w = k + 1, 0.0
-    for c in range(3):
-        lo = bispline(tx, ty, coef[k, c], lx, ly)
-        out[c] = lo if w == 0.0 else (1 - w) * lo + w * bispline(tx, ty, coef[k + 1, c], lx, ly)
+    _bispline3(tx, ty, coef[k], lx, ly, out)
+    if w != 0.0:
+        hi = np.empty(3)
+        _bispline3(tx, ty, coef[k + 1], lx, ly, hi)
+        for c in range(3):
+            out[c] = (1 - w) * out[c] + w * hi[c]
     return True
 
 
