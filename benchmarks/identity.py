@@ -20,7 +20,8 @@ controller that enforces its deadline acts on its measured solve time. The fault
 
 ``--compare`` prints every digest that differs and exits 1 if any does. With ``--tolerance`` it
 compares the runs' ``run.json`` values instead of the digests: every number within 1 % or, for a
-length (a key ending in ``_m``), 0.02 mm; every flag, status and text identical.
+length (a key ending in ``_m`` or ``_mm``), 0.02 mm; every flag, status and text identical (of
+``outcome``, its first word: completed, stalled, ...).
 """
 
 from __future__ import annotations
@@ -155,12 +156,15 @@ def _where(a: object, b: object, prefix: str = "") -> str:
     return "" if a == b or not prefix else f"\n    {prefix}: {a!r} -> {b!r}"
 
 
-#: Tolerances of ``--compare --tolerance``: relative, and absolute for lengths (keys ending in _m), m.
+#: Tolerances of ``--compare --tolerance``: relative, and absolute for lengths (keys ending in _m
+#: or _mm), m.
 REL_TOL = 0.01
 LENGTH_TOL_M = 2e-5
 
 
 def _close(key: str, a: object, b: object) -> bool:
+    if key == "outcome" and isinstance(a, str) and isinstance(b, str):  # the outcome, not its numbers
+        return a.split()[0] == b.split()[0]
     if isinstance(a, bool) or isinstance(b, bool) or not isinstance(a, (int, float)):
         return a == b
     if not isinstance(b, (int, float)):
@@ -170,6 +174,8 @@ def _close(key: str, a: object, b: object) -> bool:
         return True
     if abs(fa - fb) <= REL_TOL * max(abs(fa), abs(fb)):
         return True
+    if key.endswith("_mm"):
+        return abs(fa - fb) <= LENGTH_TOL_M * 1e3
     return key.endswith("_m") and abs(fa - fb) <= LENGTH_TOL_M
 
 
