@@ -18,8 +18,8 @@ from capsule_mpc.sim.magnet_table import drawn_forces, plant_magnet_table
 REST_LEAD = np.array([-0.017, 0.0])
 #: The stated bound of a drawn force against magpylib (docs/physics.md): |dF| <= BOUND_N per component,
 #: where the horizontal field at the capsule is at least FIELD_FRACTION of the field.
-BOUND_N = 1e-3
-FIELD_FRACTION = 0.3
+BOUND_N = 2e-3
+FIELD_FRACTION = 0.4
 
 
 def with_plant(scenario, **plant):
