@@ -88,21 +88,24 @@ def pack_trajectory(trajectory: object) -> tuple[np.ndarray, float]:
     rows = np.zeros((len(profiles[0]), _ROW))
     for d, prof in enumerate(profiles[0]):
         row = rows[d]
-        row[_T : _T + 7] = prof.t
+        t = prof.t
+        row[_T : _T + 7] = t
         acc = 0.0
-        for i, t in enumerate(prof.t):
-            acc = t if i == 0 else acc + t
+        for i, ti in enumerate(t):
+            acc = ti if i == 0 else acc + ti
             row[_TSUM + i] = acc
         row[_J : _J + 7] = prof.j
         row[_A : _A + 8] = prof.a
         row[_V : _V + 8] = prof.v
         row[_P : _P + 8] = prof.p
         brake = prof.brake
-        row[_BRAKE_DURATION] = brake.duration
-        for off, values in ((_BRAKE_T, brake.t), (_BRAKE_J, brake.j), (_BRAKE_A, brake.a)):
-            row[off : off + 2] = values
-        row[_BRAKE_V : _BRAKE_V + 2] = brake.v
-        row[_BRAKE_P : _BRAKE_P + 2] = brake.p
+        duration = brake.duration
+        if duration > 0:  # a brake pre-trajectory (zero arrays otherwise: nothing to read)
+            row[_BRAKE_DURATION] = duration
+            for off, values in ((_BRAKE_T, brake.t), (_BRAKE_J, brake.j), (_BRAKE_A, brake.a)):
+                row[off : off + 2] = values
+            row[_BRAKE_V : _BRAKE_V + 2] = brake.v
+            row[_BRAKE_P : _BRAKE_P + 2] = brake.p
     return rows, float(trajectory.duration)  # type: ignore[attr-defined]
 
 
