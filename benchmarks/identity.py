@@ -18,7 +18,10 @@ controller that enforces its deadline acts on its measured solve time. The fault
     .venv/bin/python benchmarks/identity.py --out results/identity/after.json [--demo]
     .venv/bin/python benchmarks/identity.py --compare results/identity/before.json results/identity/after.json
 
-``--compare`` prints every digest that differs and exits 1 if any does.
+``--compare`` prints every digest that differs and exits 1 if any does. With ``--tolerance`` it
+compares the runs' ``run.json`` values instead of the digests: every number within 1 % or, for a
+length (a key ending in ``_m`` or ``_mm``), 0.02 mm; every flag, status and text identical (of
+``outcome``, its first word: completed, stalled, ...).
 """
 
 from __future__ import annotations
@@ -153,6 +156,59 @@ def _where(a: object, b: object, prefix: str = "") -> str:
     return "" if a == b or not prefix else f"\n    {prefix}: {a!r} -> {b!r}"
 
 
+#: Tolerances of ``--compare --tolerance``: relative, and absolute for lengths (keys ending in _m
+#: or _mm), m.
+REL_TOL = 0.01
+LENGTH_TOL_M = 2e-5
+
+
+def _close(key: str, a: object, b: object) -> bool:
+    if key == "outcome" and isinstance(a, str) and isinstance(b, str):  # the outcome, not its numbers
+        return a.split()[0] == b.split()[0]
+    if isinstance(a, bool) or isinstance(b, bool) or not isinstance(a, (int, float)):
+        return a == b
+    if not isinstance(b, (int, float)):
+        return False
+    fa, fb = float(a), float(b)
+    if fa == fb or (fa != fa and fb != fb):  # equal, or both NaN
+        return True
+    if abs(fa - fb) <= REL_TOL * max(abs(fa), abs(fb)):
+        return True
+    if key.endswith("_mm"):
+        return abs(fa - fb) <= LENGTH_TOL_M * 1e3
+    return key.endswith("_m") and abs(fa - fb) <= LENGTH_TOL_M
+
+
+def tolerance_differences(a: object, b: object, prefix: str = "") -> list[str]:
+    """Paths at which two run.json values differ beyond the tolerances."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out: list[str] = []
+        for k in sorted(set(a) | set(b)):
+            out += tolerance_differences(a.get(k), b.get(k), f"{prefix}.{k}")
+        return out
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return [
+            d for i, (x, y) in enumerate(zip(a, b)) for d in tolerance_differences(x, y, f"{prefix}[{i}]")
+        ]
+    key = prefix.rsplit(".", 1)[-1].split("[")[0]
+    return [] if _close(key, a, b) else [f"{prefix}: {a!r} -> {b!r}"]
+
+
+def compare_within_tolerance(before: Path, after: Path) -> int:
+    """Compare the runs' run.json values within the tolerances; 1 if any differs beyond them."""
+    a = json.loads(before.read_text())["runs"]
+    b = json.loads(after.read_text())["runs"]
+    differ = 0
+    for name in sorted(set(a) & set(b)):
+        ra, rb = a[name]["digests"].get("run.json"), b[name]["digests"].get("run.json")
+        found = tolerance_differences(ra, rb) if a[name]["exit"] == b[name]["exit"] else ["exit"]
+        for line in found[:10]:
+            print(f"{name}: {line}")
+        differ += bool(found)
+    print(f"{len(set(a) & set(b))} runs compared, {differ} beyond the tolerances")
+    return 1 if differ else 0
+
+
 def compare(before: Path, after: Path) -> int:
     a = json.loads(before.read_text())["runs"]
     b = json.loads(after.read_text())["runs"]
@@ -180,9 +236,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--demo", action="store_true", help="also run the demo (about 2 min)")
     p.add_argument("--workers", type=int, default=2, help="runs at once (default 2)")
     p.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"))
+    p.add_argument("--tolerance", action="store_true", help="with --compare: run.json within tolerances")
     args = p.parse_args(argv)
     if args.compare:
-        return compare(*args.compare)
+        return compare_within_tolerance(*args.compare) if args.tolerance else compare(*args.compare)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)

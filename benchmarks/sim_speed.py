@@ -1,16 +1,21 @@
-"""Simulation speed: how many times faster than real time a baseline run is with the 1 kHz plant.
+"""Simulation speed: a new plant draw's set-up time and how many times faster than real time runs are.
 
-Runs the ``follow`` baseline on configs/rectangle.yaml (0.02 m/s, 1 kHz plant, 30 Hz camera)
-several times and writes the best and median real-time factors, plus a per-step profile of the
-parts of the loop, as JSON.
+For each controller (``follow``, ``mpc`` by default) on configs/rectangle.yaml with the ``lab``
+plant (0.02 m/s, 1 kHz plant, 30 Hz camera, the arm as configured): a *cold* draw, a plant seed no
+earlier run used (its truth built from nothing but the shared caches), then the same draw again
+(*warm*). For each it records the time to build the draw's plant (``draw_ready_s``), the whole run's
+wall time and the loop's real-time factor (``timing.realtime_factor``); plus a per-step profile
+of the plant and the simple arm, as JSON.
 
-    .venv/bin/python benchmarks/sim_speed.py [--repeats N] [--out results/benchmarks/sim_speed.json]
+    .venv/bin/python benchmarks/sim_speed.py [--controllers follow mpc] [--repeats N]
+        [--out results/benchmarks/sim_speed.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import sys
@@ -23,7 +28,7 @@ from _args import int_at_least
 from capsule_mpc.config import packaged_config_path
 from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.outputs import output_file_problem, write_report_file
-from capsule_mpc.sim import CapsulePlant, SimpleArm, simulate
+from capsule_mpc.sim import CapsulePlant, SimpleArm, draw_plant_truth, simulate
 
 #: Plant steps timed per component in the micro-profile.
 PROFILE_STEPS = 20_000
@@ -58,10 +63,32 @@ def profile_parts(scenario) -> dict[str, float]:
     return out
 
 
+def _cold_seed(repeat: int) -> int:
+    """A plant seed no earlier run of this benchmark used (its draw is never cached)."""
+    return 1_000_000 + (time.time_ns() // 1000) % 1_000_000_000 * 10 + repeat
+
+
+def time_draw(scenario, controller: str, path, seed: int) -> dict[str, float]:
+    """Build the draw's plant (timed), then run the controller on it: seconds and real-time factor."""
+    t0 = time.perf_counter()
+    plant = CapsulePlant(scenario, truth=draw_plant_truth(scenario, seed))
+    ready = time.perf_counter() - t0
+    res = simulate(scenario, controller, path, seed, plant=plant)
+    return {
+        "plant_seed": seed,
+        "draw_ready_s": ready,
+        "run_wall_s": time.perf_counter() - t0,
+        "loop_wall_s": res.wall_time_s,
+        "sim_time_s": res.sim_time_s,
+        "realtime_factor": res.realtime_factor,
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and write the report; exit status 2 (and nothing written) for a bad ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int_at_least(1), default=5, help="runs of the baseline, >= 1")
+    parser.add_argument("--controllers", nargs="+", default=["follow", "mpc"], help="controllers to run")
+    parser.add_argument("--repeats", type=int_at_least(1), default=1, help="cold/warm pairs per controller")
     parser.add_argument("--out", default="results/benchmarks/sim_speed.json", help="JSON report file")
     args = parser.parse_args(argv)
     out = Path(args.out)
@@ -69,23 +96,34 @@ def main(argv: list[str] | None = None) -> int:
     if problem is not None:
         print(f"sim_speed: --out: {problem}", file=sys.stderr)
         return 2
-    scenario, path, _ = prepare_run(packaged_config_path("rectangle"), None, None)
-    factors, walls = [], []
-    for seed in range(args.repeats):
-        res = simulate(scenario, "follow", path, seed)
-        factors.append(res.realtime_factor)
-        walls.append(res.wall_time_s)
+    scenario, path, _ = prepare_run(packaged_config_path("rectangle"), None, None, plant_preset="lab")
+    runs: dict[str, dict[str, list[dict[str, float]]]] = {}
+    for controller in args.controllers:
+        cold, warm = [], []
+        for repeat in range(args.repeats):
+            seed = _cold_seed(repeat)
+            cold.append(time_draw(scenario, controller, path, seed))
+            warm.append(time_draw(scenario, controller, path, seed))
+        runs[controller] = {"cold": cold, "warm": warm}
+    summary = {
+        f"{c}_{kind}": {
+            "draw_ready_s_median": statistics.median(r["draw_ready_s"] for r in rows),
+            "realtime_factor_median": statistics.median(r["realtime_factor"] for r in rows),
+        }
+        for c, kinds in runs.items()
+        for kind, rows in kinds.items()
+    }
     report = {
+        "command": " ".join(["benchmarks/sim_speed.py", *(argv if argv is not None else sys.argv[1:])]),
         "scenario": "rectangle",
-        "controller": "follow",
+        "plant_preset": "lab",
+        "actuator": scenario.sim.actuator,
         "plant_rate_hz": scenario.sim.plant_rate_hz,
         "camera_rate_hz": scenario.camera.rate_hz,
-        "sim_time_s": res.sim_time_s,
-        "plant_steps": res.plant_steps,
-        "wall_time_s": walls,
-        "realtime_factor_best": max(factors),
-        "realtime_factor_median": statistics.median(factors),
+        "summary": summary,
+        "runs": runs,
         "per_step_profile_us": profile_parts(scenario),
+        "load_average": list(os.getloadavg()),
         "python": platform.python_version(),
         "machine": platform.machine(),
     }

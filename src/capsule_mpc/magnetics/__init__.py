@@ -2,7 +2,7 @@
 
 from .dipole import MU0, dipole_field, dipole_force, dipole_torque, magnet_moment
 from .finite import finite_force, halbach_array, ipm_magnet, ipm_position
-from .force_map import ForceMap, cache_directory, force_map, force_map_key
+from .force_map import ForceMap, cache_directory, force_map, force_map_axes, force_map_key
 from .models import (
     ORIENTATION_EPS_T,
     capsule_force_function,
@@ -30,6 +30,7 @@ __all__ = [
     "equilibrium_lead",
     "finite_force",
     "force_map",
+    "force_map_axes",
     "force_map_key",
     "halbach_array",
     "ipm_magnet",

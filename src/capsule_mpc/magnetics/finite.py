@@ -69,11 +69,24 @@ def ipm_position(lead_xy: np.ndarray, height_m: float | np.ndarray) -> np.ndarra
     return np.column_stack([-lead[:, 0], -lead[:, 1], -h])
 
 
-def ipm_magnet(ipm: IPMConfig, position: np.ndarray, field: np.ndarray) -> magpy.magnet.CylinderSegment:
-    """The IPM hollow cylinder at ``position``, its axis along the horizontal part of ``field``."""
-    yaw = math.atan2(float(field[1]), float(field[0]))
-    # Extrinsic: tilt the cylinder axis (local z) onto +x, then turn it about z by the yaw.
-    orientation = Rotation.from_euler("yz", [math.pi / 2, yaw])
+def ipm_magnet(
+    ipm: IPMConfig,
+    position: np.ndarray,
+    field: np.ndarray,
+    *,
+    pitch_rad: float = 0.0,
+    azimuth_offset_rad: float = 0.0,
+) -> magpy.magnet.CylinderSegment:
+    """The IPM hollow cylinder at ``position``, its axis along the horizontal part of ``field``.
+
+    ``pitch_rad`` lifts the axis out of the horizontal plane (toward +z) and ``azimuth_offset_rad``
+    turns it about z away from the field's horizontal direction (both 0 for the capsule on the
+    plate: the derivatives of the force with respect to them serve the plant's tilted magnets).
+    """
+    yaw = math.atan2(float(field[1]), float(field[0])) + azimuth_offset_rad
+    # Extrinsic: tilt the cylinder axis (local z) from +z down to the pitch above +x, then turn
+    # it about z by the yaw: the axis is (cos p cos yaw, cos p sin yaw, sin p).
+    orientation = Rotation.from_euler("yz", [math.pi / 2 - pitch_rad, yaw])
     return magpy.magnet.CylinderSegment(
         dimension=(ipm.inner_diameter_m / 2, ipm.outer_diameter_m / 2, ipm.length_m, 0, 360),
         polarization=(0.0, 0.0, ipm.remanence_t),
@@ -95,6 +108,8 @@ def finite_force(
     meshing: int | None = None,
     progress: bool = False,
     epm_orientation: Rotation | None = None,
+    ipm_pitch_rad: float = 0.0,
+    ipm_azimuth_offset_rad: float = 0.0,
 ) -> np.ndarray:
     """Force on the IPM from the Halbach EPM, by magpylib ``getFT``.
 
@@ -112,6 +127,9 @@ def finite_force(
         Show a progress bar.
     epm_orientation : scipy.spatial.transform.Rotation, optional
         Mounting rotation of the EPM about its centre (default: none, the nominal array).
+    ipm_pitch_rad, ipm_azimuth_offset_rad : float
+        The IPM's axis lifted out of the plate's plane and turned away from the field's horizontal
+        direction, rad (default 0: the capsule's orientation, :func:`ipm_magnet`).
 
     Returns
     -------
@@ -127,7 +145,10 @@ def finite_force(
     if progress:
         slices = tqdm(slices, desc="force map (magpylib getFT)", unit="chunk")
     for sl in slices:
-        targets = [ipm_magnet(scenario.ipm, p, b) for p, b in zip(positions[sl], fields[sl])]
+        targets = [
+            ipm_magnet(scenario.ipm, p, b, pitch_rad=ipm_pitch_rad, azimuth_offset_rad=ipm_azimuth_offset_rad)
+            for p, b in zip(positions[sl], fields[sl])
+        ]
         force, _torque = magpy.getFT(source, targets, meshing=cells)
         out[sl] = np.reshape(force, (-1, 3))
     # The EPM is above the IPM in this frame, so the attraction is +z.

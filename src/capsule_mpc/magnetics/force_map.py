@@ -27,7 +27,7 @@ from ..cache import cache_folder, load_or_build
 from ..config import Scenario
 from .finite import finite_force
 
-__all__ = ["ForceMap", "cache_directory", "force_map", "force_map_key"]
+__all__ = ["ForceMap", "cache_directory", "force_map", "force_map_axes", "force_map_key"]
 
 #: Bump when the table's meaning or layout changes, to invalidate old caches.
 _FORMAT_VERSION = 1
@@ -43,6 +43,11 @@ def cache_directory(scenario: Scenario) -> Path:
     ~/.cache/capsule_mpc; a temporary folder, with a warning, if it cannot be written
     (:func:`capsule_mpc.cache.cache_folder`)."""
     return cache_folder(scenario.force_map.cache_dir)
+
+
+def force_map_axes(scenario: Scenario) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid of the scenario's force map: lead x, lead y and EPM-IPM height axes, m."""
+    return _axes(scenario)
 
 
 def _axes(scenario: Scenario) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

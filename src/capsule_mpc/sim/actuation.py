@@ -7,6 +7,7 @@ model as ``sim.actuator: simple``.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -151,6 +152,16 @@ class SimpleArm(Actuator):
     def velocity_mps(self) -> np.ndarray:
         """Current EPM velocity (3,), m/s."""
         return np.array(self._vel)
+
+    def snapshot(self) -> Any:
+        """The arm's state, for :meth:`restore` (the loop steps the arm ahead of the plant)."""
+        return ([*self._pos], [*self._vel], [*self._cmd], [*self._servo_cmd], dict(self._counts))
+
+    def restore(self, state: Any) -> None:
+        """Go back to a :meth:`snapshot`."""
+        pos, vel, cmd, servo, counts = state
+        self._pos, self._vel, self._cmd, self._servo_cmd = [*pos], [*vel], [*cmd], [*servo]
+        self._counts = dict(counts)
 
     def limit_counts(self) -> dict[str, int]:
         """Frames whose command exceeded the speed limit, and steps limited by acceleration or workspace."""

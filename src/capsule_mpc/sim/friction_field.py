@@ -367,6 +367,13 @@ class FrictionField:
             s *= _patch_factor(p, x_m, y_m)
         return s
 
+    def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the compiled plant (:mod:`.plant_kernel`) reads: the grid with its last row and column
+        repeated, (x0, y0, 1/step_x, 1/step_y, u_max, v_max), and one row per patch (as :meth:`scale`)."""
+        geo = np.array([self._x0, self._y0, self._inv_hx, self._inv_hy, self._umax, self._vmax])
+        patches = np.array(self._patches, dtype=float).reshape(-1, 7)
+        return np.array(self._rows, dtype=float), geo, patches
+
     # --- inspection --------------------------------------------------------------------------------
 
     @property

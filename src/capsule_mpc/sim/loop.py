@@ -468,6 +468,8 @@ class ClosedLoop:
         self.rest_s = 0.0
         self.cmd_applied = np.zeros(3)
         self.stall_end_k = -(2**62)  # plant step at which an arm stall ends
+        self._arm_log: list[tuple[float, np.ndarray]] = []  # arm commands not yet noted by _advance
+        self._epm_buffer = np.empty((0, 3))
         self.arm_cmd = np.zeros(3)  # the latest command to reach the arm (kept through a stall)
         self.log = _Log(self.last_frame - self.first_frame + 2)
         self.step_stats: list[StepStats] = []
@@ -485,17 +487,80 @@ class ClosedLoop:
         """A command reaches the arm at plant step ``k``; a stalled arm keeps it for later."""
         self.arm_cmd = vel
         if k >= self.stall_end_k:
-            self.actuator.set_velocity_command(k * self.dt, vel)
+            self._set_arm(k, vel)
 
     def stall(self, k: int, end_k: int) -> None:
         """The arm stops following its commands from plant step ``k`` to ``end_k`` (brakes to rest)."""
         self.stall_end_k = end_k
-        self.actuator.set_velocity_command(k * self.dt, np.zeros(3))
+        self._set_arm(k, np.zeros(3))
 
     def _advance(self, k: int, k_to: int) -> tuple[int, int]:
-        """Step the plant and the arm from plant step ``k`` to ``k_to``; returns (k, status). A
+        """Step the arm and the plant from plant step ``k`` to ``k_to``; returns (k, status). A
         failing step counts: the arm has moved for it and the plant failed under the arm's new
-        position, so the failure is at the step's end (its row comes after the last frame's)."""
+        position, so the failure is at the step's end (its row comes after the last frame's).
+
+        The arm runs first over the whole span (it does not depend on the capsule), then the plant
+        over the arm's positions in one compiled call (:meth:`CapsulePlant.advance`). If the plant
+        fails before the span's end, the arm goes back to its state at ``k`` and runs again only to
+        the failing step. An actuator without ``snapshot``/``restore`` is stepped with the plant."""
+        n = k_to - k
+        snapshot = getattr(self.actuator, "snapshot", None)
+        if n <= 0 or snapshot is None:
+            return self._advance_each(k, k_to)
+        state = snapshot()
+        self._arm_log.clear()  # commands sent before the span are in the snapshot
+        if len(self._epm_buffer) < n:
+            self._epm_buffer = np.empty((n, 3))
+        epm = self._epm_buffer[:n]
+        calls: list[tuple[int, float, np.ndarray]] = []
+        advance = getattr(self.actuator, "advance_xyz", None)
+        i = 0
+        while i < n:  # the arm in compiled spans between the steps at which commands reach it
+            self._arm_inputs(k + i, calls, i)
+            if advance is None:
+                epm[i] = self.actuator.step_xyz(self.dt)
+                i += 1
+                continue
+            j = self._next_arm_input(k + i, k_to) - k
+            advance(self.dt, epm[i:j])
+            i = j
+        steps, status = self.plant.advance(self.dt, epm)
+        if steps < n:  # the plant failed early: the arm only reached the failing step
+            self.actuator.restore(state)  # type: ignore[attr-defined]
+            for i in range(steps):
+                for _, t_s, vel in (c for c in calls if c[0] == i):
+                    self.actuator.set_velocity_command(t_s, vel)
+                self.actuator.step_xyz(self.dt)
+        return k + steps, status
+
+    def _next_arm_input(self, k: int, k_to: int) -> int:
+        """The first plant step after ``k`` (and at most ``k_to``) at which a command reaches the arm."""
+        nxt = k_to
+        if self.pending:
+            nxt = min(nxt, self.pending[0][0])
+        if self.stall_end_k > k:
+            nxt = min(nxt, self.stall_end_k)
+        return max(nxt, k + 1)
+
+    def _arm_inputs(self, k: int, calls: list[tuple[int, float, np.ndarray]], i: int) -> None:
+        """Commands due at plant step ``k`` reach the arm (recorded in ``calls`` at index ``i``)."""
+        pending = self.pending
+        while pending and pending[0][0] <= k:
+            _, vel = pending.popleft()
+            self._to_arm(k, vel)
+        if k == self.stall_end_k:  # the stall is over: the arm takes the latest command
+            self._set_arm(k, self.arm_cmd)
+        calls.extend((i, t_s, vel) for t_s, vel in self._arm_log)
+        self._arm_log.clear()
+
+    def _set_arm(self, k: int, vel: np.ndarray) -> None:
+        """The arm's velocity command from plant step ``k``, noted for a replay of the frame."""
+        t_s = k * self.dt
+        self.actuator.set_velocity_command(t_s, vel)
+        self._arm_log.append((t_s, vel))
+
+    def _advance_each(self, k: int, k_to: int) -> tuple[int, int]:
+        """:meth:`_advance` one plant step at a time (Python calls per step)."""
         step_plant, step_act, pending = self.plant.step, self.actuator.step_xyz, self.pending
         status = OK
         while k < k_to:
@@ -503,12 +568,13 @@ class ClosedLoop:
                 _, vel = pending.popleft()
                 self._to_arm(k, vel)
             if k == self.stall_end_k:  # the stall is over: the arm takes the latest command
-                self.actuator.set_velocity_command(k * self.dt, self.arm_cmd)
+                self._set_arm(k, self.arm_cmd)
             ex, ey, ez = step_act(self.dt)
             status = step_plant(self.dt, ex, ey, ez)
             k += 1
             if status != OK:
                 break
+        self._arm_log.clear()
         return k, status
 
     def _command(self, k: int, t: float, vel: np.ndarray, step_s: float, extra_s: float = 0.0) -> None:

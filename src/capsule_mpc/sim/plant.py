@@ -37,6 +37,10 @@ Integration scheme (one plant step of length dt, capsule mass m):
    solution of paper eq. 7.
 
 The tether drag grows with the tether paid out (the capsule's travelled distance).
+
+:meth:`CapsulePlant.step` is this scheme in Python, one call per plant step;
+:meth:`CapsulePlant.advance` runs the same scheme over the EPM positions of many steps in one
+compiled call (:mod:`.plant_kernel`), which is how the closed loop steps the plant between frames.
 """
 
 from __future__ import annotations
@@ -44,14 +48,17 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
 from ..config import Scenario
 from ..friction import RateStateFriction
-from ..magnetics import ForceMap, equilibrium_lead, force_map
+from ..magnetics import ForceMap, equilibrium_lead
+from .magnet_table import drawn_force_map
+from .plant_kernel import FAIL_LEAD, FAIL_LEFT_MAP, FAIL_NORMAL
+from .plant_kernel import advance as advance_compiled
 from .truth import PlantTruth, nominal_plant_truth
 
 __all__ = [
@@ -123,6 +130,21 @@ class MapForces:
             self._level, self._weight = k + 1, 0.0
         self._cached_h = height_m
 
+    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
+        """What the compiled plant (:mod:`.plant_kernel`) reads: the splines' knots (x, y), their
+        coefficients (heights, 3, n), the heights and the lead bounds (x0, x1, y0, y1)."""
+        splines = [
+            [
+                RectBivariateSpline(self.table.lead_x_m, self.table.lead_y_m, self.table.force_n[:, :, k, c])
+                for c in range(3)
+            ]
+            for k in range(len(self._heights))
+        ]
+        tx, ty, _ = splines[0][0].tck
+        coef = np.array([[s.tck[2] for s in level] for level in splines])
+        bounds = np.array([*self._x, *self._y])
+        return np.asarray(tx, dtype=float), np.asarray(ty, dtype=float), coef, np.array(self._heights), bounds
+
     def force(self, lead_x_m: float, lead_y_m: float, height_m: float) -> tuple[float, float, float] | None:
         """``(F_x, F_y, F_att)`` in N at one lead (m) and height (m); None outside the map."""
         if not (
@@ -162,7 +184,10 @@ class UniformForce:
 
 
 class TrueForces:
-    """The plant's force field: the table of the EPM as mounted, scaled by the true remanences.
+    """The plant's force field: the magnets as drawn, from the plant's table of the nominal magnets.
+
+    The draw's remanence scales, height offset, tilt and yaw are applied to the shared table
+    (:func:`~.magnet_table.drawn_force_map`); the map is read at the commanded EPM height.
 
     Parameters
     ----------
@@ -173,20 +198,14 @@ class TrueForces:
     """
 
     def __init__(self, scenario: Scenario, truth: PlantTruth) -> None:
-        rotation = truth.epm_rotation
-        identity = np.allclose(rotation.as_matrix(), np.eye(3), atol=1e-15)
-        self.table = force_map(scenario, epm_orientation=None if identity else rotation)
+        self.table = drawn_force_map(scenario, truth)
         self._map = MapForces(self.table)
-        self.scale = truth.epm_remanence_scale * truth.ipm_remanence_scale
-        self.height_offset_m = truth.epm_height_offset_m
+        self.force = self._map.force  # type: ignore[method-assign]
+        self.kernel_arrays = self._map.kernel_arrays
 
     def force(self, lead_x_m: float, lead_y_m: float, height_m: float) -> tuple[float, float, float] | None:
         """``(F_x, F_y, F_att)``, N, with the EPM commanded at ``height_m`` (its true height is offset)."""
-        f = self._map.force(lead_x_m, lead_y_m, height_m + self.height_offset_m)
-        if f is None:
-            return None
-        s = self.scale
-        return s * f[0], s * f[1], s * f[2]
+        return self._map.force(lead_x_m, lead_y_m, height_m)
 
 
 def _field_equilibrium(field: ForceField, height_m: float) -> np.ndarray:
@@ -254,6 +273,7 @@ class CapsulePlant:
             equilibrium_lead_m = _field_equilibrium(self.forces, scenario.plate.epm_height_m)
         self.equilibrium_lead_m = np.asarray(equilibrium_lead_m, dtype=float).copy()
         self._eq = (float(self.equilibrium_lead_m[0]), float(self.equilibrium_lead_m[1]))
+        self._kernel: tuple[Any, ...] | None = None  # packed on first advance()
         self.reset(np.zeros(2))
 
     def reset(
@@ -430,3 +450,80 @@ class CapsulePlant:
             self._advance_theta(new, h)
             speed = new
         return OK
+
+    def _kernel_inputs(self) -> tuple[Any, ...]:
+        """The kernel's constant inputs (force map, friction field, law, parameters); empty if the
+        force field is not a force map (the plant then steps in Python)."""
+        arrays = getattr(self.forces, "kernel_arrays", None)
+        if arrays is None:
+            return ()
+        law = self.law
+        par = [self.mass_kg, self.weight_n, 1.0 if self._below else 0.0, self.tether_drag_n]
+        par += [self.tether_growth_n_per_m, self.breakaway_speed_mps, self._decouple2, *self._eq]
+        par += [float(MAX_SUBSTEPS), SLIP_PER_SUBSTEP]
+        return (
+            arrays(),
+            self.truth.friction_field.kernel_arrays(),
+            np.array([law.mu0, law.a, law.b, law.v_star_mps, law.d_c_m]),
+            np.array(par, dtype=float),
+        )
+
+    def advance(self, dt_s: float, epm_m: np.ndarray) -> tuple[int, int]:
+        """Advance over the EPM positions ``epm_m`` (n, 3), m, one step of ``dt_s`` (s) each, in one
+        compiled call (:mod:`.plant_kernel`; a force field that is not a force map steps in Python).
+
+        Returns
+        -------
+        (int, int)
+            Steps taken (a failing step counts, as in :meth:`step`) and :data:`OK`,
+            :data:`FAILURE_DECOUPLED` or :data:`FAILURE_DROPPED`.
+        """
+        if self._kernel is None:
+            self._kernel = self._kernel_inputs()
+        if not self._kernel:
+            for i in range(len(epm_m)):
+                status = self.step(dt_s, *(float(v) for v in epm_m[i]))
+                if status != OK:
+                    return i + 1, status
+            return len(epm_m), OK
+        state = np.array(
+            [
+                self.px,
+                self.py,
+                self.vx,
+                self.vy,
+                self.theta_s,
+                self.travelled_m,
+                *self.force_n,
+                self.normal_force_n,
+                self.mu,
+            ]
+        )
+        fail = np.zeros(4)
+        fm, ff, law, par = self._kernel
+        n, code = advance_compiled(
+            state, np.ascontiguousarray(epm_m, dtype=float), dt_s, fm, ff, law, par, fail
+        )
+        values = state.tolist()
+        self.px, self.py, self.vx, self.vy, self.theta_s, self.travelled_m = values[:6]
+        self.force_n = (values[6], values[7], values[8])
+        self.normal_force_n, self.mu = values[9], values[10]
+        if code == 0:
+            return n, OK
+        self.failure = _failure_text(code, fail, math.sqrt(self._decouple2))
+        return n, FAILURE_DROPPED if code == FAIL_NORMAL else FAILURE_DECOUPLED
+
+
+def _failure_text(code: int, fail: np.ndarray, radius_m: float) -> str:
+    """The words of :meth:`CapsulePlant.step`'s failures for a kernel failure ``code``."""
+    if code == FAIL_LEAD:
+        return (
+            f"decoupled: |lead - equilibrium lead| = {fail[1] * 1e3:.1f} mm > "
+            f"sim.decouple_lead_m = {radius_m * 1e3:.1f} mm"
+        )
+    if code == FAIL_LEFT_MAP:
+        return (
+            f"decoupled: lead ({fail[1] * 1e3:.1f}, {fail[2] * 1e3:.1f}) mm at height "
+            f"{fail[3] * 1e3:.1f} mm left the force map"
+        )
+    return f"dropped: normal force F_N = {fail[1]:.4f} N <= 0 (attraction {fail[2]:.4f} N)"

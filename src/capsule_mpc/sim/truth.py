@@ -11,13 +11,11 @@ The draw uses its own random stream (``numpy.random.default_rng([seed, 1])``),
 separate from the camera's (``default_rng(seed)``), so the camera noise of a seed does not depend
 on how many values the plant draws.
 
-How the truth enters the force model (:class:`capsule_mpc.sim.plant.TrueForces`): the plant's table
-is computed with magpylib for the EPM as it is mounted (tilted and yawed; a
-separate cache key per mounting), so the field's shape is the perturbed one.
-Remanence errors are applied as exact scale factors (for rigid magnets the
-field of the EPM is proportional to its remanence and the IPM's moment to its
-own, so the force scales with their product), and the height error as an offset
-of the table's height coordinate.
+How the truth enters the force model (:class:`capsule_mpc.sim.plant.TrueForces`): one table of the
+nominal magnets, computed with magpylib once and shared by every draw, is turned into the draw's
+table (:mod:`.magnet_table`): remanence errors as exact scale factors (for rigid magnets the field
+of the EPM is proportional to its remanence and the IPM's moment to its own, so the force scales
+with their product), the height offset and yaw exactly, and the tilt within a stated bound.
 """
 
 from __future__ import annotations
