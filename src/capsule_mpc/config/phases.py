@@ -35,7 +35,7 @@ class BreakLooseConfig(StrictModel):
     reference's join onto the path."""
 
     preload: Number | None = Field(
-        None,
+        1.0,
         gt=0,
         le=1,
         description=(
@@ -43,7 +43,7 @@ class BreakLooseConfig(StrictModel):
             "the limits) along the path's initial direction to the lead at which the believed force "
             "is this fraction of the friction belief's breakaway force, arriving at the speed "
             "break_loose.arrival sets (or until the camera sees the capsule break loose); then "
-            "the MPC takes over. (0, 1]; null: the MPC from the first frame."
+            "the MPC takes over. (0, 1], default 1; null: the MPC from the first frame."
         ),
     )
     arrival: Number = Field(

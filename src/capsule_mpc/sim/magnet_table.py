@@ -33,7 +33,10 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from multiprocessing import get_context
 from pathlib import Path
 
 import magpylib as magpy
@@ -205,22 +208,36 @@ class PlantMagnetTable:
             return cls(data["lead_m"], data["height_m"], data["force_n"], str(data["key"]))
 
 
+def _sample_forces(
+    scenario: Scenario, leads: np.ndarray, heights: np.ndarray, pitch: float, azimuth: float, progress: bool
+) -> np.ndarray:
+    """The finite-magnet forces of one orientation sample at every grid point (N, 3), N."""
+    return np.asarray(
+        finite_force(
+            scenario,
+            leads,
+            heights,
+            progress=progress,
+            ipm_pitch_rad=pitch * ORIENTATION_STEP_RAD,
+            ipm_azimuth_offset_rad=azimuth * ORIENTATION_STEP_RAD,
+        )
+    )
+
+
 def _compute(
     scenario: Scenario, lead: np.ndarray, heights: np.ndarray, key: str, progress: bool
 ) -> PlantMagnetTable:
     gx, gy, gh = np.meshgrid(lead, lead, heights, indexing="ij")
     leads = np.column_stack([gx.ravel(), gy.ravel()])
-    forces = [
-        finite_force(
-            scenario,
-            leads,
-            gh.ravel(),
-            progress=progress,
-            ipm_pitch_rad=p * ORIENTATION_STEP_RAD,
-            ipm_azimuth_offset_rad=a * ORIENTATION_STEP_RAD,
-        ).reshape(*gx.shape, 3)
-        for p, a in _SAMPLES
-    ]
+    # The orientation samples are independent magpylib evaluations of minutes each: one process per
+    # core (the cache's lock keeps other processes waiting for the table meanwhile).
+    workers = max(1, min(len(_SAMPLES), os.cpu_count() or 1))
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        jobs = [
+            pool.submit(_sample_forces, scenario, leads, gh.ravel(), p, a, progress and k == 0)
+            for k, (p, a) in enumerate(_SAMPLES)
+        ]
+        forces = [job.result().reshape(*gx.shape, 3) for job in jobs]
     return PlantMagnetTable(lead, heights, np.stack(forces), key)
 
 
