@@ -36,7 +36,7 @@ import math
 import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from multiprocessing import get_context
+from multiprocessing import current_process, get_context
 from pathlib import Path
 
 import magpylib as magpy
@@ -231,7 +231,14 @@ def _compute(
     leads = np.column_stack([gx.ravel(), gy.ravel()])
     # The orientation samples are independent magpylib evaluations of minutes each: one process per
     # core (the cache's lock keeps other processes waiting for the table meanwhile).
-    workers = max(1, min(len(_SAMPLES), os.cpu_count() or 1))
+    # A daemonic process (a Dask or pool worker) may not start processes: it computes them in turn.
+    workers = 1 if current_process().daemon else max(1, min(len(_SAMPLES), os.cpu_count() or 1))
+    if workers == 1:
+        forces = [
+            _sample_forces(scenario, leads, gh.ravel(), p, a, progress).reshape(*gx.shape, 3)
+            for p, a in _SAMPLES
+        ]
+        return PlantMagnetTable(lead, heights, np.stack(forces), key)
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
         jobs = [
             pool.submit(_sample_forces, scenario, leads, gh.ravel(), p, a, progress and k == 0)
