@@ -14,9 +14,9 @@ from capsule_mpc.sim.log import LOG_COLUMNS
 
 DATA = Path(__file__).parent / "data"
 QUICK = DATA / "rectangle_quick.yaml"
-#: Columns of the controller's report of its step (wall-clock timings, status): on a frame whose
-#: command did not come in time the rig reports its own.
-REPORT_COLUMNS = ("solve_ms", "controller_ms", "solver_status", "solver_failed")
+#: Columns of the controller's report of its step (wall-clock timings, status, phase): on a frame
+#: whose command did not come in time the rig reports its own (no phase).
+REPORT_COLUMNS = ("solve_ms", "controller_ms", "solver_status", "solver_failed", "phase")
 #: The command line as a subprocess.
 CLI = [sys.executable, "-c", "import sys; from capsule_mpc.cli import main; sys.exit(main())"]
 
@@ -35,7 +35,7 @@ def waypoints(tmp_path: Path, points, name="path.csv") -> Path:
 
 def same_physics(log: dict, ref: dict) -> list[str]:
     """The columns in which two logs differ: every column but the wall-clock timings, and the
-    controller's status on the frames the rig had its command for."""
+    controller's status and phase on the frames the rig had its command for."""
     differ = [
         c
         for c in LOG_COLUMNS
@@ -43,7 +43,7 @@ def same_physics(log: dict, ref: dict) -> list[str]:
     ]
     if len(log["t_s"]) == len(ref["t_s"]):
         answered = ~np.char.startswith(log["solver_status"].astype(str), "late:")
-        for c in ("solver_status", "solver_failed"):
+        for c in ("solver_status", "solver_failed", "phase"):
             if not np.array_equal(log[c][answered], ref[c][answered]):
                 differ.append(c)
     return differ

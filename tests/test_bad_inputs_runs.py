@@ -344,7 +344,16 @@ def test_log_export_refuses_a_log_cut_at_a_row_boundary(old, capsys):
     assert snapshot(old.parent) == before
 
 
-def test_the_mcap_writers_reports_of_a_full_disk_become_one_error_naming_the_file(tmp_path, capsys):
+@pytest.mark.parametrize(
+    "io_error",
+    [
+        'Os { code: 28, kind: StorageFull, message: "No space" }',
+        # the system's error wrapped in another (what a full tmpfs gives)
+        "Custom { kind: Other, error: No space left on device (os error 28) }",
+    ],
+    ids=["os", "wrapped"],
+)
+def test_the_mcap_writers_reports_of_a_full_disk_become_one_error_naming_the_file(tmp_path, capsys, io_error):
     import logging
 
     import foxglove
@@ -354,7 +363,7 @@ def test_the_mcap_writers_reports_of_a_full_disk_become_one_error_naming_the_fil
     sinks = Sinks(tmp_path / "run.mcap")
     schema = foxglove.Schema(name="note", encoding="jsonschema", data=b"{}")
     sinks.open([ChannelSpec("/note", schema, "json")])
-    report = 'error logging message: McapError(Io(Os { code: 28, kind: StorageFull, message: "No space" }))'
+    report = f"error logging message: McapError(Io({io_error}))"
     for _ in range(100):  # what the SDK says for each message it cannot write
         logging.getLogger("foxglove.log_sink_set").warning(report)
     with pytest.raises(OSError, match="No space left on device") as info:

@@ -5,7 +5,8 @@ The layers, bottom to top (a module may import its own layer and those below):
 
 0. errors, atomic, interrupt, cache, plan_options -- no package imports but each other;
 1. config -- the scenario and its validation;
-2. budget, friction, magnetics, paths, safety, estimation, metrics, outputs -- physics and tools;
+2. budget, friction, magnetics, paths, safety, estimation, metrics, outputs, overwrite, previous_run
+   -- physics and tools (the outputs' rules: no overwritten input, the previous run kept);
 3. dynamics, steady, path_reach, interfaces -- the model and the loop's interfaces;
 4. baselines, planner -- controllers that plan offline or not at all;
 5. mpc -- the receding-horizon controller (uses the planner's plan as feed-forward);
@@ -32,7 +33,18 @@ REPO = Path(__file__).resolve().parents[1]
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors", "atomic", "interrupt", "cache", "plan_options"),
     ("config",),
-    ("budget", "friction", "magnetics", "paths", "safety", "estimation", "metrics", "outputs"),
+    (
+        "budget",
+        "friction",
+        "magnetics",
+        "paths",
+        "safety",
+        "estimation",
+        "metrics",
+        "outputs",
+        "overwrite",
+        "previous_run",
+    ),
     ("dynamics", "steady", "path_reach", "interfaces"),
     ("baselines", "planner"),
     ("mpc",),

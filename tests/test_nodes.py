@@ -97,7 +97,9 @@ def test_nodes_in_time_give_the_in_process_run(tmp_path, controller, plant, rate
         pytest.fail(
             f"commands missed their deadlines in motion in every run ({misses}; load {os.getloadavg()})"
         )
-    # the commands in time: the in-process run, but for the wall-clock columns
+    # the commands in time: the in-process run, but for the wall-clock columns (the controller's
+    # phases, which it reports with each command, included)
+    assert set(ref.log["phase"].tolist()) - {""}
     assert same_physics(result.log, ref.log) == []
     assert result.metrics["tracking_rms_mm"] == ref.metrics["tracking_rms_mm"]
 

@@ -68,6 +68,7 @@ HOT = st.one_of(
         velocity_mps=vec(3),
         outcome=text,
         status=text,
+        phase=text,
         solve_ms=any_float,
         iterations=st.integers(-(2**31), 2**31 - 1),
         failed=st.booleans(),
@@ -158,7 +159,13 @@ def test_the_hand_written_codecs_are_the_dynamic_ones_both_ways(msg):
     [
         m.CameraFrame(m.Header(frame_id="plate", run_id="run"), valid=True, position_m=np.ones(2)),
         m.ArmState(joint_names=("a", "bc"), joint_positions_rad=np.ones(2)),
-        m.EpmCommand(status="x", extra_names=("n",), extra_values=np.ones(1), predicted_path_m=np.ones(4)),
+        m.EpmCommand(
+            status="x",
+            phase="slide",
+            extra_names=("n",),
+            extra_values=np.ones(1),
+            predicted_path_m=np.ones(4),
+        ),
     ],
 )
 def test_every_truncation_of_a_per_frame_message_is_a_message_error(msg):

@@ -17,6 +17,9 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
+import yaml
+
+from .config._yaml import packaged_config_path
 from .errors import OutputError
 
 __all__ = ["config_files", "refuse_overwrite", "resolved", "shown_path"]
@@ -55,10 +58,6 @@ def config_files(config: Given) -> list[Path]:
     base included); what cannot be read is left to the loader to report."""
     if config is None or not str(config):
         return []
-    import yaml
-
-    from .config._yaml import packaged_config_path  # lazy: pydantic and yaml only when needed
-
     files: list[Path] = []
     path = Path(config)
     for _ in range(_MAX_BASE_DEPTH):

@@ -399,6 +399,7 @@ class ControllerNode:
         self._inline = step_ms * 1e-3 < _INLINE_STEP_PERIODS * self.period_s
         vel = np.asarray(getattr(cmd, "epm_velocity_mps", np.nan), dtype=float).ravel()
         stats = cmd.stats if isinstance(cmd, Command) else StepStats(status="invalid", failed=True)
+        phase = stats.phase  # the controller's own report, kept when its command is invalid
         if vel.shape != (3,):  # the rig takes a non-finite command as invalid and stops the EPM
             vel, stats = (
                 np.full(3, math.nan),
@@ -412,6 +413,7 @@ class ControllerNode:
             velocity_mps=vel,
             outcome=stats.outcome.value,
             status=stats.status,
+            phase=phase,
             solve_ms=float(stats.solve_ms),
             iterations=int(stats.iterations),
             failed=bool(stats.failed),

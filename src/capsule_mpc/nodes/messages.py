@@ -67,7 +67,7 @@ __all__ = [
 ]
 
 #: Version of the message schemas; a node drops messages of another version.
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 #: The ROS 2 package of the message types.
 PACKAGE = "capsule_mpc_msgs"
 #: Name of the coordinate frame of every position: x, y on the plate, m (the EPM: and its height).
@@ -182,6 +182,7 @@ class EpmCommand:
     velocity_mps: np.ndarray = field(default_factory=_nan3)
     outcome: str = "ok"
     status: str = ""
+    phase: str = ""
     solve_ms: float = math.nan
     iterations: int = 0
     failed: bool = False
@@ -339,7 +340,7 @@ _FRAME_TAIL = struct.Struct("<qdB7x2d")
 _ARM_BODY = struct.Struct("<q9dB")
 #: EpmCommand after its header (8-aligned): frame_seq, frame_index, velocity_mps.
 _CMD_HEAD = struct.Struct("<Qq3d")
-#: EpmCommand after its two strings (8-aligned): solve_ms, iterations, failed, finished, step_ms.
+#: EpmCommand after its three strings (8-aligned): solve_ms, iterations, failed, finished, step_ms.
 _CMD_STATS = struct.Struct("<diBB2xd")
 _CDR_LE = b"\x00\x01\x00\x00"
 _ZEROS = tuple(bytes(n) for n in range(8))
@@ -420,6 +421,7 @@ def _encode_command(msg: EpmCommand) -> bytes:
     buf += _CMD_HEAD.pack(msg.frame_seq, msg.frame_index, vx, vy, vz)
     _put_str(buf, msg.outcome)
     _put_str(buf, msg.status)
+    _put_str(buf, msg.phase)
     _pad(buf, 8)
     failed, finished = 1 if msg.failed else 0, 1 if msg.finished else 0
     buf += _CMD_STATS.pack(msg.solve_ms, msg.iterations, failed, finished, msg.step_ms)
@@ -490,13 +492,14 @@ def _decode_command(data: bytes) -> EpmCommand:
     frame_seq, index, vx, vy, vz = _CMD_HEAD.unpack_from(data, off)
     outcome, off = _get_str(data, off + _CMD_HEAD.size)
     status, off = _get_str(data, off)
+    phase, off = _get_str(data, off)
     off = _aligned(off, 8)
     solve_ms, iterations, failed, finished, step_ms = _CMD_STATS.unpack_from(data, off)
     names, off = _get_strs(data, off + _CMD_STATS.size)
     extra, off = _get_floats(data, off)
     path, _ = _get_floats(data, off)
     return EpmCommand(
-        header, frame_seq, index, np.array([vx, vy, vz]), outcome, status, solve_ms, iterations,
+        header, frame_seq, index, np.array([vx, vy, vz]), outcome, status, phase, solve_ms, iterations,
         failed != 0, finished != 0, step_ms, names, extra, path,
     )  # fmt: skip
 

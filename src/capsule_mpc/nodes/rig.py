@@ -389,6 +389,7 @@ class RemoteController(Controller):
             failed=answer.failed,
             outcome=_OUTCOMES.get(answer.outcome, StepOutcome.INVALID),
             extra=dict(zip(answer.extra_names, answer.extra_values.tolist())),
+            phase=answer.phase,
         )
         self.last_command = Command(answer.velocity_mps.copy(), stats)
         path = answer.predicted_path_m

@@ -30,8 +30,10 @@ __all__ = ["ChannelSpec", "Sinks"]
 SERVER_NAME = "capsule-mpc"
 #: The logger through which the Foxglove SDK reports a message it could not write to a sink.
 _SDK_LOGGER = "foxglove.log_sink_set"
-#: The operating system's error number in such a report (``Os { code: 28, ... }``).
-_OS_CODE = re.compile(r"Os \{ code: (\d+)")
+#: The operating system's error number in such a report: ``Os { code: 28, ... }`` for the error
+#: as the system gave it, ``(os error 28)`` for one the writer passed on wrapped in another
+#: (``Custom { kind: Other, error: No space left on device (os error 28) }``, as a full tmpfs gives).
+_OS_CODE = re.compile(r"Os \{ code: (\d+)|\(os error (\d+)\)")
 
 
 class _WriteErrors(logging.Filter):
@@ -55,7 +57,7 @@ class _WriteErrors(logging.Filter):
         if self.first is None:
             return None
         code = _OS_CODE.search(self.first)
-        number = int(code.group(1)) if code else errno.EIO
+        number = int(code.group(1) or code.group(2)) if code else errno.EIO
         return OSError(number, os.strerror(number), str(path) if path is not None else None)
 
 
