@@ -5,10 +5,10 @@ Each :meth:`CapsuleEnv.step` is one camera frame of a :class:`~capsule_mpc.sim.l
 the EPM velocity command of the frame.
 
 Action: the EPM's velocity (vx, vy, vz), m/s, each within ``+-limits.speed_mps`` (vz moves its
-height). It is the frame's command as every controller's is: applied ``plant.compute_delay_s`` after the frame, through the
-arm's own guard (the speed clip and the workspace braking), Ruckig's jerk-limited setpoints and
-the UR5's inverse kinematics (``sim.actuator: robot``), with the draw's servo lag; zero during
-the settle phase (t < 0, the arm held still). An action outside the space is refused (ValueError;
+height). It is the frame's command as every controller's is: applied ``plant.compute_delay_s``
+after the frame, through the arm's own guard (the speed clip and the workspace braking),
+Ruckig's jerk-limited setpoints and the UR5's inverse kinematics (``sim.actuator: robot``), with
+the draw's servo lag; zero during the settle phase (t < 0, the arm held still). An action outside the space is refused (ValueError;
 wrap the env in ``gymnasium.wrappers.ClipAction`` to clip instead).
 
 Reward per step, in mm s (the negative time integral of the tracking error): ``-e * dt`` with ``e``
@@ -124,7 +124,8 @@ class CapsuleEnv(gym.Env[np.ndarray, np.ndarray]):
         super().reset(seed=seed)
         if seed is not None and seed < 0:
             raise ValueError(f"seed: must be >= 0, got {seed}")
-        run_seed = int(seed) if seed is not None else int(self.np_random.integers(TRAINING_SEED_BASE, _SEED_END))
+        drawn = int(self.np_random.integers(TRAINING_SEED_BASE, _SEED_END))
+        run_seed = int(seed) if seed is not None else drawn
         self.close()
         self.seed_used, self.result, self.policy_finished = run_seed, None, True
         self.path = task_path(self.task.name, run_seed)
@@ -159,7 +160,7 @@ class CapsuleEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"action: must be 3 finite values (vx, vy, vz), m/s, got {action!r}")
         speed = float(self.action_space.high[0])
         if np.any(np.abs(act) > speed):
-            raise ValueError(f"action: each of (vx, vy, vz) must be within +-{speed:g} m/s, got {act.tolist()}")
+            raise ValueError(f"action: each of (vx, vy, vz) must be in +-{speed:g} m/s, got {act.tolist()}")
         return act
 
     def _observe(self, frame: AgentFrame) -> np.ndarray:

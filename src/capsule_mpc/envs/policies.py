@@ -33,8 +33,8 @@ class ControllerPolicy:
     """A :class:`~capsule_mpc.interfaces.Controller` driven through the environment's observations.
 
     The controller is reset with the environment's nominal scenario, the episode's path and the
-    EPM's start pose (:attr:`CapsuleEnv.epm_start_m`), and stepped with the time, measurement and EPM pose each
-    observation carries, as the loop would step it.
+    EPM's start pose (:attr:`CapsuleEnv.epm_start_m`), and stepped with the time, measurement and
+    EPM pose each observation carries, as the loop would step it.
 
     Parameters
     ----------

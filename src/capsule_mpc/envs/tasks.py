@@ -180,9 +180,7 @@ def _unseen_waypoints(rng: np.random.Generator) -> np.ndarray:
     :data:`UNSEEN_MIN_SEGMENT_M` and every turn at most :data:`UNSEEN_MAX_TURN_RAD`."""
     x0, x1, y0, y1 = UNSEEN_BOX_M
     for _ in range(_MAX_PATH_TRIES):
-        pts = np.column_stack(
-            [rng.uniform(x0, x1, UNSEEN_WAYPOINTS), rng.uniform(y0, y1, UNSEEN_WAYPOINTS)]
-        )
+        pts = np.column_stack([rng.uniform(x0, x1, UNSEEN_WAYPOINTS), rng.uniform(y0, y1, UNSEEN_WAYPOINTS)])
         seg_ok = np.all(np.hypot(*np.diff(pts, axis=0).T) >= UNSEEN_MIN_SEGMENT_M)
         turns = [_turn_rad(pts[i - 1], pts[i], pts[i + 1]) for i in range(1, len(pts) - 1)]
         if seg_ok and max(turns) <= UNSEEN_MAX_TURN_RAD:
