@@ -8,8 +8,9 @@ Action: the EPM's velocity (vx, vy, vz), m/s, each within ``+-limits.speed_mps``
 height). It is the frame's command as every controller's is: applied ``plant.compute_delay_s``
 after the frame, through the arm's own guard (the speed clip and the workspace braking),
 Ruckig's jerk-limited setpoints and the UR5's inverse kinematics (``sim.actuator: robot``), with
-the draw's servo lag; zero during the settle phase (t < 0, the arm held still). An action outside the space is refused (ValueError;
-wrap the env in ``gymnasium.wrappers.ClipAction`` to clip instead).
+the draw's servo lag; zero during the settle phase (t < 0, the arm held still). An action
+outside the space is refused (ValueError; wrap the env in ``gymnasium.wrappers.ClipAction`` to
+clip instead).
 
 Reward per step, in mm s (the negative time integral of the tracking error): ``-e * dt`` with ``e``
 the true capsule's distance to the time-parameterised reference at the next frame, mm, and ``dt``
