@@ -36,7 +36,7 @@ tests' (below 1200).
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -93,7 +93,7 @@ class CapsuleEnv(gym.Env[np.ndarray, np.ndarray]):
         path's start), m: what a controller's ``reset`` is given.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
+    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012 (declared so by gymnasium.Env)
 
     def __init__(self, task: str = "rectangle", preset: str = "lab", render_mode: str | None = None) -> None:
         if render_mode is not None:
@@ -159,7 +159,7 @@ class CapsuleEnv(gym.Env[np.ndarray, np.ndarray]):
         act = np.asarray(action, dtype=float).ravel()
         if act.shape != (3,) or not np.all(np.isfinite(act)):
             raise ValueError(f"action: must be 3 finite values (vx, vy, vz), m/s, got {action!r}")
-        speed = float(self.action_space.high[0])
+        speed = float(self.scenario.limits.speed_mps)
         if np.any(np.abs(act) > speed):
             raise ValueError(f"action: each of (vx, vy, vz) must be in +-{speed:g} m/s, got {act.tolist()}")
         return act

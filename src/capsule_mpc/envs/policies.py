@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..interfaces import Controller, make_controller
 from .env import CapsuleEnv
-from .observation import measurement_from_observation
+from .observation import action_space, measurement_from_observation
 
 __all__ = ["ControllerPolicy", "Policy", "PolicyFactory", "controller_policy", "load_policy", "random_policy"]
 
@@ -75,9 +75,13 @@ def controller_policy(name: str) -> PolicyFactory:
 
 def random_policy(env: CapsuleEnv) -> Policy:
     """Actions uniform in the action space, from a generator seeded with the episode's seed."""
-    space = env.action_space
+    space = action_space(env.scenario)
     rng = np.random.default_rng(env.seed_used)
-    return lambda obs: rng.uniform(space.low, space.high)
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        return np.asarray(rng.uniform(space.low, space.high))
+
+    return act
 
 
 def load_policy(spec: str) -> PolicyFactory:
@@ -101,4 +105,4 @@ def load_policy(spec: str) -> PolicyFactory:
         factory = getattr(factory, part, None)
     if not callable(factory):
         raise ConfigError(f"--policy: {spec!r} is not a callable")
-    return factory  # type: ignore[no-any-return]
+    return factory
