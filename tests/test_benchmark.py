@@ -76,9 +76,8 @@ def test_the_files_hold_the_runs_and_the_command(tmp_path):
 
 
 def test_a_policy_runs_the_suite_through_the_environment():
-    rows = run_entrant(
-        Entrant.of_policy("capsule_mpc.envs.policies:random_policy"), [3], tasks=["pipe_fast"], presets=["lab"]
-    )
+    entrant = Entrant.of_policy("capsule_mpc.envs.policies:random_policy")
+    rows = run_entrant(entrant, [3], tasks=["pipe_fast"], presets=["lab"])
     assert len(rows) == 1 and rows[0]["error"] == ""
     assert rows[0]["success"] is False  # random actions do not make a path
     assert math.isfinite(rows[0]["score"])
@@ -94,6 +93,7 @@ def test_bad_policies_and_options_are_refused(capsys, tmp_path):
     assert main(["benchmark", "--out", str(tmp_path / "b")]) == 2
     assert "give at least one --controller or --policy" in capsys.readouterr().err
     assert main(["benchmark", "--controller", "nope", "--out", str(tmp_path / "b")]) == 2
-    assert main(["benchmark", "--controller", "follow", "--task", "spiral", "--out", str(tmp_path / "b")]) == 2
+    out = str(tmp_path / "b")
+    assert main(["benchmark", "--controller", "follow", "--task", "spiral", "--out", out]) == 2
     assert "task: must be one of" in capsys.readouterr().err
     assert not (tmp_path / "b").exists()
