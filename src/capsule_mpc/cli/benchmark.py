@@ -87,6 +87,16 @@ def source_commit() -> str | None:
     return out.stdout.strip() or None
 
 
+def command_line(args: argparse.Namespace) -> str:
+    """The command that reproduces the run (its options, ``--out`` aside)."""
+    words = ["capsule-mpc", "benchmark"]
+    words += [w for c in args.controller for w in ("--controller", c)]
+    words += [w for p in args.policy for w in ("--policy", p)]
+    words += [w for t in args.task or () for w in ("--task", t)]
+    words += [w for p in args.preset or () for w in ("--preset", p)]
+    return " ".join([*words, "--draws", str(args.draws)])
+
+
 def _entrants(args: argparse.Namespace) -> list[Any]:
     from ..experiments.benchmark import Entrant
     from ..experiments.runs import check_controller
@@ -126,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
         for entrant in entrants:
             rows += bench.run_entrant(entrant, seeds, tasks=tasks, presets=presets, on_run=show)
         meta = {
-            "command": "capsule-mpc " + " ".join(sys.argv[1:]) if sys.argv[1:] else "capsule-mpc benchmark",
+            "command": command_line(args),
             "seeds": seeds,
             "draws": args.draws,
             "commit": source_commit(),
