@@ -49,6 +49,20 @@ def _finite(value: Any) -> Any:
     return value
 
 
+def nominal_values(fields: Sequence[str]) -> dict[str, float]:
+    """The nominal rig's value of each dotted field (``configs/paper.yaml``)."""
+    from capsule_mpc.experiments.reproduction import scenario_variant
+
+    data = scenario_variant("paper", {}).model_dump(mode="json")
+    out = {}
+    for field in fields:
+        node: Any = data
+        for key in field.split("."):
+            node = node[key]
+        out[field] = float(node)
+    return out
+
+
 def run(draws: int) -> dict[str, Any]:
     """Run the protocol and the sensitivity; the JSON record."""
     from capsule_mpc.experiments.reproduction import (
@@ -84,6 +98,7 @@ def run(draws: int) -> dict[str, Any]:
         "wall_s": round(time.time() - start, 1),
         "lab_seeds": list(range(draws)),
         "sensitivity_axes": {k: list(v) for k, v in SENSITIVITY.items()},
+        "nominal": nominal_values(list(SENSITIVITY)),
         "paper": PAPER_RESULTS,
         "protocol": [{k: _finite(v) for k, v in r.items()} for r in protocol],
         "sensitivity": [{k: _finite(v) for k, v in r.items()} for r in sensitivity],

@@ -67,7 +67,7 @@ def test_scenario_variants_change_one_field_and_refuse_bad_values():
     sc = scenario_variant("paper", {"plant.preset": "ideal", "friction.rate_state.b": 0.03})
     assert sc.plant.preset == "ideal" and sc.friction.rate_state.b == 0.03
     assert sc.friction.rate_state.a == scenario_variant("paper", {}).friction.rate_state.a
-    with pytest.raises(ConfigError, match="friction.mu0"):
+    with pytest.raises(ConfigError, match=r"friction\.mu0"):
         scenario_variant("paper", {"friction.mu0": 5.0})
 
 
