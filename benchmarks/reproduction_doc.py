@@ -125,6 +125,21 @@ def _hidden(record: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _headings(record: dict[str, Any]) -> list[str]:
+    lines = [
+        "| experiment | v (m/s) | arm | lead, legs along x (mm) | lead, legs along y (mm) | STD (mm) "
+        "| STD within the legs (mm) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for exp, (title, speed) in EXPERIMENT_TITLES.items():
+        lab = _pairs(record, exp, "lab")
+        for i, arm in enumerate(("v", "0.8 v")):
+            runs = [p[i] for p in lab]
+            keys = ("lead_x_legs_mm", "lead_y_legs_mm", "paper_std_mm", "paper_std_within_legs_mm")
+            lines.append("| " + " | ".join([title, speed, arm] + [_msw([r[k] for r in runs]) for k in keys]) + " |")
+    return lines
+
+
 def _sensitivity_pair(record: dict[str, Any], parameter: str, value: float) -> list[dict[str, Any]]:
     """The sensitivity's runs of ``follow`` and ``paper_0.8v`` at one value."""
     pair = [r for r in record["sensitivity"] if r["parameter"] == parameter and r["value"] == value]
@@ -174,6 +189,7 @@ def render(record: dict[str, Any]) -> str:
         "side_by_side": "\n".join(_side_by_side(record, n_lab)),
         "metric_ways": "\n".join(_metric_ways(record)),
         "hidden": "\n".join(_hidden(record)),
+        "headings": "\n".join(_headings(record)),
         "sensitivity": "\n".join(_sensitivity(record, record["nominal"])),
         "helps": ", ".join(_helps(record)) or "none of the values tried",
     }

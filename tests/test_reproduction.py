@@ -13,7 +13,12 @@ import numpy as np
 import pytest
 
 from capsule_mpc.errors import ConfigError
-from capsule_mpc.experiments.reproduction import motion_windows, paper_std_mm, scenario_variant
+from capsule_mpc.experiments.reproduction import (
+    lead_by_heading_mm,
+    motion_windows,
+    paper_std_mm,
+    scenario_variant,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 RATE_HZ = 30.0
@@ -53,6 +58,22 @@ def test_the_paper_metric_is_the_oscillation_amplitude_over_root_two():
     # a constant offset along the lead (the camera's bias here) leaves the spread alone
     assert paper_std_mm(log, "camera") == pytest.approx(AMPLITUDE_MM / math.sqrt(2.0), rel=1e-9)
     assert int(np.count_nonzero(motion_windows(log))) == 8 * round(RATE_HZ * PERIOD_S)
+
+
+def test_a_lead_that_changes_with_the_heading_only_is_all_between_legs():
+    """An L of two equal legs, 13 mm behind along x, 21 mm along y: the STD is half the difference."""
+    n = 60
+    t = np.arange(2 * n) / RATE_HZ
+    vx = np.r_[np.full(n, 0.02), np.zeros(n)]
+    vy = np.r_[np.zeros(n), np.full(n, 0.02)]
+    epm = np.column_stack([np.cumsum(vx), np.cumsum(vy)]) / RATE_HZ
+    lead = np.r_[np.tile([0.013, 0.0], (n, 1)), np.tile([0.0, 0.021], (n, 1))]
+    log = {"t_s": t, "epm_vx_mps": vx, "epm_vy_mps": vy, "epm_x_m": epm[:, 0], "epm_y_m": epm[:, 1]}
+    log.update(capsule_x_m=epm[:, 0] - lead[:, 0], capsule_y_m=epm[:, 1] - lead[:, 1])
+    split = lead_by_heading_mm(log)
+    assert split["lead_x_legs_mm"] == pytest.approx(13.0) and split["lead_y_legs_mm"] == pytest.approx(21.0)
+    assert split["paper_std_within_legs_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert paper_std_mm(log) == pytest.approx(4.0)
 
 
 def test_the_metric_is_nan_without_motion_and_refuses_an_unknown_source():
