@@ -136,7 +136,8 @@ def _headings(record: dict[str, Any]) -> list[str]:
         for i, arm in enumerate(("v", "0.8 v")):
             runs = [p[i] for p in lab]
             keys = ("lead_x_legs_mm", "lead_y_legs_mm", "paper_std_mm", "paper_std_within_legs_mm")
-            lines.append("| " + " | ".join([title, speed, arm] + [_msw([r[k] for r in runs]) for k in keys]) + " |")
+            cells = [title, speed, arm] + [_msw([r[k] for r in runs]) for k in keys]
+            lines.append("| " + " | ".join(cells) + " |")
     return lines
 
 
