@@ -68,6 +68,8 @@ def run(draws: int) -> dict[str, Any]:
     from capsule_mpc.experiments.reproduction import (
         PAPER_RESULTS,
         SENSITIVITY,
+        SPEED_LAWS,
+        pipe_speed_rows,
         protocol_rows,
         sensitivity_rows,
     )
@@ -84,6 +86,7 @@ def run(draws: int) -> dict[str, Any]:
     cpu0 = time.process_time()
     protocol = protocol_rows([("ideal", [0]), ("lab", list(range(draws)))], on_row=show)
     sensitivity = sensitivity_rows(0, on_row=show)
+    speeds = pipe_speed_rows(0, on_row=lambda r: show({**r, "experiment": f"pipe {r['law']} {r['speed_mps']}"}))
     return {
         "command": f"python benchmarks/reproduction.py --draws {draws}",
         "commit": _commit(),
@@ -102,6 +105,8 @@ def run(draws: int) -> dict[str, Any]:
         "paper": PAPER_RESULTS,
         "protocol": [{k: _finite(v) for k, v in r.items()} for r in protocol],
         "sensitivity": [{k: _finite(v) for k, v in r.items()} for r in sensitivity],
+        "speed_laws": SPEED_LAWS,
+        "pipe_speeds": [{k: _finite(v) for k, v in r.items()} for r in speeds],
     }
 
 

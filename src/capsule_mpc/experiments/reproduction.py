@@ -29,10 +29,12 @@ from ..sim import simulate
 __all__ = [
     "PAPER_RESULTS",
     "SENSITIVITY",
+    "SPEED_LAWS",
     "Experiment",
     "lead_by_heading_mm",
     "motion_windows",
     "paper_std_mm",
+    "pipe_speed_rows",
     "protocol_rows",
     "protocol_run",
     "scenario_variant",
@@ -56,6 +58,14 @@ SENSITIVITY: dict[str, tuple[float, ...]] = {
     "friction.rate_state.b": (0.0, 0.015, 0.03, 0.045, 0.06),
     "camera.noise_std_m": (0.0, 3e-4, 1e-3, 2e-3),
 }
+#: Friction laws the pipe runs under at the paper's three speeds: the nominal rig's (a - b = 0.03:
+#: friction grows with speed) and one that weakens with speed (b = 0.06: a - b = -0.015).
+SPEED_LAWS: dict[str, dict[str, float]] = {
+    "nominal": {},
+    "weakening": {"friction.rate_state.b": 0.06},
+}
+#: The paper's pipe speeds, m/s.
+PIPE_SPEEDS_MPS = (0.005, 0.02, 0.045)
 #: The metrics a protocol run reports (mm, ratio).
 _KEPT = ("tracking_rms_mm", "final_error_mm", "arrival_ratio", "lead_mean_mm")
 
@@ -248,4 +258,21 @@ def sensitivity_rows(
                 rows.append(row)
                 if on_row is not None:
                     on_row(row)
+    return rows
+
+
+def pipe_speed_rows(
+    seed: int = 0, on_row: Callable[[dict[str, Any]], None] | None = None
+) -> list[dict[str, Any]]:
+    """The pipe on the nominal rig at :data:`PIPE_SPEEDS_MPS` under each friction law of
+    :data:`SPEED_LAWS`, ``follow`` (the rows of :func:`protocol_run` with ``law``, ``speed_mps``)."""
+    rows = []
+    for law, updates in SPEED_LAWS.items():
+        for speed in PIPE_SPEEDS_MPS:
+            scenario = scenario_variant("pipe", {"plant.preset": "ideal", "path.speed_mps": speed, **updates})
+            row: dict[str, Any] = {"law": law, "speed_mps": speed, "controller": "follow", "seed": seed}
+            row.update(protocol_run(scenario, path_from_scenario(scenario), "follow", seed))
+            rows.append(row)
+            if on_row is not None:
+                on_row(row)
     return rows
