@@ -86,7 +86,7 @@ def run(draws: int) -> dict[str, Any]:
     cpu0 = time.process_time()
     protocol = protocol_rows([("ideal", [0]), ("lab", list(range(draws)))], on_row=show)
     sensitivity = sensitivity_rows(0, on_row=show)
-    speeds = pipe_speed_rows(0, on_row=lambda r: show({**r, "experiment": f"pipe {r['law']} {r['speed_mps']}"}))
+    speeds = pipe_speed_rows(0, on_row=lambda r: show({**r, "experiment": f"pipe {r['law']}"}))
     return {
         "command": f"python benchmarks/reproduction.py --draws {draws}",
         "commit": _commit(),

@@ -1,3 +1,4 @@
+# ruff: noqa: RUF001 (the page's typography: en dashes and minus signs)
 """The prose of docs/reproduction.md around the tables reproduction_doc.py computes.
 
 Every number in it comes from the record or the tables; the sentences that depend on a sign
