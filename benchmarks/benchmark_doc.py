@@ -72,6 +72,10 @@ def render_table(record: dict[str, Any]) -> str:
     for task, preset in cases:
         cells = [_cell(by_key.get((name, task, preset))) for name in names]
         lines.append(f"| `{task}` | `{preset}` | " + " | ".join(cells) + " |")
+    cpu = {name: sum(r["cpu_s"] for r in record["runs"] if r["entrant"] == name) for name in names}
+    spent = ", ".join(f"{title} {cpu[name]:.0f} s" for (_, name, title) in ENTRANTS)
+    lines += ["", f"CPU time of the whole suite per entrant: {spent} (the first entrant's includes the"]
+    lines += ["force tables of the rigs no run had drawn before)."]
     return "\n".join(lines) + "\n"
 
 

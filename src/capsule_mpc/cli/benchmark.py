@@ -131,6 +131,7 @@ def run(args: argparse.Namespace) -> int:
     seeds = eval_seeds(args.draws)
     presets = tuple(args.preset) if args.preset else PRESETS
     show = None if args.no_progress else (lambda row: print(_progress_line(row), file=sys.stderr))
+    commit = source_commit()  # the code that runs, before anything changes it
     with output_folder(args.out, "benchmark") as folder:
         rows: list[dict[str, Any]] = []
         for entrant in entrants:
@@ -139,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
             "command": command_line(args),
             "seeds": seeds,
             "draws": args.draws,
-            "commit": source_commit(),
+            "commit": commit,
         }
         paths = bench.write_benchmark(rows, folder.path, meta)
         errors = [r for r in rows if r.get("error")]
