@@ -97,3 +97,27 @@ def test_bad_policies_and_options_are_refused(capsys, tmp_path):
     assert main(["benchmark", "--controller", "follow", "--task", "spiral", "--out", out]) == 2
     assert "task: must be one of" in capsys.readouterr().err
     assert not (tmp_path / "b").exists()
+
+
+def test_the_reference_scores_in_the_docs_are_rendered_from_their_json():
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    sys.path.insert(0, str(repo / "benchmarks"))
+    try:
+        spec = importlib.util.spec_from_file_location(
+            "benchmark_doc", repo / "benchmarks" / "benchmark_doc.py"
+        )
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(repo / "benchmarks"))
+    record = json.loads(
+        (repo / "docs" / "results" / "benchmark" / "leaderboard.json").read_text(encoding="utf-8")
+    )
+    doc = (repo / "docs" / "benchmark.md").read_text(encoding="utf-8")
+    assert module.render(doc, record) == doc
+    assert record["meta"]["commit"] and record["meta"]["command"].startswith("capsule-mpc benchmark")
