@@ -15,6 +15,8 @@ from typing import Any
 __all__ = ["render"]
 
 CONTROLLERS = ("follow", "paper_0.8v")
+#: The STD on the true positions, and its part within the legs of one heading.
+STD_KEYS = ("paper_std_mm", "paper_std_within_legs_mm")
 EXPERIMENT_TITLES = {
     "plate": ("plate, rectangle", "0.02"),
     "pipe_0.005": ("pipe", "0.005"),
@@ -170,14 +172,43 @@ def _sensitivity(record: dict[str, Any], nominal: dict[str, float]) -> list[str]
     return lines
 
 
-def _helps(record: dict[str, Any]) -> list[str]:
-    """The sensitivity's values at which 0.8 v lowers the STD (true positions)."""
+def _not_helping(record: dict[str, Any]) -> list[str]:
+    """The sensitivity's values at which 0.8 v does not lower the STD (true positions)."""
     out = []
     for parameter, title in PARAMETER_TITLES.items():
         for value in record["sensitivity_axes"][parameter]:
             a, b = _sensitivity_pair(record, parameter, value)
-            if b["paper_std_mm"] < a["paper_std_mm"]:
+            if b["paper_std_mm"] >= a["paper_std_mm"]:
                 out.append(f"{title} = {_sensitivity_value(parameter, value)}")
+    return out
+
+
+def _pipe_speeds(record: dict[str, Any]) -> list[str]:
+    speeds = sorted({r["speed_mps"] for r in record["pipe_speeds"]})
+    lines = [
+        "| friction of the rig | a - b | " + " | ".join(f"STD at {v:g} m/s (mm)" for v in speeds) + " |",
+        "|---|---|" + "---|" * len(speeds),
+    ]
+    paper = record["paper"]
+    lines.append("| the paper's rig | | " + " | ".join(f"{paper[f'pipe_{v:g}']:.1f}" for v in speeds) + " |")
+    nominal = record["nominal"]
+    for law, updates in record["speed_laws"].items():
+        a = updates.get("friction.rate_state.a", nominal["friction.rate_state.a"])
+        b = updates.get("friction.rate_state.b", nominal["friction.rate_state.b"])
+        law_rows = [r for r in record["pipe_speeds"] if r["law"] == law]
+        stds = [next(r for r in law_rows if r["speed_mps"] == v) for v in speeds]
+        title = "grows with speed (nominal)" if a > b else "weakens with speed"
+        cells = [title, f"{a - b:+.3f}"] + [f"{r['paper_std_mm']:.2f}" for r in stds]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _slowest_highest(record: dict[str, Any]) -> dict[str, bool]:
+    """Per friction law: whether the slowest pipe run has the highest STD (as in the paper)."""
+    out = {}
+    for law in record["speed_laws"]:
+        rows = sorted((r for r in record["pipe_speeds"] if r["law"] == law), key=lambda r: r["speed_mps"])
+        out[law] = rows[0]["paper_std_mm"] == max(r["paper_std_mm"] for r in rows)
     return out
 
 
@@ -191,22 +222,70 @@ def render(record: dict[str, Any]) -> str:
         "metric_ways": "\n".join(_metric_ways(record)),
         "hidden": "\n".join(_hidden(record)),
         "headings": "\n".join(_headings(record)),
+        "pipe_speeds": "\n".join(_pipe_speeds(record)),
         "sensitivity": "\n".join(_sensitivity(record, record["nominal"])),
-        "helps": ", ".join(_helps(record)) or "none of the values tried",
     }
-    facts = _facts(record)
-    return page(record, tables, facts)
+    return page(record, tables, _facts(record))
+
+
+def _by_slope(record: dict[str, Any]) -> str:
+    """The change (%) at each a - b the a and b rows of the sensitivity reach, e.g. ``+0.030: -2.6 %``."""
+    nominal = record["nominal"]
+    by: dict[float, list[float]] = {}
+    for parameter in ("friction.rate_state.a", "friction.rate_state.b"):
+        for value in record["sensitivity_axes"][parameter]:
+            a = value if parameter.endswith(".a") else nominal["friction.rate_state.a"]
+            b = value if parameter.endswith(".b") else nominal["friction.rate_state.b"]
+            slow = _sensitivity_pair(record, parameter, value)
+            change = _pct(slow[1]["paper_std_mm"], slow[0]["paper_std_mm"])
+            by.setdefault(round(a - b, 6), []).append(change)
+    parts = []
+    for slope in sorted(by, reverse=True):
+        changes = " and ".join(f"{c:+.1f} %" for c in sorted(set(by[slope])))
+        parts.append(f"{slope:+.3f}: {changes}")
+    return "; ".join(parts)
+
+
+def _between_share(pairs: Sequence[tuple[dict[str, Any], dict[str, Any]]]) -> float:
+    """The part (%) of the STD's variance at v that lies between the headings, mean over the draws."""
+    shares = [100.0 * (1.0 - (a["paper_std_within_legs_mm"] / a["paper_std_mm"]) ** 2) for a, _ in pairs]
+    return _mean(shares)
+
+
+def _mean(values: Iterable[float]) -> float:
+    vals = [v for v in values if v is not None and math.isfinite(v)]
+    return statistics.fmean(vals) if vals else math.nan
 
 
 def _facts(record: dict[str, Any]) -> dict[str, Any]:
     """Numbers the prose quotes."""
     ideal, lab = _pairs(record, "plate", "ideal"), _pairs(record, "plate", "lab")
     plate_lab = _changes(lab, "paper_std_mm")
+    window = {exp: _changes(_pairs(record, exp, "lab"), "paper_std_window_mm") for exp in EXPERIMENT_TITLES}
+    gains = [a["paper_std_mm"] - b["paper_std_mm"] for p in (ideal, lab) for a, b in p]
+    sens = [_sensitivity_pair(record, k, v) for k in PARAMETER_TITLES for v in record["sensitivity_axes"][k]]
     return {
-        "plate_nominal_change": _changes(ideal, "paper_std_mm")[0] if ideal else math.nan,
-        "plate_lab_change": statistics.fmean(plate_lab) if plate_lab else math.nan,
-        "plate_lab_lower": sum(c < 0 for c in plate_lab),
         "n_lab": len(plate_lab),
-        "plate_window_change": statistics.fmean(_changes(lab, "paper_std_window_mm")) if lab else math.nan,
-        "plate_track": [statistics.fmean(p[i]["tracking_rms_mm"] for p in lab) for i in (0, 1)],
+        "plate_nominal_change": _changes(ideal, "paper_std_mm")[0] if ideal else math.nan,
+        "plate_lab_change": _mean(plate_lab),
+        "plate_lab_lower": sum(c < 0 for c in plate_lab),
+        "plate_gain_mm": _mean(a["paper_std_mm"] - b["paper_std_mm"] for a, b in lab),
+        "plate_camera_change": _mean(_changes(lab, "paper_std_camera_mm")),
+        "plate_legs": [_mean(p[0][k] for p in lab) for k in ("lead_x_legs_mm", "lead_y_legs_mm")],
+        "plate_std_within": [_mean(p[0][k] for p in lab) for k in STD_KEYS],
+        "window_means": {exp: _mean(ch) for exp, ch in window.items()},
+        "window_mixed": [e for e, ch in window.items() if any(c < 0 for c in ch) and any(c >= 0 for c in ch)],
+        "gain_range_mm": (min(gains), max(gains)) if gains else (math.nan, math.nan),
+        "plate_track": [_mean(p[i]["tracking_rms_mm"] for p in lab) for i in (0, 1)],
+        "plate_final": [_mean(p[i]["final_error_mm"] for p in lab) for i in (0, 1)],
+        "plate_done": [sum(bool(p[i]["completed"]) for p in lab) for i in (0, 1)],
+        "plate_arrival": [_mean(p[i]["arrival_ratio"] for p in lab) for i in (0, 1)],
+        "not_helping": _not_helping(record),
+        "sensitivity_gain_mm": (
+            min(a["paper_std_mm"] - b["paper_std_mm"] for a, b in sens),
+            max(a["paper_std_mm"] - b["paper_std_mm"] for a, b in sens),
+        ),
+        "slowest_highest": _slowest_highest(record),
+        "by_slope": _by_slope(record),
+        "between_share_pct": {exp: _between_share(_pairs(record, exp, "lab")) for exp in EXPERIMENT_TITLES},
     }

@@ -16,12 +16,51 @@ def _direction(change: float) -> str:
     return "lowers" if change < 0 else "raises"
 
 
+def _pipe_sentence(facts: dict[str, Any]) -> str:
+    slow = facts["slowest_highest"]
+    if slow.get("weakening") and not slow.get("nominal"):
+        return (
+            "With the nominal friction the STD grows with the speed; with a friction that weakens with "
+            "speed the slowest run has the highest STD, as in the paper: at 0.005 m/s the capsule "
+            "sticks and slips along the legs. The paper's pipe numbers fit a rig whose friction "
+            "weakens with speed at low speed; which friction the paper's rig had is not known."
+        )
+    if slow.get("nominal"):
+        return "Here too the slowest run has the highest STD."
+    return (
+        "Neither friction law makes the slowest run the one with the highest STD here: the paper's "
+        "ordering over the speeds is not explained by the sign of a - b alone."
+    )
+
+
+def _helps_sentence(facts: dict[str, Any]) -> str:
+    lo, hi = facts["sensitivity_gain_mm"]
+    if not facts["not_helping"]:
+        return (
+            f"0.8 v lowers the STD on the true positions at every value tried, by {lo:.2f} to {hi:.2f} mm. "
+            "What the constants change is how much: "
+        )
+    return (
+        f"0.8 v does not lower the STD at {', '.join(facts['not_helping'])}; elsewhere it lowers it "
+        f"by up to {hi:.2f} mm. "
+    )
+
+
 def page(record: dict[str, Any], tables: dict[str, str], facts: dict[str, Any]) -> str:
     """docs/reproduction.md."""
     n = facts["n_lab"]
     seeds = record["lab_seeds"]
     nominal, lab = facts["plate_nominal_change"], facts["plate_lab_change"]
     track_v, track_slow = facts["plate_track"]
+    final_v, final_slow = facts["plate_final"]
+    done_v, done_slow = facts["plate_done"]
+    arr_v, arr_slow = facts["plate_arrival"]
+    leg_x, leg_y = facts["plate_legs"]
+    std_all, std_within = facts["plate_std_within"]
+    windows = facts["window_means"]
+    mixed = ", ".join(f"`{e}`" for e in facts["window_mixed"]) or "none"
+    shares = facts["between_share_pct"]
+    pipe_shares = [v for k, v in shares.items() if k.startswith("pipe")]
     return f"""# The paper's experiments, reproduced
 
 *Learning Friction Model for Tethered Capsule Robot* drives the arm point to point along the path at
@@ -44,55 +83,72 @@ mean ± sd (worst); a change is paired, the same draw at v and at 0.8 v, in % of
 
 {tables["side_by_side"]}
 
-What reproduces: the sign and the order of the plate's change. On the nominal rig 0.8 v
-{_direction(nominal)} the STD by {abs(nominal):.1f} % (the paper: 5.6 %), and over the `lab` draws by
-{abs(lab):.1f} % on average, {_direction(lab).replace("s", "", 1)}ing it on {facts["plate_lab_lower"]}
-of {n}. The absolute values are of the paper's order without matching them: the paper's rig is not
-this one (its EPM height, the capsule's true friction and the camera are not given), and nothing
-was tuned to meet its numbers. What does not reproduce: the pipe's ordering over the speeds (the
-paper's STD is highest at the lowest speed; see the table), and a change as large as the paper's.
+What reproduces: the sign of the plate's change and its order. On the nominal rig 0.8 v
+{_direction(nominal)} the STD by {abs(nominal):.1f} % (the paper: 5.6 %), over the `lab` draws by
+{abs(lab):.1f} % on average ({facts["plate_gain_mm"]:.2f} mm), lower on {facts["plate_lab_lower"]} of
+{n} draws; on the camera's positions by {abs(facts["plate_camera_change"]):.1f} %. The absolute values
+are of the paper's order without matching it: the paper does not give its EPM height, its
+capsule's friction away from the pull test or its camera, and nothing here was tuned to its
+numbers. What does not reproduce: the pipe's ordering over the speeds (below).
 
-## Why: what the STD measures on this rig
+## Why 0.8 v lowers the STD: the lead changes with the heading
 
-With the Halbach array the capsule rests off the magnet's centre, so the lead P_E − P_I is a
-fixed offset plus the friction's lag along the direction of travel, and its length differs from
-one heading to the next. On the rectangle and the pipe the arm runs legs along x and along y:
+With the Halbach array the capsule rests off the magnet's centre, so the lead P_E − P_I is a fixed
+offset plus the friction's lag along the direction of travel, and its length depends on the
+heading. The rectangle and the pipe are legs along x and along y:
 
 {tables["headings"]}
 
-Most of the STD is the difference between the legs, not a fluctuation along them (compare the last
-two columns). Running the path at 0.8 v shortens the lag by what friction loses at the lower
-speed, so the legs' leads come closer and the STD drops; the camera's noise adds its own variance
-to the STD seen by a camera, which dilutes the relative change. The sensitivity below shows which
-constants carry the change.
+On the plate the lead is {leg_x:.1f} mm on the legs along x and {leg_y:.1f} mm on those along y;
+that difference is {shares["plate"]:.0f} % of the STD's variance there (of {std_all:.2f} mm,
+{std_within:.2f} mm is left within the legs: the start from rest, the corners), and
+{min(pipe_shares):.0f}–{max(pipe_shares):.0f} % in the pipe. Slower, the friction is lower (the rig's
+friction grows with speed, a − b > 0): the lag is shorter, the legs' leads come closer, the
+transients within the legs are smaller, and the STD drops. The camera adds its latency (one frame,
+a lag proportional to the speed), which 0.8 v shortens too: the change seen by the camera is
+larger.
+
+## The pipe's speeds
+
+The paper's pipe STD is highest at the slowest speed. The pipe on the nominal rig (seed 0,
+`follow`) at the three speeds, with the rig's friction and with one that weakens with speed
+(b = 0.06):
+
+{tables["pipe_speeds"]}
+
+{_pipe_sentence(facts)}
 
 ## The same runs, the metric taken three ways
 
 The change of the STD (0.8 v against v, `lab` draws) on the true positions while the arm moves
 (the paper's protocol), on the camera's positions while the arm moves, and on the true positions
-from the path's start to the end of all motion (the package's `paper_std_mm`, which also counts
-the seconds the capsule creeps to rest after the arm has stopped):
+from the path's start to the end of all motion (the package's `paper_std_mm`, which also counts the
+seconds the capsule creeps to rest after the arm has stopped):
 
 {tables["metric_ways"]}
 
-The window decides the sign: the creep after the arm stops lasts longer at 0.8 v and pulls the
-whole-window STD up (plate: {facts["plate_window_change"]:+.1f} % on average) while the STD
-during motion goes down.
+The window matters as much as the speed: counting the creep to rest, the plate's change is
+{windows["plate"]:+.1f} % on average and draws disagree on its sign (experiments where they do:
+{mixed}); during motion every experiment's mean change is negative.
 
 ## What the metric hides
 
-The STD ignores where the capsule is: a capsule that trails the path by the same distance all the
-way scores as well as one on it, and a late or short end does not count. Tracking RMS (against the
-reference at v, the path the user asked for), the final error at rest and how many runs came to
-rest within 2 mm of the end (`lab` draws):
+The STD does not see where the capsule is: a capsule that trails the path by the same distance all
+the way scores as well as one on it, and a late or short end does not count. Tracking RMS against
+the reference at v (the path the user asked for), the final error at rest, the runs that came to
+rest within 2 mm of the end, and the arrival time over the nominal (runs that arrived), `lab`
+draws:
 
 {tables["hidden"]}
 
-At 0.8 v the capsule falls behind the reference by design: on the plate it tracks
-{track_slow:.1f} mm RMS against {track_v:.1f} mm at v, and it arrives 25 % later, for a change of the
-STD a tenth of a millimetre. Neither controller closes the loop on the capsule, so the final error
-and the stalls at the end are the same order at both speeds; the MPC's are in
-[results.md](results.md).
+On the plate 0.8 v buys {facts["plate_gain_mm"]:.2f} mm of STD for a tracking RMS of
+{track_slow:.1f} mm against {track_v:.1f} mm (the capsule falls behind the reference by design) and
+an arrival at {arr_slow:.2f} against {arr_v:.2f} times the nominal time; the final error
+({final_slow:.2f} against {final_v:.2f} mm) and the runs that came to rest near the end
+({done_slow} against {done_v} of {n}) hardly change: neither controller looks at the capsule after
+calibrating its offset, so where it stops is set by the arm's end pose and static friction, not by
+the speed. The MPC's figures on
+the same rigs are in [results.md](results.md).
 
 ## Sensitivity: when does 0.8 v help?
 
@@ -102,5 +158,11 @@ paper's c(v)), `follow` and `paper_0.8v` at each value:
 
 {tables["sensitivity"]}
 
-0.8 v lowers the STD at: {tables["helps"]}.
+{_helps_sentence(facts)}with more sliding friction (μ0) the STD grows and a gain of the same
+size is a smaller fraction of it. By the slope a − b of the steady-state law (from the a and b
+rows): {facts["by_slope"]}. The change follows no simple trend in a − b; it scatters most where the
+friction no longer grows with speed (a − b ≤ 0), where single runs rather than the law decide it.
+The
+camera's noise (0 to 2 mm per axis) leaves the true positions' STD where it is (the baselines only
+average it to calibrate their offset) and dilutes the change the camera sees only a little.
 """
