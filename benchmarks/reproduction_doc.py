@@ -7,10 +7,13 @@ page depends on the JSON only.
 
 from __future__ import annotations
 
+import itertools
 import math
 import statistics
 from collections.abc import Iterable, Sequence
 from typing import Any
+
+from reproduction_text import page  # the prose, kept apart from the arithmetic
 
 __all__ = ["render"]
 
@@ -36,7 +39,8 @@ def _msw(values: Sequence[float], fmt: str = "{:.2f}") -> str:
     if not vals:
         return "n/a"
     sd = statistics.stdev(vals) if len(vals) > 1 else 0.0
-    return f"{fmt.format(statistics.fmean(vals))} ± {fmt.format(sd)} ({fmt.format(max(vals))})"
+    sd_fmt = fmt.replace("+", "")
+    return f"{fmt.format(statistics.fmean(vals))} ± {sd_fmt.format(sd)} ({fmt.format(max(vals))})"
 
 
 def _pct(new: float, old: float) -> float:
@@ -203,19 +207,25 @@ def _pipe_speeds(record: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _slowest_highest(record: dict[str, Any]) -> dict[str, bool]:
-    """Per friction law: whether the slowest pipe run has the highest STD (as in the paper)."""
+def _speed_shape(record: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Per friction law: the pipe's STD by speed, whether it falls from the slowest speed to the
+    middle one and rises again (the shape of the paper's 5.1 / 4.7 / 4.9 mm), and the STD within
+    the legs by speed."""
     out = {}
     for law in record["speed_laws"]:
         rows = sorted((r for r in record["pipe_speeds"] if r["law"] == law), key=lambda r: r["speed_mps"])
-        out[law] = rows[0]["paper_std_mm"] == max(r["paper_std_mm"] for r in rows)
+        std = [r["paper_std_mm"] for r in rows]
+        out[law] = {
+            "std": std,
+            "within": [r["paper_std_within_legs_mm"] for r in rows],
+            "paper_shape": std[0] > std[1] < std[2],
+            "grows": all(x < y for x, y in itertools.pairwise(std)),
+        }
     return out
 
 
 def render(record: dict[str, Any]) -> str:
     """The page (module docstring) from the JSON record of ``benchmarks/reproduction.py``."""
-    from reproduction_text import page  # the prose, kept apart from the arithmetic
-
     n_lab = len(record["lab_seeds"])
     tables = {
         "side_by_side": "\n".join(_side_by_side(record, n_lab)),
@@ -285,7 +295,7 @@ def _facts(record: dict[str, Any]) -> dict[str, Any]:
             min(a["paper_std_mm"] - b["paper_std_mm"] for a, b in sens),
             max(a["paper_std_mm"] - b["paper_std_mm"] for a, b in sens),
         ),
-        "slowest_highest": _slowest_highest(record),
+        "speed_shape": _speed_shape(record),
         "by_slope": _by_slope(record),
         "between_share_pct": {exp: _between_share(_pairs(record, exp, "lab")) for exp in EXPERIMENT_TITLES},
     }

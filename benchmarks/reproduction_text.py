@@ -23,19 +23,23 @@ def _verdict(nominal: float, lab: float) -> str:
 
 
 def _pipe_sentence(facts: dict[str, Any]) -> str:
-    slow = facts["slowest_highest"]
-    if slow.get("weakening") and not slow.get("nominal"):
-        return (
-            "With the nominal friction the STD grows with the speed; with a friction that weakens with "
-            "speed the slowest run has the highest STD, as in the paper: at 0.005 m/s the capsule "
-            "sticks and slips along the legs. The paper's pipe numbers fit a rig whose friction "
-            "weakens with speed at low speed; which friction the paper's rig had is not known."
-        )
-    if slow.get("nominal"):
-        return "Here too the slowest run has the highest STD."
+    shape = facts["speed_shape"]
+    nominal, weak = shape["nominal"], shape["weakening"]
+    first = (
+        "With the rig's friction the STD grows with the speed."
+        if nominal["grows"]
+        else "With the rig's friction the STD does not grow steadily with the speed."
+    )
+    if not weak["paper_shape"]:
+        return first + " Neither friction law gives the shape of the paper's numbers here."
+    ratio = [w / n for w, n in zip(weak["within"], nominal["within"])]
     return (
-        "Neither friction law makes the slowest run the one with the highest STD here: the paper's "
-        "ordering over the speeds is not explained by the sign of a - b alone."
+        f"{first} With a friction that weakens with speed it falls from 0.005 to 0.02 m/s and rises "
+        f"again at 0.045 m/s, the shape of the paper's 5.1 / 4.7 / 4.9 mm, and its part within the "
+        f"legs is {min(ratio):.1f} to {max(ratio):.1f} times the nominal rig's: the capsule's motion "
+        "along a leg is no longer smooth. The paper's pipe numbers fit a rig whose friction weakens "
+        "with speed; which friction the paper's rig had is not known, and this speed sweep is one "
+        "run per speed."
     )
 
 
@@ -98,7 +102,7 @@ def _why(record: dict[str, Any], tables: dict[str, str], facts: dict[str, Any]) 
     std_all, std_within = facts["plate_std_within"]
     shares = facts["between_share_pct"]
     pipe_shares = [v for k, v in shares.items() if k.startswith("pipe")]
-    return f"""## Why 0.8 v lowers the STD: the lead changes with the heading
+    return f"""## Why 0.8 v lowers the STD here
 
 With the Halbach array the capsule rests off the magnet's centre, so the lead P_E − P_I is a fixed
 offset plus the friction's lag along the direction of travel, and its length depends on the
@@ -132,7 +136,8 @@ The paper's pipe STD is highest at the slowest speed. The pipe on the nominal ri
 
 def _ways(record: dict[str, Any], tables: dict[str, str], facts: dict[str, Any]) -> str:
     windows = facts["window_means"]
-    mixed = ", ".join(f"`{e}`" for e in facts["window_mixed"]) or "none"
+    mixed = ", ".join(f"`{e}`" for e in facts["window_mixed"]) or "no experiment"
+    whole = " / ".join(f"{v:+.1f} %" for v in windows.values())
     return f"""## The same runs, the metric taken three ways
 
 The change of the STD (0.8 v against v, `lab` draws) on the true positions while the arm moves
@@ -142,9 +147,10 @@ seconds the capsule creeps to rest after the arm has stopped):
 
 {tables["metric_ways"]}
 
-The window matters as much as the speed: counting the creep to rest, the plate's change is
-{windows["plate"]:+.1f} % on average and draws disagree on its sign (experiments where they do:
-{mixed}); during motion every experiment's mean change is negative.
+The window matters: counting the creep to rest, the mean change is {whole} (plate, then the pipe
+at its three speeds), and the draws disagree on its sign in {mixed}; while the arm moves every
+experiment's mean change is negative. The package's `paper_std_mm` answers another question than
+the paper's metric, and the two must not be compared.
 """
 
 
