@@ -75,7 +75,7 @@ def render_table(record: dict[str, Any]) -> str:
     cpu = {name: sum(r["cpu_s"] for r in record["runs"] if r["entrant"] == name) for name in names}
     spent = ", ".join(f"{title} {cpu[name]:.0f} s" for (_, name, title) in ENTRANTS)
     lines += ["", f"CPU time of the whole suite per entrant: {spent}. A rig drawn for the first time"]
-    lines += ["on a machine adds its force table (tens of seconds, then cached) to the first entrant to run it."]
+    lines += ["on a machine adds its force table (tens of seconds, then cached) to the first entrant."]
     return "\n".join(lines) + "\n"
 
 
