@@ -11,8 +11,8 @@ The layers, bottom to top (a module may import its own layer and those below):
 4. baselines, planner -- controllers that plan offline or not at all;
 5. mpc -- the receding-horizon controller (uses the planner's plan as feed-forward);
 6. sim, arm -- the simulated rig and the robot arm (the arm never imports the simulator);
-7. learning, plots, experiments, telemetry, nodes -- what runs the rig (in process or as nodes)
-   and draws, learns from or logs it;
+7. learning, plots, envs, experiments, telemetry, nodes -- what runs the rig (in process, as
+   Gymnasium environments or as nodes) and draws, learns from or logs it;
 8. cli -- the command line.
 """
 
@@ -49,7 +49,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("baselines", "planner"),
     ("mpc",),
     ("sim", "arm"),
-    ("learning", "plots", "experiments", "telemetry", "nodes"),
+    ("learning", "plots", "envs", "experiments", "telemetry", "nodes"),
     ("cli",),
 )
 LAYER_OF = {part: i for i, parts in enumerate(LAYERS) for part in parts}

@@ -47,6 +47,7 @@ _COMMANDS = (
     "log",
     "rig",
     "control",
+    "benchmark",
 )
 #: Exit status after Ctrl-C (128 + SIGINT, as a shell reports a command it interrupted); after
 #: SIGTERM or SIGHUP, 128 + that signal's number.
