@@ -12,7 +12,8 @@ from mcap.reader import make_reader
 
 from capsule_mpc.cli import main
 from capsule_mpc.config import load_config
-from capsule_mpc.experiments.compare import RUNS_FOLDER, aggregate_runs, compare_controllers, summary_table
+from capsule_mpc.experiments.compare import RUNS_FOLDER, aggregate_runs, summary_table
+from capsule_mpc.experiments.sweep.campaign import compare_controllers
 from capsule_mpc.experiments.sweep.tasks import SeedTask, run_seed
 from capsule_mpc.experiments.table import read_table
 from capsule_mpc.metrics import run_metrics

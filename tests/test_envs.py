@@ -24,8 +24,9 @@ from capsule_mpc.sim import draw_plant_truth, simulate
 from capsule_mpc.sim import loop as sim_loop
 
 #: Metrics that time this machine (wall clock) or that the controller reports in its step's stats,
-#: which the agent's seat does not pass on (solves, rejected measurements).
+#: which the agent's seat does not pass on (solves, rejected measurements, its phase).
 _NOT_COMPARED = {
+    "end_phase",
     "step_ms_max",
     "solve_ms_median",
     "solve_ms_p99",

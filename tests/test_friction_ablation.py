@@ -123,7 +123,7 @@ def test_variant_suffixes_combine(ablation, learned):
     plain = _scenario(ablation, "learned", base, learned[1])
     both = _scenario(ablation, "learned+preload+sharp", base, learned[1], preload=0.8)
     assert plain.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
-    assert plain.break_loose.preload is None
+    assert plain.break_loose.preload == base.break_loose.preload  # the default's pre-load
     assert both.mpc.friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
     assert both.break_loose.preload == 0.8
     assert both.friction.learned == learned[0]

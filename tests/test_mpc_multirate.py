@@ -28,6 +28,8 @@ def coarse(fast):
         update={
             "camera": fast.camera.model_copy(update={"rate_hz": 1 / FRAME_S}),
             "mpc": fast.mpc.model_copy(update={"horizon": N, "dt_s": STEP_S}),
+            # The plan's own commands from the first frame on: no start pre-load.
+            "break_loose": fast.break_loose.model_copy(update={"preload": None}),
         }
     )
 

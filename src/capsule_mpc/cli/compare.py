@@ -1,6 +1,6 @@
 """``capsule-mpc compare``: every available controller on the same plant, path and seeds.
 
-The comparison is :func:`capsule_mpc.experiments.compare.compare_controllers` (its docstring says
+The comparison is :func:`capsule_mpc.experiments.sweep.campaign.compare_controllers` (its docstring says
 what it writes). Exit status: 0 when every controller ran on every seed, 1 when any failed (each
 failure is also printed on stderr), 2 on bad input, 130 on Ctrl-C.
 """
@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from contextlib import ExitStack
     from dataclasses import replace
 
-    from ..experiments.sweep.campaign import local_workers
+    from ..experiments.sweep.campaign import compare_controllers, local_workers
     from ..experiments.sweep.tasks import dask_client
 
     overflow = refuse_seed_overflow(args.seed, args.runs, 0)
@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         folder = stack.enter_context(
             output_folder(args.out, "compare", inputs=input_files(args, "--config", "--waypoints"))
         )
-        summary = comparison.compare_controllers(
+        summary = compare_controllers(
             scenario, path, folder.path, seed, controllers=names, meta=meta, progress=not args.no_progress,
             runs=args.runs, workers=local, client=client,
         )  # fmt: skip

@@ -31,12 +31,12 @@ class SimConfig(StrictModel):
         description="Time the capsule settles under the resting EPM before motion, s, [0, 30].",
     )
     tail_s: Number = Field(
-        15.0,
+        30.0,
         ge=0,
         le=300,
         description=(
-            "Time allowed after 1.25 x the path's nominal end for the capsule to come to rest before "
-            "the run is cut off (timed out), s, [0, 300]."
+            "Time allowed after 1.25 x the path's nominal end for the capsule to come to rest (and the "
+            "placement to finish its moves) before the run is cut off (timed out), s, [0, 300]."
         ),
     )
     actuator: Literal["simple", "robot"] = Field(

@@ -50,8 +50,7 @@ the MPC accepts late solves here and the runs are deterministic.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from ..budget import Workload
@@ -63,16 +62,14 @@ from .aggregate import aggregate, flag_columns, metric_columns
 from .inputs import refuse_repeats
 from .sweep.tasks import (
     PLANNING_CONTROLLER,
-    SeedTask,
     failure_line,
     json_value,
     rescore_on_common_window,
-    run_seed,
 )
 from .table import run_label, table_from_entries
 
 if TYPE_CHECKING:
-    from distributed import Client
+    pass
 
 __all__ = [
     "CONTROLLER_ORDER",
@@ -82,7 +79,6 @@ __all__ = [
     "SUMMARY_COLUMNS",
     "aggregate_runs",
     "check_controllers",
-    "compare_controllers",
     "controller_names",
     "failed_runs",
     "failure_line",
@@ -297,67 +293,6 @@ def summary_header(
         "runs_requested": runs,
         "seeds": list(seeds),
     }
-
-
-def compare_controllers(
-    scenario: Scenario,
-    path: ReferencePath,
-    out: str | Path,
-    seed: int,
-    *,
-    controllers: Sequence[str] | None = None,
-    meta: dict[str, Any] | None = None,
-    progress: bool = True,
-    runs: int = 1,
-    workers: int | None = None,
-    client: Client | None = None,
-    task: Callable[[SeedTask], dict[str, Any]] = run_seed,
-) -> dict[str, Any]:
-    """Run controllers on the same plant, path and seeds; write runs, summary and figures.
-
-    Parameters
-    ----------
-    scenario, path
-        As for :func:`capsule_mpc.sim.simulate`.
-    out : str or Path
-        Output folder (created).
-    seed : int
-        Seed of the first run; run ``k`` uses ``seed + k``.
-    controllers : sequence of str, optional
-        Names to run, in this order; default every registered controller
-        (:func:`available_controllers`) in :data:`CONTROLLER_ORDER`, then the others.
-    meta : dict, optional
-        Provenance (``config``, ``waypoints_file``) for the summary and each run.json.
-    progress : bool
-        A progress bar over the seeds.
-    runs : int
-        Seeds per controller, >= 1.
-    workers, client
-        Where the seeds run (:func:`capsule_mpc.experiments.sweep.campaign.sweep`).
-    task : callable
-        What runs one seed (:func:`~capsule_mpc.experiments.sweep.tasks.run_seed`).
-
-    Returns
-    -------
-    dict
-        The summary written to ``summary.json``: ``{"config", "seed", "speed_mps",
-        "waypoints_file", "path_length_m", "runs_requested", "seeds", "controllers": {name:
-        :func:`aggregate_runs` entry (for one run also the run's text entries: ``failure``,
-        ``run_dir``, or ``traceback`` if it raised)}, "runs": [{"seed", "window_end_s", "controllers": {name:
-        metrics + flags + limit counts + failure + run_dir + realtime_factor, or {"error",
-        "traceback"}}, "plant", "varied"}], "figures": [file names]}``.
-
-    Raises
-    ------
-    ValueError
-        If ``runs`` < 1.
-    """
-    from .sweep.campaign import sweep  # the campaign runs the comparison
-
-    return sweep(
-        scenario, path, out, seed, runs, controllers=controllers, workers=workers, client=client, meta=meta,
-        progress=progress, task=task, command="compare",
-    )  # fmt: skip
 
 
 def run_figures(names: Sequence[str], runs: int) -> Workload:

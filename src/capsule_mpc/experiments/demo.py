@@ -18,7 +18,7 @@ Four steps, each cached so that a second run only repeats the comparison:
 4. *compare*: every available controller (``follow``, ``paper_0.8v``, ``mpc``, ``plan`` if
    available) on that scenario, on the same rig (the plant drawn with the same seed), into
    ``OUT/compare/`` (see
-   :func:`capsule_mpc.experiments.compare.compare_controllers`).
+   :func:`capsule_mpc.experiments.sweep.campaign.compare_controllers`).
 
 The finite-magnet force map is computed on first use and cached (``$CAPSULE_MPC_CACHE``,
 default ``~/.cache/capsule_mpc``), as is the MPC's compiled NLP.
@@ -44,8 +44,9 @@ from ..learning.plots import save_figures
 from ..magnetics import force_map
 from ..outputs import output_folder
 from ..paths import path_from_scenario
-from .compare import compare_controllers, run_figures, summary_table
+from .compare import run_figures, summary_table
 from .demonstrate import check_demonstrations
+from .sweep.campaign import compare_controllers
 
 __all__ = [
     "FORCE_MODEL",

@@ -51,7 +51,7 @@ from .vary import VaryRange, check_vary
 if TYPE_CHECKING:
     from distributed import Client
 
-__all__ = ["local_workers", "run_sweep", "sweep", "sweep_failures"]
+__all__ = ["compare_controllers", "local_workers", "run_sweep", "sweep", "sweep_failures"]
 
 
 def sweep(
@@ -85,7 +85,7 @@ def sweep(
     runs : int
         Number of runs, >= 1.
     controllers : sequence of str, optional
-        As for :func:`capsule_mpc.experiments.compare.compare_controllers`.
+        As for :func:`capsule_mpc.experiments.sweep.campaign.compare_controllers`.
     vary : sequence of VaryRange
         Plant fields drawn from these ranges instead of the preset's (:func:`parse_vary`).
     variants : sequence of Variant
@@ -343,3 +343,62 @@ def run_sweep(
         print(f"capsule-mpc sweep: {failure}", file=sys.stderr)
     print(f"results in {Path(out).resolve()} (summary.json, summary.md, *.png, {RUNS_FOLDER}/seed_<S>.json)")
     return folder.status
+
+
+def compare_controllers(
+    scenario: Scenario,
+    path: ReferencePath,
+    out: str | Path,
+    seed: int,
+    *,
+    controllers: Sequence[str] | None = None,
+    meta: dict[str, Any] | None = None,
+    progress: bool = True,
+    runs: int = 1,
+    workers: int | None = None,
+    client: Client | None = None,
+    task: Callable[[SeedTask], dict[str, Any]] = run_seed,
+) -> dict[str, Any]:
+    """Run controllers on the same plant, path and seeds; write runs, summary and figures.
+
+    Parameters
+    ----------
+    scenario, path
+        As for :func:`capsule_mpc.sim.simulate`.
+    out : str or Path
+        Output folder (created).
+    seed : int
+        Seed of the first run; run ``k`` uses ``seed + k``.
+    controllers : sequence of str, optional
+        Names to run, in this order; default every registered controller
+        (:func:`available_controllers`) in :data:`CONTROLLER_ORDER`, then the others.
+    meta : dict, optional
+        Provenance (``config``, ``waypoints_file``) for the summary and each run.json.
+    progress : bool
+        A progress bar over the seeds.
+    runs : int
+        Seeds per controller, >= 1.
+    workers, client
+        Where the seeds run (:func:`capsule_mpc.experiments.sweep.campaign.sweep`).
+    task : callable
+        What runs one seed (:func:`~capsule_mpc.experiments.sweep.tasks.run_seed`).
+
+    Returns
+    -------
+    dict
+        The summary written to ``summary.json``: ``{"config", "seed", "speed_mps",
+        "waypoints_file", "path_length_m", "runs_requested", "seeds", "controllers": {name:
+        :func:`aggregate_runs` entry (for one run also the run's text entries: ``failure``,
+        ``run_dir``, or ``traceback`` if it raised)}, "runs": [{"seed", "window_end_s", "controllers": {name:
+        metrics + flags + limit counts + failure + run_dir + realtime_factor, or {"error",
+        "traceback"}}, "plant", "varied"}], "figures": [file names]}``.
+
+    Raises
+    ------
+    ValueError
+        If ``runs`` < 1.
+    """
+    return sweep(
+        scenario, path, out, seed, runs, controllers=controllers, workers=workers, client=client, meta=meta,
+        progress=progress, task=task, command="compare",
+    )  # fmt: skip

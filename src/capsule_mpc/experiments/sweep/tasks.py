@@ -43,6 +43,7 @@ from tqdm import tqdm
 
 from ...config import ConfigError, Scenario, config_from_dict
 from ...interrupt import Interrupted, raise_if_interrupted
+from ...metrics import run_metrics
 from ...paths import ReferencePath
 from ...planner import cached_plan
 from ...plots import plot_errors, plot_trajectories
@@ -280,8 +281,6 @@ def rescore_on_common_window(
     (arrival tolerance ``sim.completion_tol_m``, deadline one camera period) and written into
     its ``metrics`` dict, which keeps the runner's other entries (flags, limit counts).
     """
-    from ...metrics import run_metrics
-
     ends = [float(r.metrics["motion_end_s"]) for r in results.values()]
     ends = [e for e in ends if math.isfinite(e)]
     if not ends:
@@ -535,7 +534,7 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Client]:
             memory_limit=0,
             preload=[WORKER_PRELOAD],
             scheduler_kwargs={"allowed_failures": LOCAL_ALLOWED_FAILURES},
-            dashboard_address=None,
+            dashboard_address=":0",  # a free port: no warning when another cluster holds 8787
             silence_logs=logging.CRITICAL,
         ) as cluster,
         Client(cluster) as client,
