@@ -363,3 +363,14 @@ def test_the_controller_settings_stay_within_their_budget():
     owned = [f for f in fields if f.split(".")[0] in CONTROLLER_SECTIONS]
     assert {f.split(".")[0] for f in owned} == set(CONTROLLER_SECTIONS)
     assert len(owned) <= CONTROLLER_SETTINGS_BUDGET, owned
+
+
+@pytest.mark.parametrize("section, key", [("break_loose", "preload"), ("mpc", "input_jerk_tol_mps2")])
+def test_a_null_that_is_not_the_default_survives_a_dump(tmp_path, section, key):
+    """A field set to null whose default is not null (the pre-load switched off) dumps as null, so the
+    config.yaml beside a run (and a campaign's workers) re-load what ran, not the default."""
+    s = load_config(_write(tmp_path, {"base": "paper", section: {key: None}}))
+    assert getattr(getattr(s, section), key) is None
+    again = load_config(_write(tmp_path, yaml.safe_load(dump_config(s))))
+    assert getattr(getattr(again, section), key) is None
+    assert again.model_dump() == s.model_dump()

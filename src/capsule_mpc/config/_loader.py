@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from pydantic import BaseModel
 
 from ..errors import ConfigError
 from ._yaml import packaged_config_path, read_yaml, resolve_base, validate
@@ -155,12 +156,24 @@ def check_learned_force_model(scenario: Scenario, where: str) -> None:
         )
 
 
+def _keep_set_nones(model: BaseModel, data: dict[str, Any]) -> None:
+    """Put back into ``data`` (``model`` dumped without its None values) every None that is not the
+    field's default: dropped, it would re-load as the default (``break_loose.preload: null`` as 1)."""
+    for name, info in type(model).model_fields.items():
+        value = getattr(model, name)
+        if value is None and info.default is not None:
+            data[name] = None
+        elif isinstance(value, BaseModel) and isinstance(data.get(name), dict):
+            _keep_set_nones(value, data[name])
+
+
 def dump_config(scenario: Scenario, path: str | Path | None = None) -> str:
     """Serialise a scenario to YAML (and write it to ``path`` if given).
 
     The output re-loads to an identical scenario with :func:`load_config`.
     """
     data = scenario.model_dump(mode="json", exclude_none=True)
+    _keep_set_nones(scenario, data)
     learned = scenario.friction.learned
     if isinstance(learned, Path) and scenario.source_path is not None:
         # Inline the learned model so the dump is self-contained beside results.
