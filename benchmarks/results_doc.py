@@ -277,6 +277,52 @@ def render_ablation(data: dict[str, Any]) -> list[str]:
     return lines
 
 
+#: A placement counts as quick within this time from the path's nominal end, s.
+QUICK_PLACE_S = 2.0
+
+
+def render_placement_ablation(data: dict[str, Any]) -> list[str]:
+    """The friction ablation with the placement (``benchmarks/friction_ablation.py``), per variant
+    over the draws: the placement's moves (paired difference to ``paper``: mean, fewer on k), the
+    time to place, how many were placed within :data:`QUICK_PLACE_S`, the final error as the camera
+    sees it, stalls."""
+    table = ablation_table(data)
+    table = table[table["controller"] == ABLATION_CONTROLLER]
+    n = int(table["seed"].nunique())
+    stats = aggregate(table, by=["variant"])
+    variants = [v for v in ABLATION_VARIANTS if v in stats.index and stats.loc[v, ("runs", "n")] == n]
+    diffs = paired(table, {"variant": BASELINE}, ["placement_moves"], by=["variant"])
+    rows = []
+    for v in variants:
+        runs = table[table["variant"] == v]
+        moves = _cell(stats.loc[v], "placement_moves", n)
+        if v != BASELINE and BASELINE in variants:
+            d = diffs.loc[v]
+            moves += (
+                f"; {d[('placement_moves', 'mean')]:+.2f} (fewer on {int(d[('placement_moves', 'better')])})"
+            )
+        ttp = runs["time_to_place_s"].astype(float)
+        rows.append(
+            [
+                ABLATION_VARIANTS[v],
+                moves,
+                f"{ttp.median():.1f}",
+                f"{int((ttp <= QUICK_PLACE_S).sum())}/{n}",
+                _cell(stats.loc[v], "final_error_seen_mm", n, 3),
+                f"{_count(stats.loc[v], 'stalled')}/{n}",
+            ]
+        )
+    seeds = [d["seed"] for d in data["draws"]]
+    head = [
+        f"{n} draws of `{data['plant']}` (seeds {_seeds(seeds)}), config `{data['config']}`, every "
+        "default (the start's pre-load, the placement). Each cell: mean ± sd (worst) over the draws.",
+        "",
+    ]
+    header = ["friction model", "placement moves", "time to place, median (s)"]
+    header += [f"placed within {QUICK_PLACE_S:g} s", "final, as seen (mm)", "stalled"]
+    return head + _table(header, rows)
+
+
 def _breakaway_lines(draws: list[dict[str, Any]]) -> list[str]:
     """The learned breakaway coefficient against the plant's at the path's start, after 2 s at rest
     and (where recorded) after the rest the draw's capsule had before its run."""
