@@ -60,7 +60,7 @@ from .atomic import ENCODING, recording_writes, write_text_atomic
 from .errors import ConfigError, OutputError
 from .interrupt import exit_status
 from .overwrite import refuse_overwrite, resolved, shown_path
-from .previous_run import JOURNAL_NAME, Backup, recover, set_aside
+from .previous_run import JOURNAL_NAME, Backup, pid_alive, recover, set_aside
 
 __all__ = [
     "LOCK_NAME",
@@ -183,14 +183,6 @@ def _listed(folder: Path) -> list[str]:
     files = previous.get("files", [])
     return [f for f in files if isinstance(f, str)] if isinstance(files, list) else []
 
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, owned by someone else
-        return True
     return True
 
 
@@ -209,7 +201,7 @@ def _acquire_lock(folder: Path, command: str) -> tuple[Path, int | None]:
                 pid, host = int(held["pid"]), str(held["host"])
             except (OSError, ValueError, KeyError, TypeError):
                 held, pid, host = {}, -1, ""
-            if host == socket.gethostname() and pid > 0 and not _pid_alive(pid):
+            if host == socket.gethostname() and pid > 0 and not pid_alive(pid):
                 stale = pid
                 lock.unlink(missing_ok=True)
                 continue

@@ -32,7 +32,7 @@ from pathlib import Path
 from .atomic import ENCODING, write_text_atomic
 from .errors import OutputError
 
-__all__ = ["BACKUP_NAME", "JOURNAL_NAME", "Backup", "recover", "set_aside"]
+__all__ = ["BACKUP_NAME", "JOURNAL_NAME", "Backup", "pid_alive", "recover", "set_aside"]
 
 #: The hidden folder holding the previous run while a command replaces it.
 BACKUP_NAME = ".capsule-mpc.previous"
@@ -148,7 +148,8 @@ def read_journal(folder: Path) -> list[str]:
     return list(dict.fromkeys(line for line in text.splitlines() if line))
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists on this host (one of another user's counts)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -167,7 +168,7 @@ def _stale_temporaries(folder: Path) -> list[Path]:
             dirs.clear()
         for name in files:
             match = _TEMPORARY.match(name)
-            if match and int(match.group(1)) != os.getpid() and not _pid_alive(int(match.group(1))):
+            if match and int(match.group(1)) != os.getpid() and not pid_alive(int(match.group(1))):
                 found.append(Path(here) / name)
     return sorted(found)
 
