@@ -374,3 +374,13 @@ def test_a_null_that_is_not_the_default_survives_a_dump(tmp_path, section, key):
     again = load_config(_write(tmp_path, yaml.safe_load(dump_config(s))))
     assert getattr(getattr(again, section), key) is None
     assert again.model_dump() == s.model_dump()
+
+
+def test_a_run_prepared_with_overrides_keeps_a_null_that_is_not_the_default(tmp_path):
+    """``--plant`` and ``--speed`` rebuild the scenario from its data: the pre-load switched off in
+    the file stays off in the run."""
+    from capsule_mpc.experiments.runs import prepare_run
+
+    path = _write(tmp_path, {"base": "paper", "name": "off", "break_loose": {"preload": None}})
+    scenario, _, _ = prepare_run(path, None, 0.02, "ideal")
+    assert scenario.break_loose.preload is None and scenario.plant.preset == "ideal"

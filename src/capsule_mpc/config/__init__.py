@@ -29,6 +29,7 @@ from ._loader import (
     load_config,
     packaged_config_path,
     read_yaml,
+    scenario_data,
 )
 from .arm import ArmConfig
 from .faults import FaultsConfig
@@ -92,4 +93,5 @@ __all__ = [
     "load_config",
     "packaged_config_path",
     "read_yaml",
+    "scenario_data",
 ]

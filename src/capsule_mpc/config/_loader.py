@@ -24,6 +24,7 @@ __all__ = [
     "load_config",
     "packaged_config_path",
     "read_yaml",
+    "scenario_data",
     "validate",
 ]
 
@@ -167,13 +168,20 @@ def _keep_set_nones(model: BaseModel, data: dict[str, Any]) -> None:
             _keep_set_nones(value, data[name])
 
 
+def scenario_data(scenario: Scenario) -> dict[str, Any]:
+    """The scenario as a JSON-ready mapping that validates back to it: its None values dropped but
+    for those that are not the field's default (:func:`_keep_set_nones`)."""
+    data = scenario.model_dump(mode="json", exclude_none=True)
+    _keep_set_nones(scenario, data)
+    return data
+
+
 def dump_config(scenario: Scenario, path: str | Path | None = None) -> str:
     """Serialise a scenario to YAML (and write it to ``path`` if given).
 
     The output re-loads to an identical scenario with :func:`load_config`.
     """
-    data = scenario.model_dump(mode="json", exclude_none=True)
-    _keep_set_nones(scenario, data)
+    data = scenario_data(scenario)
     learned = scenario.friction.learned
     if isinstance(learned, Path) and scenario.source_path is not None:
         # Inline the learned model so the dump is self-contained beside results.

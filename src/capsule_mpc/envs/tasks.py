@@ -31,7 +31,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ..config import Scenario, config_from_dict, load_config, packaged_config_path
+from ..config import Scenario, config_from_dict, load_config, packaged_config_path, scenario_data
 from ..errors import ConfigError
 from ..paths import ReferencePath, path_from_scenario
 
@@ -160,7 +160,7 @@ def task_scenario(task: str, preset: str) -> Scenario:
     spec = get_task(task)
     _check_preset(preset)
     base = load_config(packaged_config_path(spec.config))
-    data: dict[str, Any] = base.model_dump(mode="json", exclude_none=True)
+    data: dict[str, Any] = scenario_data(base)
     data["plant"]["preset"] = preset
     data["path"]["speed_mps"] = spec.speed_mps
     scenario = config_from_dict(data)

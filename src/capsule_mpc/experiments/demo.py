@@ -36,7 +36,7 @@ import yaml
 
 from ..atomic import write_text_atomic
 from ..budget import check_run, speed_source
-from ..config import ConfigError, Scenario, load_config, read_yaml
+from ..config import ConfigError, Scenario, load_config, read_yaml, scenario_data
 from ..learning import LearningDataError, LogOptions, learn_from_logs, write_model
 from ..learning.core import static_text
 from ..learning.demonstrations import DEMO_PATHS, BreakawayPlan, run_demonstrations
@@ -135,7 +135,7 @@ def derived_scenario_text(base: Scenario, model_file: str) -> str:
     model_file : str
         The learned-model YAML, relative to the scenario file's folder.
     """
-    data = base.model_dump(mode="json", exclude_none=True)
+    data = scenario_data(base)
     data["force_model"] = FORCE_MODEL
     data["friction"]["learned"] = model_file
     source = base.source_path if base.source_path is not None else "the packaged defaults"

@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from ..budget import MAX_RUNS, check_run, speed_source
-from ..config import ConfigError, Scenario, config_from_dict
+from ..config import ConfigError, Scenario, config_from_dict, scenario_data
 from ..learning.demonstrations import (
     BREAKAWAY_DIRECTIONS,
     BREAKAWAY_PRELOAD,
@@ -46,7 +46,7 @@ def rig_scenario(scenario: Scenario, plant_preset: str | None) -> Scenario:
     """``scenario`` with ``plant.preset`` set to ``plant_preset`` (unchanged for None)."""
     if plant_preset is None or plant_preset == scenario.plant.preset:
         return scenario
-    data = scenario.model_dump(mode="json", exclude_none=True)
+    data = scenario_data(scenario)
     data["plant"]["preset"] = plant_preset
     if isinstance(scenario.friction.learned, Path):  # keep a relative model file loadable
         data["friction"]["learned"] = scenario.controller_friction().model_dump(

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import Scenario, config_from_dict, load_config, packaged_config_path
+from ..config import Scenario, config_from_dict, load_config, packaged_config_path, scenario_data
 from ..metrics import MOVING_SPEED_MPS
 from ..paths import ReferencePath, path_from_scenario
 from ..sim import simulate
@@ -167,7 +167,7 @@ def scenario_variant(config: str, updates: Mapping[str, Any]) -> Scenario:
         A value out of its field's range (named as usual).
     """
     base = load_config(packaged_config_path(config))
-    data: dict[str, Any] = base.model_dump(mode="json", exclude_none=True)
+    data: dict[str, Any] = scenario_data(base)
     for dotted, value in updates.items():
         *parents, leaf = dotted.split(".")
         node = data

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..arm import ArmError, check_run_trajectory, export_arm_trajectory, write_arm_outputs
 from ..budget import Workload, check_run, speed_source
-from ..config import ConfigError, Scenario, config_from_dict, load_config
+from ..config import ConfigError, Scenario, config_from_dict, load_config, scenario_data
 from ..interfaces import available_controllers
 from ..magnetics import force_map
 from ..metrics import stack_predictions
@@ -108,7 +108,7 @@ def prepare_run(
     path = path_from_scenario(base, waypoints=waypoints, speed=speed)
     scenario = base
     if waypoints is not None or speed is not None or plant_preset is not None:
-        data = base.model_dump(mode="json", exclude_none=True)
+        data = scenario_data(base)
         data["path"]["speed_mps"] = path.speed_mps
         if plant_preset is not None:
             data["plant"]["preset"] = plant_preset

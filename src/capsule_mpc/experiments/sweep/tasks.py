@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 from tqdm import tqdm
 
-from ...config import ConfigError, Scenario, config_from_dict
+from ...config import ConfigError, Scenario, config_from_dict, scenario_data
 from ...interrupt import Interrupted, raise_if_interrupted
 from ...metrics import run_metrics
 from ...paths import ReferencePath
@@ -168,7 +168,7 @@ def variant_scenario(
     """
     if not variant.overrides:
         return scenario
-    data = scenario.model_dump(mode="json", exclude_none=True)
+    data = scenario_data(scenario)
     for key, value in variant.overrides.items():
         *parents, last = key.split(".")
         node = data

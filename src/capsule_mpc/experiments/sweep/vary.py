@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...config import PLANT_FIXED, ConfigError, PlantConfig, Scenario, config_from_dict
+from ...config import PLANT_FIXED, ConfigError, PlantConfig, Scenario, config_from_dict, scenario_data
 from ...sim import draw_plant_truth
 
 __all__ = ["VARY_STREAM", "VaryRange", "check_vary", "draw_varied", "parse_vary", "with_plant_values"]
@@ -122,7 +122,7 @@ def check_vary(scenario: Scenario, vary: Sequence[VaryRange]) -> None:
     twice = sorted({f for f in fields if fields.count(f) > 1})
     if twice:
         raise ConfigError(f"--vary: plant.{twice[0]} is given more than once")
-    data = scenario.model_dump(mode="json", exclude_none=True)
+    data = scenario_data(scenario)
     for v in vary:
         for value in (v.lo, v.hi):
             data["plant"][v.field] = value
