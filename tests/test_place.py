@@ -188,3 +188,13 @@ def test_placement_from_rest_on_the_ideal_plant(scenario: Scenario) -> None:
     assert np.all(epm >= np.array(lim.workspace_min_m) - 1e-9)
     assert np.all(epm <= np.array(lim.workspace_max_m) + 1e-9)
     assert math.isfinite(float(speeds.sum()))
+
+
+def test_a_capsule_stuck_on_a_hard_draw_is_placed(lab_scenario: Scenario) -> None:
+    """A `hard` draw (sticky, varied friction; the camera's larger noise and bias): from a millimetre
+    off, after 3 s at rest, the placement brings the capsule within tolerance as the camera sees it
+    (the controller's own belief: the paper's c(v), the force model, no truth)."""
+    hard = lab_scenario.model_copy(update={"plant": lab_scenario.plant.model_copy(update={"preset": "hard"})})
+    placement, seen_error, _, _ = _place_on_plant(hard, 12, np.array([0.8e-3, 1.0e-3]), _belief(hard))
+    assert placement.outcome is P.PlaceOutcome.PLACED, placement.reason
+    assert float(np.linalg.norm(seen_error)) <= 2 * hard.place.tolerance_m
