@@ -66,7 +66,7 @@ def test_a_move_backs_off_beyond_the_breakaway_and_stops_at_the_drag_lead(
     back, slow, final, release = (np.asarray(w) for w in move.waypoints_m)
     np.testing.assert_allclose(final[:2] - slow[:2], P.SLOW_M * d, atol=1e-12)
     np.testing.assert_allclose(move.arrivals_mps[1][:2], 0.02 * d, atol=1e-12)
-    drag = belief.drag_n(0.3 + move.length_m - 0.0)  # bounded below by the drag before the move
+    drag = belief.drag_n(0.3 + move.length_m)  # at most the drag after the whole move
     stop = float((final[:2] - target - geo.lead_eq_m) @ d)
     assert belief.drag_n(0.3) / k - 1e-9 <= stop <= drag / k + 1e-9
     # From the capsule's rest, the back-off pulls the lead beyond the margin times the breakaway.
@@ -112,20 +112,19 @@ def test_the_residual_moves_the_end_one_for_one(scenario: Scenario) -> None:
 def test_observation_waits_for_enough_frames_and_flags_a_drift() -> None:
     rng = np.random.default_rng(0)
     obs = P._Observation(0.0)
-    target = np.zeros(2)
     for i in range(P.MIN_FRAMES - 1):
         obs.add(rng.normal(scale=3e-4, size=2))
-    assert obs.result(0.2, target, 1.5e-4)[0] is None
+    assert obs.result(0.2, 1.5e-4)[0] is None
     still = P._Observation(0.0)
     for i in range(60):
         still.add(np.array([1e-3, 0.0]) + rng.normal(scale=3e-4, size=2))
-    mean, kept_still = still.result(2.0, target, 1.5e-4)
+    mean, kept_still = still.result(2.0, 1.5e-4)
     assert mean is not None and kept_still
     assert mean == pytest.approx([1e-3, 0.0], abs=2e-4)
     drifting = P._Observation(0.0)
     for i in range(60):
         drifting.add(np.array([2e-5 * i, 0.0]) + rng.normal(scale=1e-4, size=2))
-    assert drifting.result(2.0, target, 1.5e-4)[1] is False
+    assert drifting.result(2.0, 1.5e-4)[1] is False
 
 
 def _place_on_plant(

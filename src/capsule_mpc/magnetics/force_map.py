@@ -20,7 +20,6 @@ import casadi as ca
 import magpylib as magpy
 import numpy as np
 from scipy.interpolate import RectBivariateSpline
-from scipy.spatial.transform import Rotation
 
 from ..atomic import atomic_path
 from ..cache import cache_folder, load_or_build
@@ -62,12 +61,9 @@ def _axes(scenario: Scenario) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return lead, lead.copy(), heights
 
 
-def force_map_key(scenario: Scenario, epm_orientation: Rotation | None = None) -> str:
-    """A hash of everything the table depends on (magnets, mounting, grid, meshing, magpylib version).
-
-    The nominal table (``epm_orientation`` None) keeps the key it had before mounting errors
-    existed; a rotated EPM (the plant's truth) adds its rotation matrix to the hash.
-    """
+def force_map_key(scenario: Scenario) -> str:
+    """A hash of everything the nominal table depends on (magnets, grid, meshing, magpylib version);
+    the plant's drawn magnets have their own table (:mod:`capsule_mpc.sim.magnet_table`)."""
     lead_x, _, heights = _axes(scenario)
     payload: dict[str, object] = {
         "format": _FORMAT_VERSION,
@@ -78,8 +74,6 @@ def force_map_key(scenario: Scenario, epm_orientation: Rotation | None = None) -
         "heights": heights.round(9).tolist(),
         "meshing": scenario.force_map.meshing,
     }
-    if epm_orientation is not None:
-        payload["epm_orientation"] = np.round(epm_orientation.as_matrix(), 12).tolist()
     blob = json.dumps(payload, sort_keys=True).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
 
@@ -212,7 +206,6 @@ def force_map(
     *,
     progress: bool = False,
     use_cache: bool = True,
-    epm_orientation: Rotation | None = None,
 ) -> ForceMap:
     """The scenario's finite-magnet force map, from the disk cache or computed (and cached).
 
@@ -227,27 +220,25 @@ def force_map(
         Show a progress bar while computing.
     use_cache : bool
         Read and write the cache; False always recomputes and writes nothing.
-    epm_orientation : scipy.spatial.transform.Rotation, optional
-        Mounting rotation of the EPM (the plant's truth); None: the nominal array.
     """
-    key = force_map_key(scenario, epm_orientation)
+    key = force_map_key(scenario)
     axes = _axes(scenario)
     if not use_cache:
-        return _compute(scenario, key, progress, epm_orientation)
+        return _compute(scenario, key, progress)
     path = cache_directory(scenario) / f"force_map_{key}.npz"
     table, _cached = load_or_build(
         path,
-        lambda out: _compute(scenario, key, progress, epm_orientation).save(out),
+        lambda out: _compute(scenario, key, progress).save(out),
         lambda stored: _for_key(ForceMap.load(stored), key, axes),
     )
     return table
 
 
-def _compute(scenario: Scenario, key: str, progress: bool, epm_orientation: Rotation | None) -> ForceMap:
+def _compute(scenario: Scenario, key: str, progress: bool) -> ForceMap:
     lead_x, lead_y, heights = _axes(scenario)
     gx, gy, gh = np.meshgrid(lead_x, lead_y, heights, indexing="ij")
     leads = np.column_stack([gx.ravel(), gy.ravel()])
-    forces = finite_force(scenario, leads, gh.ravel(), progress=progress, epm_orientation=epm_orientation)
+    forces = finite_force(scenario, leads, gh.ravel(), progress=progress)
     return ForceMap(lead_x, lead_y, heights, forces.reshape(*gx.shape, 3), key)
 
 

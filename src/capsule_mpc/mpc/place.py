@@ -306,7 +306,7 @@ class _Observation:
     def add(self, position_m: np.ndarray) -> None:
         self.frames.append(np.asarray(position_m, dtype=float))
 
-    def result(self, t_s: float, target_m: np.ndarray, tolerance_m: float) -> tuple[np.ndarray | None, bool]:
+    def result(self, t_s: float, tolerance_m: float) -> tuple[np.ndarray | None, bool]:
         """(mean position, or None while the observation goes on; whether the capsule kept still).
 
         It goes on until the mean's standard error is below :data:`SE_FRACTION` of the tolerance
@@ -471,7 +471,7 @@ class Placement:
             self._obs = _Observation(t_s)
         if position_m is not None and t_s >= self._obs.start_s:
             self._obs.add(position_m)
-        mean, still = self._obs.result(t_s, self.target_m, self.settings.tolerance_m)
+        mean, still = self._obs.result(t_s, self.settings.tolerance_m)
         if mean is None:
             return np.zeros(3)
         if not still:  # it was still moving: watch again
