@@ -50,11 +50,12 @@ def _belief(scenario: Scenario) -> FrictionBelief:
     rest_s=st.floats(0.0, 100.0),
     direction=st.sampled_from([-1.0, 1.0]),
 )
-def test_a_move_backs_off_beyond_the_breakaway_and_stops_at_the_drag_lead(
+def test_a_move_backs_off_beyond_the_breakaway_and_stops_at_the_holding_lead(
     scenario: Scenario, k: float, off_x: float, off_y: float, rest_s: float, direction: float
 ) -> None:
     """Closed form of the spring-slider: breaking loose takes the lead F_break / k beyond the
-    equilibrium; the capsule stops where the spring force equals the drag, drag / k."""
+    equilibrium; the capsule stops where the spring force equals the drag plus the held part of
+    the static friction, (drag + STOP_FRICTION mu_s F_N) / k."""
     geo = linear_geometry(k)
     belief = _belief(scenario)
     target = np.array([0.0, -0.03])
@@ -67,8 +68,9 @@ def test_a_move_backs_off_beyond_the_breakaway_and_stops_at_the_drag_lead(
     np.testing.assert_allclose(final[:2] - slow[:2], P.SLOW_M * d, atol=1e-12)
     np.testing.assert_allclose(move.arrivals_mps[1][:2], 0.02 * d, atol=1e-12)
     drag = belief.drag_n(0.3 + move.length_m)  # at most the drag after the whole move
+    held = P.STOP_FRICTION * scenario.friction.mu0 * geo.normal_n  # the paper's law: mu_s = mu0
     stop = float((final[:2] - target - geo.lead_eq_m) @ d)
-    assert belief.drag_n(0.3) / k - 1e-9 <= stop <= drag / k + 1e-9
+    assert (belief.drag_n(0.3) + held) / k - 1e-9 <= stop <= (drag + held) / k + 1e-9
     # From the capsule's rest, the back-off pulls the lead beyond the margin times the breakaway.
     lead_back = float((back[:2] - rest - geo.lead_eq_m) @ d)
     breakaway = P.BREAKAWAY_MARGIN * belief.breakaway_n(geo.normal_n, rest_s, 0.3)
@@ -197,3 +199,31 @@ def test_a_capsule_stuck_on_a_hard_draw_is_placed(lab_scenario: Scenario) -> Non
     placement, seen_error, _, _ = _place_on_plant(hard, 12, np.array([0.8e-3, 1.0e-3]), _belief(hard))
     assert placement.outcome is P.PlaceOutcome.PLACED, placement.reason
     assert float(np.linalg.norm(seen_error)) <= 2 * hard.place.tolerance_m
+
+
+def test_only_the_rest_before_the_first_move_ends_early_when_clearly_off() -> None:
+    """The first move is planned from the target, so a rest 1 mm off needs no precise mean; after a
+    move the mean is the stop the next move learns from, so it averages until its standard error
+    is small."""
+    rng = np.random.default_rng(1)
+    target = np.array([0.0, -0.03])
+    frames = [target + np.array([1e-3, 0.0]) + rng.normal(scale=3e-4, size=2) for _ in range(60)]
+    first = P._Observation(0.0, target_m=target)
+    later = P._Observation(0.0)
+    ended_first = ended_later = None
+    for i, f in enumerate(frames):
+        t = i / 30.0
+        first.add(f)
+        later.add(f)
+        if ended_first is None and first.result(t, 1.5e-4)[0] is not None:
+            ended_first = len(first.frames)
+        if ended_later is None and later.result(t, 1.5e-4)[0] is not None:
+            ended_later = len(later.frames)
+    assert ended_first == P.MIN_FRAMES
+    se_needed = (3e-4 / (P.SE_FRACTION * 1.5e-4)) ** 2  # frames for the standard error it asks
+    assert ended_later is not None and ended_later >= min(0.7 * se_needed, 30.0 * P.MAX_OBSERVE_S)
+    # On the target it does not end early: its mean decides whether the capsule is placed.
+    on = P._Observation(0.0, target_m=target)
+    for i in range(P.MIN_FRAMES + 5):
+        on.add(target + rng.normal(scale=3e-4, size=2))
+        assert on.result(i / 30.0, 1.5e-4)[0] is None

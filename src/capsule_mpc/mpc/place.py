@@ -25,10 +25,12 @@ The belief enters twice. The *static* friction sizes the back-off: the EPM must 
 beyond the breakaway of :meth:`~capsule_mpc.friction.FrictionBelief.breakaway_n` (after the rest
 so far, by :data:`BREAKAWAY_MARGIN`), both to break loose backward and, after a short stop, forward;
 too short a back-off leaves the capsule where it was, and the next move backs off
-:data:`GROWTH` times farther. The *sliding* side gives the first stop offset: a capsule coming to
-rest creeps until the force along ``d`` falls to the tether drag the belief holds (the steady
-sliding friction of the belief falls toward zero speed), so ``s = lead(F_d = drag) - lead_eq``.
-The believed equilibrium ``lead_eq`` is where the force model plus the controller's estimated
+:data:`GROWTH` times farther. The static friction also gives the first stop offset: once the
+EPM has stepped back, the capsule comes to rest where the force along ``d`` has fallen to the
+tether drag the belief holds plus a fixed part :data:`STOP_FRICTION` of its static friction just
+after coming to rest, ``s = lead(F_d = drag + STOP_FRICTION mu_s F_N) - lead_eq``; the part was
+measured on closed-loop runs of tuning draws (a rig whose friction is higher stops farther
+behind the EPM). The believed equilibrium ``lead_eq`` is where the force model plus the controller's estimated
 constant force vanishes. Nothing of the plant is read: only camera frames and the EPM position
 the arm reports.
 
@@ -93,6 +95,8 @@ RUN_UP_M = 16e-3
 SETTLE_S = 0.3
 #: An observation ends once the mean's standard error is below this fraction of the tolerance.
 SE_FRACTION = 0.3
+#: Before the first move, a rest this many standard errors beyond the tolerance is off the target.
+OFF_SE = 3.0
 #: The fewest frames an observation averages, and the longest it lasts, s.
 MIN_FRAMES = 8
 MAX_OBSERVE_S = 1.5
@@ -117,6 +121,11 @@ STAGE_REST_S = 0.3
 #: The placement starts once the estimator has seen the capsule at rest this long after the path,
 #: s (the MPC holds the path's end meanwhile).
 REST_BEFORE_S = 0.3
+#: Fraction of the belief's static friction (just after coming to rest) that still holds the
+#: capsule where it comes to rest after the release: the force along the approach there is the
+#: drag plus ``STOP_FRICTION mu_s F_N``. Fitted on the first moves of closed-loop runs on tuning
+#: draws by ``benchmarks/stop_friction.py`` (docs/results/stop_friction_lab.json).
+STOP_FRICTION = 0.276
 #: Step of the force's finite differences, m.
 _FD_STEP_M = 1e-4
 #: The believed equilibrium is trusted this far from the model's own, m (beyond: a root finder
@@ -272,9 +281,11 @@ def plan_move(
     ahead = float((np.asarray(target_m) - np.asarray(rest_m)) @ d)
     single = ahead >= backoff_scale * fwd_break + RUN_UP_M  # far enough ahead: it breaks loose on the way
     back_len = 0.0 if single else backoff_scale * max(ahead + back_break, fwd_break) + RUN_UP_M
-    # The drag where the capsule comes to rest: paid out by the way there (out and back).
+    # Where the capsule comes to rest the force along d has fallen to the drag (paid out by the
+    # way there, out and back) and the part of the sliding friction that still holds it.
     drag = belief.drag_n(progress_m + (ahead if single else 2.0 * back_len))
-    model_offset = geometry.offset_for(drag, direction, max_lead_m) * d
+    held = STOP_FRICTION * belief.breakaway_mu(0.0) * fn
+    model_offset = geometry.offset_for(drag + held, direction, max_lead_m) * d
     final_xy = np.asarray(target_m) + lead_now + model_offset + np.asarray(residual_m)
     final = np.array([*final_xy, height_m])
     release = np.array([*(final_xy - RELEASE_M * d), height_m])
@@ -302,6 +313,10 @@ class _Observation:
 
     start_s: float
     frames: list[np.ndarray] = field(default_factory=list)
+    #: Set for the rest before the first move: the first move is planned from the target, not
+    #: from this rest, so once the mean is off the target by the tolerance plus
+    #: :data:`OFF_SE` standard errors the observation ends.
+    target_m: np.ndarray | None = None
 
     def add(self, position_m: np.ndarray) -> None:
         self.frames.append(np.asarray(position_m, dtype=float))
@@ -310,8 +325,9 @@ class _Observation:
         """(mean position, or None while the observation goes on; whether the capsule kept still).
 
         It goes on until the mean's standard error is below :data:`SE_FRACTION` of the tolerance
-        or :data:`MAX_OBSERVE_S` have passed, also when the capsule is far off: the next move learns
-        its stop offset from this rest position.
+        or :data:`MAX_OBSERVE_S` have passed, also when the capsule is far off after a move: the
+        next move learns its stop offset from this rest position. Before the first move it ends as
+        soon as the capsule is clearly off the target (:attr:`target_m`).
         """
         n = len(self.frames)
         if n < MIN_FRAMES:
@@ -319,7 +335,11 @@ class _Observation:
         pos = np.array(self.frames)
         mean = pos.mean(axis=0)
         se = float(np.max(pos.std(axis=0, ddof=1))) / math.sqrt(n)
-        if se > SE_FRACTION * tolerance_m and t_s - self.start_s < MAX_OBSERVE_S:
+        clearly_off = (
+            self.target_m is not None
+            and float(np.linalg.norm(mean - self.target_m)) - OFF_SE * se > tolerance_m
+        )
+        if se > SE_FRACTION * tolerance_m and t_s - self.start_s < MAX_OBSERVE_S and not clearly_off:
             return None, True
         half = n // 2
         drift = float(np.linalg.norm(pos[:half].mean(axis=0) - pos[half:].mean(axis=0)))
@@ -454,7 +474,11 @@ class Placement:
     def start(self, t_s: float, rest_since_s: float) -> None:
         """Begin observing at ``t_s``; the capsule has rested since ``rest_since_s``."""
         self._rest_since_s = rest_since_s
-        self._obs = _Observation(t_s)
+        self._obs = self._observation(t_s)
+
+    def _observation(self, start_s: float) -> _Observation:
+        """A new observation from ``start_s``; before the first move it may end early off target."""
+        return _Observation(start_s, target_m=self.target_m if self.moves == 0 else None)
 
     def command(self, t_s: float, position_m: np.ndarray | None, epm_m: np.ndarray) -> np.ndarray:
         """This frame's EPM velocity command (3,), m/s, from the camera frame ``position_m`` (None
@@ -468,14 +492,14 @@ class Placement:
                 mem.moved_m = max(mem.moved_m, float(np.linalg.norm(np.asarray(position_m) - mem.last_rest)))
             return self._follow(t_s, epm)
         if self._obs is None:
-            self._obs = _Observation(t_s)
+            self._obs = self._observation(t_s)
         if position_m is not None and t_s >= self._obs.start_s:
             self._obs.add(position_m)
         mean, still = self._obs.result(t_s, self.settings.tolerance_m)
         if mean is None:
             return np.zeros(3)
         if not still:  # it was still moving: watch again
-            self._obs = _Observation(t_s)
+            self._obs = self._observation(t_s)
             return np.zeros(3)
         self._decide(t_s, mean, epm)
         return np.zeros(3)
@@ -534,7 +558,7 @@ class Placement:
             err = traj.end_m - epm
             if float(np.max(np.abs(err[:2]))) <= EPM_TOL_M or tau >= traj.duration_s + EPM_WAIT_S:
                 self._traj = None
-                self._obs = _Observation(t_s + SETTLE_S)
+                self._obs = self._observation(t_s + SETTLE_S)
                 self._rest_since_s = t_s
                 return np.zeros(3)
             u = POSITION_GAIN * err
