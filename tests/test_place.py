@@ -113,17 +113,17 @@ def test_the_residual_moves_the_end_one_for_one(scenario: Scenario) -> None:
 
 def test_observation_waits_for_enough_frames_and_flags_a_drift() -> None:
     rng = np.random.default_rng(0)
-    obs = P._Observation(0.0)
+    obs = P._Observation(0.0, np.zeros(2))
     for i in range(P.MIN_FRAMES - 1):
         obs.add(rng.normal(scale=3e-4, size=2))
     assert obs.result(0.2, 1.5e-4)[0] is None
-    still = P._Observation(0.0)
+    still = P._Observation(0.0, np.zeros(2))
     for i in range(60):
         still.add(np.array([1e-3, 0.0]) + rng.normal(scale=3e-4, size=2))
     mean, kept_still = still.result(2.0, 1.5e-4)
     assert mean is not None and kept_still
     assert mean == pytest.approx([1e-3, 0.0], abs=2e-4)
-    drifting = P._Observation(0.0)
+    drifting = P._Observation(0.0, np.zeros(2))
     for i in range(60):
         drifting.add(np.array([2e-5 * i, 0.0]) + rng.normal(scale=1e-4, size=2))
     assert drifting.result(2.0, 1.5e-4)[1] is False
@@ -208,8 +208,8 @@ def test_only_the_rest_before_the_first_move_ends_early_when_clearly_off() -> No
     rng = np.random.default_rng(1)
     target = np.array([0.0, -0.03])
     frames = [target + np.array([1e-3, 0.0]) + rng.normal(scale=3e-4, size=2) for _ in range(60)]
-    first = P._Observation(0.0, target_m=target)
-    later = P._Observation(0.0)
+    first = P._Observation(0.0, target, first=True)
+    later = P._Observation(0.0, target)
     ended_first = ended_later = None
     for i, f in enumerate(frames):
         t = i / 30.0
@@ -223,7 +223,28 @@ def test_only_the_rest_before_the_first_move_ends_early_when_clearly_off() -> No
     se_needed = (3e-4 / (P.SE_FRACTION * 1.5e-4)) ** 2  # frames for the standard error it asks
     assert ended_later is not None and ended_later >= min(0.7 * se_needed, 30.0 * P.MAX_OBSERVE_S)
     # On the target it does not end early: its mean decides whether the capsule is placed.
-    on = P._Observation(0.0, target_m=target)
+    on = P._Observation(0.0, target, first=True)
     for i in range(P.MIN_FRAMES + 5):
         on.add(target + rng.normal(scale=3e-4, size=2))
         assert on.result(i / 30.0, 1.5e-4)[0] is None
+
+
+def test_an_ambiguous_rest_is_watched_longer() -> None:
+    """A mean at the tolerance's edge is watched up to LONGEST_OBSERVE_S; a mean clearly inside or
+    clearly outside ends at MAX_OBSERVE_S."""
+    rng = np.random.default_rng(2)
+    target = np.zeros(2)
+    tol = 1.5e-4
+
+    def ends_after(offset_m: float) -> float:
+        obs = P._Observation(0.0, target)
+        noise = rng.normal(scale=6e-4, size=(200, 2))  # a noisy camera: the SE stays above the fraction
+        for i in range(200):
+            t = i / 30.0
+            obs.add(np.array([offset_m, 0.0]) + noise[i])
+            if obs.result(t, tol)[0] is not None:
+                return t
+        return math.inf
+
+    assert ends_after(1.5e-4) >= P.LONGEST_OBSERVE_S - 0.05
+    assert P.MAX_OBSERVE_S - 0.05 <= ends_after(2e-3) < P.LONGEST_OBSERVE_S - 0.5

@@ -97,7 +97,11 @@ SETTLE_S = 0.3
 SE_FRACTION = 0.3
 #: Before the first move, a rest this many standard errors beyond the tolerance is off the target.
 OFF_SE = 3.0
-#: The fewest frames an observation averages, and the longest it lasts, s.
+#: An observation whose mean lies within this many standard errors of the tolerance is ambiguous
+#: and goes on past :data:`MAX_OBSERVE_S`, up to :data:`LONGEST_OBSERVE_S`, s.
+AMBIGUOUS_SE = 2.0
+LONGEST_OBSERVE_S = 3.0
+#: The fewest frames an observation averages, and the longest it lasts unless ambiguous, s.
 MIN_FRAMES = 8
 MAX_OBSERVE_S = 1.5
 #: Gain of the EPM's position correction while it follows a move, 1/s.
@@ -312,11 +316,12 @@ class _Observation:
     """Camera frames averaged at rest."""
 
     start_s: float
+    target_m: np.ndarray
+    #: The rest before the first move: the first move is planned from the target, not from this
+    #: rest, so once the mean is off the target by the tolerance plus :data:`OFF_SE` standard
+    #: errors the observation ends.
+    first: bool = False
     frames: list[np.ndarray] = field(default_factory=list)
-    #: Set for the rest before the first move: the first move is planned from the target, not
-    #: from this rest, so once the mean is off the target by the tolerance plus
-    #: :data:`OFF_SE` standard errors the observation ends.
-    target_m: np.ndarray | None = None
 
     def add(self, position_m: np.ndarray) -> None:
         self.frames.append(np.asarray(position_m, dtype=float))
@@ -326,8 +331,10 @@ class _Observation:
 
         It goes on until the mean's standard error is below :data:`SE_FRACTION` of the tolerance
         or :data:`MAX_OBSERVE_S` have passed, also when the capsule is far off after a move: the
-        next move learns its stop offset from this rest position. Before the first move it ends as
-        soon as the capsule is clearly off the target (:attr:`target_m`).
+        next move learns its stop offset from this rest position. While the mean lies within
+        :data:`AMBIGUOUS_SE` standard errors of the tolerance (placed or not is a coin toss), it
+        goes on up to :data:`LONGEST_OBSERVE_S`. Before the first move it ends as soon as the
+        capsule is clearly off the target (:attr:`first`).
         """
         n = len(self.frames)
         if n < MIN_FRAMES:
@@ -335,11 +342,15 @@ class _Observation:
         pos = np.array(self.frames)
         mean = pos.mean(axis=0)
         se = float(np.max(pos.std(axis=0, ddof=1))) / math.sqrt(n)
-        clearly_off = (
-            self.target_m is not None
-            and float(np.linalg.norm(mean - self.target_m)) - OFF_SE * se > tolerance_m
+        off = float(np.linalg.norm(mean - self.target_m))
+        elapsed = t_s - self.start_s
+        done = (
+            se <= SE_FRACTION * tolerance_m
+            or (self.first and off - OFF_SE * se > tolerance_m)
+            or elapsed >= LONGEST_OBSERVE_S
+            or (elapsed >= MAX_OBSERVE_S and abs(off - tolerance_m) >= AMBIGUOUS_SE * se)
         )
-        if se > SE_FRACTION * tolerance_m and t_s - self.start_s < MAX_OBSERVE_S and not clearly_off:
+        if not done:
             return None, True
         half = n // 2
         drift = float(np.linalg.norm(pos[:half].mean(axis=0) - pos[half:].mean(axis=0)))
@@ -478,7 +489,7 @@ class Placement:
 
     def _observation(self, start_s: float) -> _Observation:
         """A new observation from ``start_s``; before the first move it may end early off target."""
-        return _Observation(start_s, target_m=self.target_m if self.moves == 0 else None)
+        return _Observation(start_s, self.target_m, first=self.moves == 0)
 
     def command(self, t_s: float, position_m: np.ndarray | None, epm_m: np.ndarray) -> np.ndarray:
         """This frame's EPM velocity command (3,), m/s, from the camera frame ``position_m`` (None
