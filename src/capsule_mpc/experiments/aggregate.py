@@ -5,7 +5,7 @@ the benchmarks' reports and the tables of ``docs/results.md`` -- is computed her
 ``groupby`` over the rows of the runs that finished (``error`` empty):
 
 * a numeric metric: ``mean``, ``sd`` (sample standard deviation, ddof 1; 0 for one value),
-  ``min``, ``worst`` (the largest: every metric is worse when larger), ``n`` (finite values;
+  ``min``, ``median``, ``worst`` (the largest: every metric is worse when larger), ``n`` (finite values;
   NaN values are left out) and ``sum``;
 * a true/false flag: ``count`` (runs where true) and ``n``;
 * per group ``runs`` (rows that finished) and ``failed`` (rows whose controller raised).
@@ -28,7 +28,6 @@ from .table import KEYS
 __all__ = [
     "aggregate",
     "flag_columns",
-    "mean_sd",
     "mean_sd_worst",
     "metric_columns",
     "paired",
@@ -36,7 +35,15 @@ __all__ = [
 ]
 
 #: The numeric statistics of a metric, as pandas names them, and their names here.
-_STATS = {"mean": "mean", "std": "sd", "min": "min", "max": "worst", "count": "n", "sum": "sum"}
+_STATS = {
+    "mean": "mean",
+    "std": "sd",
+    "min": "min",
+    "median": "median",
+    "max": "worst",
+    "count": "n",
+    "sum": "sum",
+}
 #: Columns that describe a row rather than measure it.
 _NOT_METRICS = frozenset({*KEYS, "error", "window_end_s"})
 
@@ -64,7 +71,10 @@ def metric_columns(table: pd.DataFrame) -> list[str]:
 
 
 def aggregate(
-    table: pd.DataFrame, by: Sequence[str] = ("variant", "controller"), metrics: Sequence[str] | None = None
+    table: pd.DataFrame,
+    by: Sequence[str] = ("variant", "controller"),
+    metrics: Sequence[str] | None = None,
+    quantiles: Mapping[str, float] | None = None,
 ) -> pd.DataFrame:
     """Per group of ``by``: the statistics of every metric and flag (module docstring).
 
@@ -76,6 +86,8 @@ def aggregate(
         The grouping columns; groups in order of first appearance.
     metrics : sequence of str, optional
         Numeric columns to summarise (default :func:`metric_columns`); flags are always counted.
+    quantiles : mapping of str to float, optional
+        Further statistics of each metric: name to quantile in [0, 1] (e.g. ``{"p95": 0.95}``).
 
     Returns
     -------
@@ -94,6 +106,9 @@ def aggregate(
         for m in metrics:  # one value: sd 0 (pandas gives NaN for ddof 1)
             stats[(m, "sd")] = stats[(m, "sd")].where(stats[(m, "n")] != 1, 0.0)
         parts.append(stats)
+        for name, q in (quantiles or {}).items():
+            part = ok.groupby(keys, sort=False)[metrics].quantile(q)
+            parts.append(part.set_axis(pd.MultiIndex.from_product([metrics, [name]]), axis=1))
     if flags:
         counted = ok[[*keys, *flags]].astype({f: "float" for f in flags}).groupby(keys, sort=False)[flags]
         parts.append(counted.agg(["sum", "count"]).rename(columns={"sum": "count", "count": "n"}, level=1))
@@ -163,8 +178,3 @@ def mean_sd_worst(mean: float, sd: float, worst: float, digits: int = 2) -> str:
     if not _finite(mean):
         return "n/a"
     return f"{mean:.{digits}f} ± {sd:.{digits}f} ({worst:.{digits}f})"
-
-
-def mean_sd(mean: float, sd: float, fmt: str = "{:.2f}") -> str:
-    """``mean ± sd``, each formatted with ``fmt``; ``n/a`` when the mean is not finite."""
-    return "n/a" if not _finite(mean) else f"{fmt.format(mean)} ± {fmt.format(sd)}"
