@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import pandas as pd
 from pandas.api.types import is_bool_dtype, is_numeric_dtype
 
-from .table import KEYS
+from .table import KEYS, run_label
 
 __all__ = [
     "aggregate",
@@ -32,6 +33,7 @@ __all__ = [
     "metric_columns",
     "paired",
     "succeeded",
+    "worst_runs",
 ]
 
 #: The numeric statistics of a metric, as pandas names them, and their names here.
@@ -178,3 +180,33 @@ def mean_sd_worst(mean: float, sd: float, worst: float, digits: int = 2) -> str:
     if not _finite(mean):
         return "n/a"
     return f"{mean:.{digits}f} ± {sd:.{digits}f} ({worst:.{digits}f})"
+
+
+def worst_runs(
+    table: pd.DataFrame, metrics: Sequence[str], flags: Sequence[str], count: int
+) -> dict[str, dict[str, Any]]:
+    """The worst runs of each variant and controller of a run table.
+
+    Returns
+    -------
+    dict of str to dict
+        Per run label (:func:`~.table.run_label`): ``metrics``, for each of ``metrics``, the
+        ``count`` runs with the largest finite values, ``[{"seed", "value"}]`` from the worst, ties
+        by seed; ``flags``, for each of ``flags``, the seeds where it was raised; ``failed``, the
+        seeds whose run did not finish.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for (variant, controller), runs in table.groupby(["variant", "controller"], sort=False):
+        ok = succeeded(runs)
+        ranked = {}
+        for m in metrics:  # a metric or flag no run recorded: no seeds
+            values = ok.reindex(columns=["seed", m]).replace([math.inf, -math.inf], math.nan).dropna()
+            top = values.sort_values([m, "seed"], ascending=[False, True]).head(count)
+            ranked[m] = [{"seed": int(s), "value": float(v)} for s, v in zip(top["seed"], top[m])]
+        raised = {f: ok.reindex(columns=[f])[f].eq(True).fillna(False).astype(bool) for f in flags}
+        out[run_label(variant, controller)] = {
+            "metrics": ranked,
+            "flags": {f: [int(s) for s in ok.loc[mask, "seed"]] for f, mask in raised.items()},
+            "failed": [int(s) for s in runs.loc[~runs.index.isin(ok.index), "seed"]],
+        }
+    return out

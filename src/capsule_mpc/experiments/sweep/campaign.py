@@ -27,7 +27,6 @@ from ..compare import (
     aggregate_runs,
     check_controllers,
     controller_names,
-    json_value,
     run_figures,
     summary_header,
     summary_markdown,
@@ -45,7 +44,7 @@ from .results import (
     worst_table,
 )
 from .results import write_figures as write_figures
-from .tasks import Outcome, SeedTask, Variant, dask_client, run_here, run_on_dask, run_seed
+from .tasks import Outcome, SeedTask, Variant, dask_client, json_value, run_here, run_on_dask, run_seed
 from .vary import VaryRange, check_vary
 
 if TYPE_CHECKING:
