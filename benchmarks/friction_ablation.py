@@ -35,7 +35,8 @@ is kept in ``--work``, and with ``--reuse`` a model already there is used instea
 (same config and plant; each seed once; the variants every draw ran; the parts' commands kept).
 
 The ``paper_0.8v`` heuristic runs on the same draw, and every run of a draw is scored on one
-window: t = 0 to the latest end among them (:func:`capsule_mpc.experiments.compare.rescore_on_common_window`).
+window: t = 0 to the latest end among them
+(:func:`capsule_mpc.experiments.sweep.tasks.rescore_on_common_window`).
 Writes the report to ``--out`` (JSON: each draw's numbers, its learning and the command; the
 campaign's folder beside it, ``--out`` without ``.json``), rendered into docs/results.md by
 ``benchmarks/results_doc.py``: per variant mean ± sd (worst) over the draws and the paired difference

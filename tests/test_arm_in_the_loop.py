@@ -21,7 +21,7 @@ from capsule_mpc.arm import (
     run_trajectory_since,
 )
 from capsule_mpc.config import config_from_dict
-from capsule_mpc.experiments.compare import rescore_on_common_window
+from capsule_mpc.experiments.sweep.tasks import rescore_on_common_window
 from capsule_mpc.mpc import build_mpc_stack
 from capsule_mpc.paths import rectangle
 from capsule_mpc.safety import safe_command

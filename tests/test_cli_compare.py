@@ -344,7 +344,7 @@ _CASADI_DUMP = "\n".join(
     ],
 )
 def test_a_failure_is_one_bounded_line_with_its_cause_and_what_to_try(exc, cause):
-    from capsule_mpc.experiments.compare import failure_line
+    from capsule_mpc.experiments.sweep.tasks import failure_line
 
     line = failure_line("plan", exc)
     assert "\n" not in line and len(line) < 400

@@ -62,7 +62,7 @@ def test_mpc_beats_both_baselines_on_the_lab_rig(lab_scenario):
     operator start inside the dead zone, on the paper's rectangle: the MPC beats follow and
     paper_0.8v on tracking and cross-track error, all scored on one common window. (On a path of a
     few centimetres the start offset dominates the cross-track error and the controllers tie.)"""
-    from capsule_mpc.experiments.compare import rescore_on_common_window
+    from capsule_mpc.experiments.sweep.tasks import rescore_on_common_window
     from capsule_mpc.paths import rectangle
 
     seed = 1

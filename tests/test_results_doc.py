@@ -68,8 +68,9 @@ def test_ablation_row_from_synthetic_json(results_doc, tmp_path):
         }
     }
     (tmp_path / "sources.json").write_text(json.dumps(sources), encoding="utf-8")
-    template = REPO / "docs" / "results" / results_doc.TEMPLATE
-    (tmp_path / results_doc.TEMPLATE).write_text(template.read_text(encoding="utf-8"), encoding="utf-8")
+    for name in (results_doc.TEMPLATE, results_doc.TABLES):
+        template = REPO / "docs" / "results" / name
+        (tmp_path / name).write_text(template.read_text(encoding="utf-8"), encoding="utf-8")
     text = results_doc.render(tmp_path)
     # paper: 1, 2, 3 -> mean 2, sd 1, worst 3; learned: 1.5, 1, 5 -> mean 2.5, sd 2.18, worst 5;
     # learned - paper: +0.5, -1, +2 -> mean +0.5, better on 1 draw
@@ -111,7 +112,7 @@ def test_sweep_row_from_synthetic_json(results_doc):
         "speed_mps": 0.02,
         "runs": runs([2.0, 4.0, 6.0, 8.0]),
     }
-    lines = results_doc.render_sweep(summary)
+    lines = results_doc.section_lines("sweep", summary)
     row = next(line for line in lines if line.startswith("| `mpc`"))
     # 2, 4, 6, 8: mean 5, sd sqrt(20/3) = 2.58, worst 8; final 0.5, 1, 1.5, 2: one within 0.5 mm
     assert row.startswith(
@@ -137,7 +138,7 @@ def test_breakaway_check_from_synthetic_json(results_doc):
         "config": "c.yaml",
         "draws": [draw(0, 0.2, 0.2, 0.3, 0.3), draw(1, 0.32, 0.3, 0.2, 0.25), draw(2, None, 0.3, None, 0.3)],
     }
-    text = "\n".join(results_doc.render_breakaway(data))
+    text = "\n".join(results_doc.section_lines("breakaway", data))
     assert "3 draws of `lab` (seeds 0\u20132)" in text
     # |errors| 0 and 6.7 % (0.32 / 0.3): both within; at the start 0 and 20 %: one
     assert "after 2 s at rest, against the plant's at the path's start: within 10 % on 2 of 2 draws" in text

@@ -22,10 +22,10 @@ import capsule_mpc
 from capsule_mpc.cli import main
 from capsule_mpc.config import load_config
 from capsule_mpc.experiments.compare import RUNS_FOLDER, aggregate_runs
-from capsule_mpc.experiments.compare import json_value as _json_value
 from capsule_mpc.experiments.sweep.campaign import sweep
 from capsule_mpc.experiments.sweep.results import SPEC_FILE, spec_difference, worst_runs
 from capsule_mpc.experiments.sweep.tasks import WALL_CLOCK_KEYS, SeedTask, run_seed
+from capsule_mpc.experiments.sweep.tasks import json_value as _json_value
 from capsule_mpc.experiments.sweep.vary import draw_varied, parse_vary, with_plant_values
 from capsule_mpc.experiments.table import NOMINAL, TABLE_FILE, read_table
 from capsule_mpc.outputs import read_manifest

@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from contextlib import ExitStack
     from dataclasses import replace
 
-    from ..experiments.sweep.campaign import compare_controllers, local_workers
+    from ..experiments.sweep.campaign import compare_controllers, local_workers, sweep_failures
     from ..experiments.sweep.tasks import dask_client
 
     overflow = refuse_seed_overflow(args.seed, args.runs, 0)
@@ -83,13 +83,11 @@ def run(args: argparse.Namespace) -> int:
             scenario, path, folder.path, seed, controllers=names, meta=meta, progress=not args.no_progress,
             runs=args.runs, workers=local, client=client,
         )  # fmt: skip
-        failures = comparison.failed_runs(summary)
+        failures = sweep_failures(summary)
         folder.status = 1 if failures else 0
     print(comparison.summary_table(summary["controllers"], args.runs), end="")
-    for name, failed_seed, error in failures:
-        print(
-            f"capsule-mpc compare: controller {name!r} failed (seed {failed_seed}): {error}", file=sys.stderr
-        )
+    for failure in failures:
+        print(f"capsule-mpc compare: {failure}", file=sys.stderr)
     folders = (
         "one folder per controller" if args.runs == 1 else f"{comparison.RUNS_FOLDER}/seed_<S>/<controller>/"
     )

@@ -5,7 +5,7 @@ the benchmarks' reports and the tables of ``docs/results.md`` -- is computed her
 ``groupby`` over the rows of the runs that finished (``error`` empty):
 
 * a numeric metric: ``mean``, ``sd`` (sample standard deviation, ddof 1; 0 for one value),
-  ``min``, ``worst`` (the largest: every metric is worse when larger), ``n`` (finite values;
+  ``min``, ``median``, ``worst`` (the largest: every metric is worse when larger), ``n`` (finite values;
   NaN values are left out) and ``sum``;
 * a true/false flag: ``count`` (runs where true) and ``n``;
 * per group ``runs`` (rows that finished) and ``failed`` (rows whose controller raised).
@@ -19,24 +19,33 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import pandas as pd
 from pandas.api.types import is_bool_dtype, is_numeric_dtype
 
-from .table import KEYS
+from .table import KEYS, run_label
 
 __all__ = [
     "aggregate",
     "flag_columns",
-    "mean_sd",
     "mean_sd_worst",
     "metric_columns",
     "paired",
     "succeeded",
+    "worst_runs",
 ]
 
 #: The numeric statistics of a metric, as pandas names them, and their names here.
-_STATS = {"mean": "mean", "std": "sd", "min": "min", "max": "worst", "count": "n", "sum": "sum"}
+_STATS = {
+    "mean": "mean",
+    "std": "sd",
+    "min": "min",
+    "median": "median",
+    "max": "worst",
+    "count": "n",
+    "sum": "sum",
+}
 #: Columns that describe a row rather than measure it.
 _NOT_METRICS = frozenset({*KEYS, "error", "window_end_s"})
 
@@ -64,7 +73,10 @@ def metric_columns(table: pd.DataFrame) -> list[str]:
 
 
 def aggregate(
-    table: pd.DataFrame, by: Sequence[str] = ("variant", "controller"), metrics: Sequence[str] | None = None
+    table: pd.DataFrame,
+    by: Sequence[str] = ("variant", "controller"),
+    metrics: Sequence[str] | None = None,
+    quantiles: Mapping[str, float] | None = None,
 ) -> pd.DataFrame:
     """Per group of ``by``: the statistics of every metric and flag (module docstring).
 
@@ -76,6 +88,8 @@ def aggregate(
         The grouping columns; groups in order of first appearance.
     metrics : sequence of str, optional
         Numeric columns to summarise (default :func:`metric_columns`); flags are always counted.
+    quantiles : mapping of str to float, optional
+        Further statistics of each metric: name to quantile in [0, 1] (e.g. ``{"p95": 0.95}``).
 
     Returns
     -------
@@ -94,6 +108,9 @@ def aggregate(
         for m in metrics:  # one value: sd 0 (pandas gives NaN for ddof 1)
             stats[(m, "sd")] = stats[(m, "sd")].where(stats[(m, "n")] != 1, 0.0)
         parts.append(stats)
+        for name, q in (quantiles or {}).items():
+            part = ok.groupby(keys, sort=False)[metrics].quantile(q)
+            parts.append(part.set_axis(pd.MultiIndex.from_product([metrics, [name]]), axis=1))
     if flags:
         counted = ok[[*keys, *flags]].astype({f: "float" for f in flags}).groupby(keys, sort=False)[flags]
         parts.append(counted.agg(["sum", "count"]).rename(columns={"sum": "count", "count": "n"}, level=1))
@@ -165,6 +182,31 @@ def mean_sd_worst(mean: float, sd: float, worst: float, digits: int = 2) -> str:
     return f"{mean:.{digits}f} ± {sd:.{digits}f} ({worst:.{digits}f})"
 
 
-def mean_sd(mean: float, sd: float, fmt: str = "{:.2f}") -> str:
-    """``mean ± sd``, each formatted with ``fmt``; ``n/a`` when the mean is not finite."""
-    return "n/a" if not _finite(mean) else f"{fmt.format(mean)} ± {fmt.format(sd)}"
+def worst_runs(
+    table: pd.DataFrame, metrics: Sequence[str], flags: Sequence[str], count: int
+) -> dict[str, dict[str, Any]]:
+    """The worst runs of each variant and controller of a run table.
+
+    Returns
+    -------
+    dict of str to dict
+        Per run label (:func:`~.table.run_label`): ``metrics``, for each of ``metrics``, the
+        ``count`` runs with the largest finite values, ``[{"seed", "value"}]`` from the worst, ties
+        by seed; ``flags``, for each of ``flags``, the seeds where it was raised; ``failed``, the
+        seeds whose run did not finish.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for (variant, controller), runs in table.groupby(["variant", "controller"], sort=False):
+        ok = succeeded(runs)
+        ranked = {}
+        for m in metrics:  # a metric or flag no run recorded: no seeds
+            values = ok.reindex(columns=["seed", m]).replace([math.inf, -math.inf], math.nan).dropna()
+            top = values.sort_values([m, "seed"], ascending=[False, True]).head(count)
+            ranked[m] = [{"seed": int(s), "value": float(v)} for s, v in zip(top["seed"], top[m])]
+        raised = {f: ok.reindex(columns=[f])[f].eq(True).fillna(False).astype(bool) for f in flags}
+        out[run_label(variant, controller)] = {
+            "metrics": ranked,
+            "flags": {f: [int(s) for s in ok.loc[mask, "seed"]] for f, mask in raised.items()},
+            "failed": [int(s) for s in runs.loc[~runs.index.isin(ok.index), "seed"]],
+        }
+    return out

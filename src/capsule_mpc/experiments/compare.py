@@ -1,57 +1,31 @@
 """Compare controllers on the same plant, path and seeds (what ``capsule-mpc compare`` runs).
 
-Each run ``k`` of ``--runs N`` uses the seed ``seed + k``; a seed fixes the plant drawn
-around the nominal scenario, the start offset and the camera noise, and every controller
-runs on it. A run ends when its capsule is at rest after the path's end (or at the tail
-cut-off), so the runs of one seed end at different times: they are all re-scored on a
-common window, from t = 0 to the latest end among that seed's runs
-(:func:`capsule_mpc.metrics.run_metrics` holds an earlier run's last state up to it).
+Each run ``k`` of ``--runs N`` uses the seed ``seed + k``; a seed fixes the plant drawn around the
+nominal scenario, the start offset and the camera noise, and every controller runs on it. The runs
+of one seed end at different times (at rest after the path's end), so they are all re-scored on a
+common window, from t = 0 to the latest end among them. A comparison is a campaign on the sweep's
+runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep`, ``command="compare"``; one seed or
+``--workers 1``: in this process). It writes one run folder per controller and seed (``OUT/NAME/``
+for one run, ``OUT/runs/seed_<S>/NAME/`` for several), ``runs/seed_<S>.json``, ``runs.csv`` (the run
+table, :mod:`capsule_mpc.experiments.table`), ``summary.json``, ``summary.md`` and the first seed's
+figures ``trajectories.png`` (paper Fig. 7a), ``errors.png`` (Fig. 8), ``mpc_prediction.png`` and
+``metrics.png``.
 
-A comparison is a campaign (:func:`capsule_mpc.experiments.sweep.campaign.sweep`): one Dask task
-per seed, on a ``LocalCluster`` of ``--workers`` processes or on the cluster at ``--scheduler``;
-with one local worker (one seed, or ``--workers 1``) the seeds run in this process, with no cluster.
-Writes, into the output folder: one run folder per controller and seed (``log.csv``,
-``config.yaml``, ``run.json``, ``run.mcap``; ``predictions.npz`` for the MPC) -- ``OUT/NAME/`` for
-one run, ``OUT/runs/seed_<S>/NAME/`` for several -- ``runs/seed_<S>.json`` (each seed's runs),
-``runs.csv`` (the run table, :mod:`capsule_mpc.experiments.table`), ``summary.json``,
-``summary.md`` (a table; ``mean ± sd`` over the runs when there are several) and the figures
-``trajectories.png`` (paper Fig. 7a), ``errors.png`` (Fig. 8) and, when an ``mpc`` run is
-present, ``mpc_prediction.png`` (its predicted vs actual capsule path at the first corner),
-all of the first seed; and ``metrics.png`` (bars for one run, the distribution over the
-runs for several).
-
-``summary.json``: ``controllers.NAME.METRIC`` is the mean over that controller's successful
-runs of every numeric metric (NaN values left out), true/false flags (``decoupled``,
-``dropped``, ``stalled``, ...) are the number of runs where they were true;
-``controllers.NAME.spread.METRIC`` holds ``sd`` (ddof 1; 0 for a single value), ``min``,
-``max`` and ``n`` (the number of finite values); ``n_runs`` and ``n_failed`` count the
-runs that finished and those whose controller raised (:func:`aggregate_runs`, computed from the
-run table by :func:`capsule_mpc.experiments.aggregate.aggregate`). ``runs``
-lists every seed's runs as the runner reported them, re-scored.
-
-A controller fails on a seed when it raises instead of running: e.g. the ``plan`` controller
-when the planner's solve does not converge (:class:`capsule_mpc.planner.PlanError`). Such a run
-has no metrics (``runs[k].controllers.NAME`` is ``{"error", "traceback"}``), its controller's
-``status`` says ``failed``, and a controller that failed on every seed reads ``failed: <why>`` in
-the table instead of numbers. Exit status: 0 when every controller ran on every seed, 1 when
-any failed (each failure is also printed on stderr), 2 on bad input, 130 on Ctrl-C (no result is
-recorded: summary.json / summary.md are written only by a finished comparison; each run in
-progress keeps its ``log.csv`` so far, its ``config.yaml`` and a finalised ``run.mcap``, also in a
-local worker, which stops its run when the command closes the cluster).
-
-Solver figures per controller (from the run log; NaN / ``n/a`` for controllers that
-report no solve): ``solve_ms_median``, ``solve_ms_p99``, ``solve_ms_max``,
-``solver_failures`` (steps the controller reported as failed), ``deadline_misses``
-(solves longer than the camera frame period, settle phase included) and ``step_ms_max``.
-The runs are not paced to the wall clock (see ``simulate --realtime`` for that), so
-the MPC accepts late solves here and the runs are deterministic.
+``summary.json``'s ``controllers`` is :func:`aggregate_runs` of the run table. A controller fails on
+a seed when it raises instead of running (e.g. ``plan`` when the planner's solve does not converge):
+that run has ``{"error", "traceback"}`` instead of metrics. Exit status: 0 when every controller ran
+on every seed, 1 when any failed (each named on stderr), 2 on bad input, 130 on Ctrl-C (nothing
+summarised; each run in progress keeps its log so far and a finalised ``run.mcap``). The runs are not
+paced to the wall clock (``simulate --realtime`` is), so late solves are accepted and runs are
+deterministic; the solver's figures (``solve_ms_*``, ``deadline_misses``, ``step_ms_max``) are
+measured all the same.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ..budget import Workload
 from ..config import ConfigError, Scenario
@@ -60,30 +34,17 @@ from ..metrics import START_WINDOW_S
 from ..paths import ReferencePath
 from .aggregate import aggregate, flag_columns, metric_columns
 from .inputs import refuse_repeats
-from .sweep.tasks import (
-    PLANNING_CONTROLLER,
-    failure_line,
-    json_value,
-    rescore_on_common_window,
-)
+from .sweep.tasks import PLANNING_CONTROLLER
 from .table import run_label, table_from_entries
-
-if TYPE_CHECKING:
-    pass
 
 __all__ = [
     "CONTROLLER_ORDER",
-    "PLANNING_CONTROLLER",
     "PREDICTING_CONTROLLER",
     "RUNS_FOLDER",
     "SUMMARY_COLUMNS",
     "aggregate_runs",
     "check_controllers",
     "controller_names",
-    "failed_runs",
-    "failure_line",
-    "json_value",
-    "rescore_on_common_window",
     "run_figures",
     "summary_header",
     "summary_markdown",
@@ -268,16 +229,6 @@ def controller_names(controllers: Sequence[str] | None) -> list[str]:
         return list(controllers)
     known = available_controllers()
     return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
-
-
-def failed_runs(summary: Mapping[str, Any]) -> list[tuple[str, int, str]]:
-    """``(controller, seed, error)`` of every run of a comparison's ``summary`` whose controller raised."""
-    return [
-        (name, seed_entry["seed"], entry["error"])
-        for seed_entry in summary["runs"]
-        for name, entry in seed_entry["controllers"].items()
-        if "error" in entry
-    ]
 
 
 def summary_header(

@@ -27,7 +27,6 @@ from ..compare import (
     aggregate_runs,
     check_controllers,
     controller_names,
-    json_value,
     run_figures,
     summary_header,
     summary_markdown,
@@ -45,7 +44,7 @@ from .results import (
     worst_table,
 )
 from .results import write_figures as write_figures
-from .tasks import Outcome, SeedTask, Variant, dask_client, run_here, run_on_dask, run_seed
+from .tasks import Outcome, SeedTask, Variant, dask_client, json_value, run_here, run_on_dask, run_seed
 from .vary import VaryRange, check_vary
 
 if TYPE_CHECKING:
@@ -359,39 +358,10 @@ def compare_controllers(
     client: Client | None = None,
     task: Callable[[SeedTask], dict[str, Any]] = run_seed,
 ) -> dict[str, Any]:
-    """Run controllers on the same plant, path and seeds; write runs, summary and figures.
-
-    Parameters
-    ----------
-    scenario, path
-        As for :func:`capsule_mpc.sim.simulate`.
-    out : str or Path
-        Output folder (created).
-    seed : int
-        Seed of the first run; run ``k`` uses ``seed + k``.
-    controllers : sequence of str, optional
-        Names to run, in this order; default every registered controller
-        (:func:`available_controllers`) in :data:`CONTROLLER_ORDER`, then the others.
-    meta : dict, optional
-        Provenance (``config``, ``waypoints_file``) for the summary and each run.json.
-    progress : bool
-        A progress bar over the seeds.
-    runs : int
-        Seeds per controller, >= 1.
-    workers, client
-        Where the seeds run (:func:`capsule_mpc.experiments.sweep.campaign.sweep`).
-    task : callable
-        What runs one seed (:func:`~capsule_mpc.experiments.sweep.tasks.run_seed`).
-
-    Returns
-    -------
-    dict
-        The summary written to ``summary.json``: ``{"config", "seed", "speed_mps",
-        "waypoints_file", "path_length_m", "runs_requested", "seeds", "controllers": {name:
-        :func:`aggregate_runs` entry (for one run also the run's text entries: ``failure``,
-        ``run_dir``, or ``traceback`` if it raised)}, "runs": [{"seed", "window_end_s", "controllers": {name:
-        metrics + flags + limit counts + failure + run_dir + realtime_factor, or {"error",
-        "traceback"}}, "plant", "varied"}], "figures": [file names]}``.
+    """Run controllers on the same plant, path and seeds: :func:`sweep` with ``command="compare"``
+    (every run's folder written, the first seed's figures, no resume; one local worker: in this
+    process), ``runs`` seeds from ``seed``; the summary written to ``summary.json``
+    (:mod:`capsule_mpc.experiments.compare`).
 
     Raises
     ------

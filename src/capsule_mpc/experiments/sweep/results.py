@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -11,8 +10,10 @@ from typing import Any
 from ...config import ConfigError, Scenario
 from ...paths import ReferencePath
 from ...plots import plot_metrics
-from ..compare import RUNS_FOLDER, SUMMARY_COLUMNS, json_value
-from .tasks import Variant
+from ..aggregate import worst_runs as worst_of
+from ..compare import RUNS_FOLDER, SUMMARY_COLUMNS
+from ..table import table_from_entries
+from .tasks import Variant, json_value
 from .vary import VaryRange
 
 __all__ = [
@@ -154,45 +155,12 @@ def finished_runs(out: Path, seeds: Sequence[int]) -> dict[int, dict[str, Any]]:
     return done
 
 
-def _finite(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def worst_runs(per_seed: Sequence[Mapping[str, Any]], count: int = WORST_COUNT) -> dict[str, dict[str, Any]]:
-    """The worst runs per controller: ``summary.json``'s ``worst``.
-
-    Parameters
-    ----------
-    per_seed : sequence of mapping
-        ``summary.json``'s ``runs``.
-    count : int
-        Runs listed per metric.
-
-    Returns
-    -------
-    dict of str to dict
-        Per controller: ``metrics``, for each metric of the table, the ``count`` runs with the
-        largest finite values (every metric is worse when larger), ``[{"seed", "value"}]`` from
-        the worst, ties by seed; ``flags``, for ``decoupled``, ``dropped`` and ``stalled``, the
-        seeds where it was raised; ``failed``, the seeds where the controller raised or the run
-        crashed.
-    """
-    names = list(dict.fromkeys(n for seed in per_seed for n in seed["controllers"]))
-    out: dict[str, dict[str, Any]] = {}
-    for name in names:
-        runs = [(int(s["seed"]), s["controllers"][name]) for s in per_seed if name in s["controllers"]]
-        ok = [(seed, entry) for seed, entry in runs if "error" not in entry]
-        metrics = {}
-        for key, _ in _RANKED:
-            values = sorted(
-                ((seed, float(e[key])) for seed, e in ok if _finite(e.get(key))),
-                key=lambda sv: (-sv[1], sv[0]),
-            )
-            metrics[key] = [{"seed": seed, "value": value} for seed, value in values[:count]]
-        flags = {flag: [seed for seed, e in ok if e.get(flag) is True] for flag in _FLAGS}
-        failed = [seed for seed, entry in runs if "error" in entry]
-        out[name] = {"metrics": metrics, "flags": flags, "failed": failed}
-    return out
+    """The worst runs per controller: ``summary.json``'s ``worst``
+    (:func:`capsule_mpc.experiments.aggregate.worst_runs` of the run table of ``per_seed``, the
+    metrics of the table, ``decoupled``, ``dropped`` and ``stalled``)."""
+    table = table_from_entries(per_seed)
+    return worst_of(table, [key for key, _ in _RANKED], _FLAGS, count)
 
 
 def worst_table(worst: Mapping[str, Mapping[str, Any]]) -> str:
