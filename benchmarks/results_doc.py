@@ -41,6 +41,11 @@ SOURCES = "sources.json"
 #: The templates in the data folder: the prose and the sections in order; the tables.
 TEMPLATE, TABLES = "sections.md", "tables.md.j2"
 COMMAND = "python benchmarks/results_doc.py"
+README = ROOT / "README.md"
+#: The README's rendered table: between these markers, from the placement campaigns' summaries.
+README_OPEN = "<!-- placement table: rendered by benchmarks/results_doc.py -->"
+README_CLOSE = "<!-- end of the rendered table -->"
+README_DATA = ("placement_lab/summary.json", "placement_hard/summary.json")
 
 #: Controllers of the comparison, in table order (others follow alphabetically).
 CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
@@ -378,6 +383,19 @@ def render(data_dir: Path) -> str:
     return "\n".join(out) + "\n"
 
 
+def render_readme(text: str, data_dir: Path) -> str:
+    """``text`` (the README) with its placement table rendered from :data:`README_DATA`."""
+    head, found, rest = text.partition(README_OPEN)
+    _, closed, tail = rest.partition(README_CLOSE)
+    if not (found and closed):
+        raise ValueError(f"README.md: no {README_OPEN!r} ... {README_CLOSE!r} block")
+    contexts = [
+        placement_context(json.loads((data_dir / f).read_text(encoding="utf-8"))) for f in README_DATA
+    ]
+    table = str(tables(data_dir).readme_placement(contexts)).strip("\n")
+    return f"{head}{README_OPEN}\n{table}\n{README_CLOSE}{tail}"
+
+
 def _anchor(title: str) -> str:
     """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
     kept = "".join(c for c in title.lower() if c.isalnum() or c in " -_")
@@ -389,16 +407,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=DATA, help="folder of the JSON and sources.json")
     parser.add_argument("--out", type=Path, default=OUT, help="the Markdown file to write")
     parser.add_argument("--check", action="store_true", help="write nothing; exit 1 if --out is stale")
+    parser.add_argument("--readme", type=Path, default=README, help="the README whose table to render")
     args = parser.parse_args(argv)
-    text = render(args.data)
+    readme = args.readme.read_text(encoding="utf-8")
+    outputs = {args.out: render(args.data), args.readme: render_readme(readme, args.data)}
     if args.check:
-        current = args.out.read_text(encoding="utf-8") if args.out.exists() else ""
-        if current != text:
-            print(f"{args.out} is not up to date: run `{COMMAND}`", file=sys.stderr)
-            return 1
-        return 0
-    args.out.write_text(text, encoding="utf-8")
-    print(f"wrote {args.out}")
+        stale = [p for p, text in outputs.items() if not p.exists() or p.read_text(encoding="utf-8") != text]
+        for path in stale:
+            print(f"{path} is not up to date: run `{COMMAND}`", file=sys.stderr)
+        return 1 if stale else 0
+    for path, text in outputs.items():
+        path.write_text(text, encoding="utf-8")
+        print(f"wrote {path}")
     return 0
 
 

@@ -21,12 +21,33 @@ def results_doc():
 
 
 def test_committed_results_doc_is_current(results_doc, tmp_path):
-    out = tmp_path / "results.md"
-    assert results_doc.main(["--data", str(REPO / "docs" / "results"), "--out", str(out)]) == 0
+    out, readme = tmp_path / "results.md", tmp_path / "README.md"
+    readme.write_text((REPO / "README.md").read_text(encoding="utf-8"), encoding="utf-8")
+    args = ["--data", str(REPO / "docs" / "results"), "--out", str(out), "--readme", str(readme)]
+    assert results_doc.main(args) == 0
     committed = (REPO / "docs" / "results.md").read_text(encoding="utf-8")
     assert committed == out.read_text(encoding="utf-8"), (
         "docs/results.md is stale: run `python benchmarks/results_doc.py`"
     )
+    assert (REPO / "README.md").read_text(encoding="utf-8") == readme.read_text(encoding="utf-8"), (
+        "the README's placement table is stale: run `python benchmarks/results_doc.py`"
+    )
+
+
+def test_the_readme_table_is_the_placement_campaigns(results_doc):
+    """The README's table has a row per rig, with the numbers of the placement campaign's table."""
+    data = REPO / "docs" / "results"
+    text = f"intro\n{results_doc.README_OPEN}\nold\n{results_doc.README_CLOSE}\nafter\n"
+    out = results_doc.render_readme(text, data).splitlines()
+    assert out[0] == "intro" and out[-1] == "after" and "old" not in out
+    rows = [line for line in out if line.startswith("| `")]
+    assert [r.split("|")[1].strip() for r in rows] == ["`lab`", "`hard`"]
+    for row, name in zip(rows, results_doc.README_DATA):
+        summary = json.loads((data / name).read_text())
+        seen = [r["controllers"]["mpc"]["final_error_seen_mm"] for r in summary["runs"]]
+        assert f"{sum(seen) / len(seen):.3f} ± " in row
+    with pytest.raises(ValueError, match=r"README\.md"):
+        results_doc.render_readme("no markers here\n", data)
 
 
 def test_generator_is_deterministic(results_doc):
