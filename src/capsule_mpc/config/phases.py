@@ -26,12 +26,17 @@ class EstimatorConfig(StrictModel):
         description="Gain of the force-disturbance observer (offset-free MPC), [0, 1]; 0 disables it.",
     )
     disturbance_max_n: Number = Field(
+        0.15,
+        ge=0,
+        description="Bound on each component of the estimated constant force across the motion, N, >= 0.",
+    )
+    friction_max_n: Number = Field(
         0.4,
         ge=0,
         description=(
-            "Bound on each estimated disturbance force component, N, >= 0. It must hold the sliding "
-            "friction and drag the belief misses: the paper's c(v) puts mu near 0 at 0.02 m/s, where "
-            "the rigs slide at mu 0.15-0.3 on a normal force of about 1.4 N."
+            "Bound on the estimated extra friction along the motion, N, >= 0. It must hold the sliding "
+            "friction the belief misses: the paper's c(v) puts mu near 0 at 0.02 m/s, where the rigs "
+            "slide at mu 0.15-0.3 on a normal force of about 1.4 N."
         ),
     )
 

@@ -7,7 +7,8 @@ Three parts, each a few lines of bookkeeping around :class:`capsule_mpc.estimati
 * the force-disturbance observer (offset-free MPC): the velocity the last plan predicted for now
   against the estimate, turned into the force that explains the difference over one frame
   (``estimator.disturbance_gain``), split into a constant force across the motion and an extra
-  friction along it (bounded by ``estimator.disturbance_max_n``); a capsule at rest teaches nothing
+  friction along it (bounded by ``estimator.disturbance_max_n`` and ``estimator.friction_max_n``);
+  a capsule at rest teaches nothing
   (static friction holds it);
 * the rest calibration: while the rig holds the EPM before t = 0, where the capsule rests under it
   tells the model's force bias; at t = 0 the constant disturbance is set to cancel the model's
@@ -146,5 +147,5 @@ class StateEstimator:
             d[0:2] += innov - along * v_hat
         else:
             d[0:2] += innov
-        limit = self.cfg.disturbance_max_n
+        limit = np.array([self.cfg.disturbance_max_n] * 2 + [self.cfg.friction_max_n])
         self.disturbance_n = np.clip(d, -limit, limit)

@@ -129,7 +129,7 @@ REST_BEFORE_S = 0.3
 #: capsule where it comes to rest after the release: the force along the approach there is the
 #: drag plus ``STOP_FRICTION mu_s F_N``. Fitted on the first moves of closed-loop runs on tuning
 #: draws by ``benchmarks/stop_friction.py`` (docs/results/stop_friction_lab.json).
-STOP_FRICTION = 0.258
+STOP_FRICTION = 0.260
 #: Step of the force's finite differences, m.
 _FD_STEP_M = 1e-4
 #: The believed equilibrium is trusted this far from the model's own, m (beyond: a root finder
