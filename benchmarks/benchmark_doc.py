@@ -54,6 +54,12 @@ def _cell(row: dict[str, Any] | None) -> str:
     return f"{mean:.2f} ± {sd:.2f} ({worst:.2f}), {ok}/{n}"
 
 
+def measured_on() -> str:
+    """When the reference scores were measured: the benchmark command's manifest, UTC."""
+    manifest = json.loads((DATA / "manifest.json").read_text(encoding="utf-8"))
+    return f"{manifest['started'][:16].replace('T', ' ')} to {manifest['finished'][11:16]} UTC"
+
+
 def render_table(record: dict[str, Any]) -> str:
     """The reference-score table: a row per task and preset, a column per entrant."""
     meta = record["meta"]
@@ -63,8 +69,8 @@ def render_table(record: dict[str, Any]) -> str:
     seeds = meta["seeds"]
     lines = [
         f"Score (mm; `place`: final error, else tracking RMS) mean ± sd (worst), and successful runs, over "
-        f"{meta['draws']} draws per task and preset (seeds {seeds[0]} to {seeds[-1]}), measured at commit "
-        f"`{(meta.get('commit') or 'unknown')[:12]}` by `{meta['command']}`.",
+        f"{meta['draws']} draws per task and preset (seeds {seeds[0]} to {seeds[-1]}), measured "
+        f"{measured_on()} by `{meta['command']}`.",
         "",
         "| task | preset | " + " | ".join(title for _, _, title in ENTRANTS) + " |",
         "|---|---|" + "---|" * len(ENTRANTS),
