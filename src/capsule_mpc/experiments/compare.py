@@ -46,7 +46,6 @@ __all__ = [
     "check_controllers",
     "controller_names",
     "run_figures",
-    "summary_header",
     "summary_markdown",
     "summary_table",
 ]
@@ -75,12 +74,6 @@ PREDICTING_CONTROLLER = "mpc"
 CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
 #: Sub-folder of ``--out`` holding the run folders when there are several runs per controller.
 RUNS_FOLDER = "runs"
-
-
-def _status(n_ok: int, n_failed: int) -> str:
-    if not n_failed:
-        return "ok"
-    return "failed" if not n_ok else f"failed on {n_failed} of {n_ok + n_failed} runs"
 
 
 def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
@@ -126,7 +119,8 @@ def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str,
             }
         errors = table.loc[(table.variant == variant) & (table.controller == controller), "error"]
         errors = [e for e in errors if e]
-        entry.update(n_runs=n_ok, n_failed=n_failed, status=_status(n_ok, n_failed))
+        status = "failed" if not n_ok else f"failed on {n_failed} of {n_ok + n_failed} runs"
+        entry.update(n_runs=n_ok, n_failed=n_failed, status=status if n_failed else "ok")
         if errors:
             entry["errors"] = errors
         if not n_ok:
@@ -229,21 +223,6 @@ def controller_names(controllers: Sequence[str] | None) -> list[str]:
         return list(controllers)
     known = available_controllers()
     return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
-
-
-def summary_header(
-    meta: Mapping[str, Any], seed: int, path: ReferencePath, runs: int, seeds: Sequence[int]
-) -> dict[str, Any]:
-    """The head of a ``summary.json`` (``compare --runs`` and ``sweep``): provenance and the runs."""
-    return {
-        "config": meta.get("config"),
-        "seed": seed,
-        "speed_mps": path.speed_mps,
-        "waypoints_file": meta.get("waypoints_file"),
-        "path_length_m": path.length_m,
-        "runs_requested": runs,
-        "seeds": list(seeds),
-    }
 
 
 def run_figures(names: Sequence[str], runs: int) -> Workload:
