@@ -154,7 +154,7 @@ def sweep(
             _adopt(out, [Path(f) for t in todo for f in (t.runs_dir, t.figures_dir) if f is not None])
     per_seed = [done[s] for s in seeds]
     write_table(table_from_entries(per_seed), out / TABLE_FILE)
-    summary = {
+    summary: dict[str, Any] = {
         "config": meta.get("config"), "seed": seed, "speed_mps": path.speed_mps,
         "waypoints_file": meta.get("waypoints_file"), "path_length_m": path.length_m,
         "runs_requested": runs, "seeds": seeds, "controllers": aggregate_runs(per_seed),
