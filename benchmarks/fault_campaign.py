@@ -196,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
             scenario, path, out.with_suffix(""), 0, args.runs, variants=variants(args.probability),
             client=client, meta=meta, measure=measure,
         )  # fmt: skip
-    for failure in sweep_failures(summary):
+    failures = sweep_failures(summary)
+    for failure in failures:
         print(f"fault_campaign: {failure}", file=sys.stderr)
     name = f"{scenario.name} ({scenario.plant.preset} plant)"
     result = report(read_table(out.with_suffix("") / TABLE_FILE), args.probability, name)
@@ -211,11 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"{result['solver_faults_injected']} solver faults over {result['runs']} runs")
     bad = sum(v for k, v in result["command_checks"].items() if k != "commands")
-    return (
-        0
-        if not bad and not sweep_failures(summary) and result["solver_faults_injected"] >= args.target
-        else 1
-    )
+    return 0 if not bad and not failures and result["solver_faults_injected"] >= args.target else 1
 
 
 if __name__ == "__main__":

@@ -97,11 +97,6 @@ CHECK_REST_S = 2.0
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def plant_scenario(config: Path, preset: str) -> Scenario:
-    scenario = load_config(config)
-    return scenario.model_copy(update={"plant": scenario.plant.model_copy(update={"preset": preset})})
-
-
 def variant(name: str, base: Scenario, learned_file: str, args: argparse.Namespace) -> Variant:
     """The overrides of variant ``name`` (module docstring); ``learned_file`` the draws' learned
     models, ``{seed}`` in place of the seed."""
@@ -273,7 +268,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     t0 = time.perf_counter()
     seeds = list(range(args.first, args.first + args.draws))
-    base = plant_scenario(args.config, args.plant)
+    base = load_config(args.config)
+    base = base.model_copy(update={"plant": base.plant.model_copy(update={"preset": args.plant})})
     learned_file = str(Path(args.work).resolve() / f"{args.plant}_{{seed}}" / "model.yaml")
     variants = [] if args.learn_only else [variant(v, base, learned_file, args) for v in args.variants]
     learns = args.learn_only or any(v.split("+")[0] == "learned" for v in args.variants)
