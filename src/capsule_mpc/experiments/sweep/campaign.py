@@ -83,7 +83,8 @@ def sweep(
     runs : int
         Number of runs, >= 1.
     controllers : sequence of str, optional
-        As for :func:`capsule_mpc.experiments.sweep.campaign.compare_controllers`.
+        The controllers run on each draw (default every registered one,
+        :func:`~capsule_mpc.experiments.compare.controller_names`).
     vary : sequence of VaryRange
         Plant fields drawn from these ranges instead of the preset's (:func:`parse_vary`).
     variants : sequence of Variant
