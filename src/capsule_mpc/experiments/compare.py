@@ -90,13 +90,12 @@ def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str,
     dict of str to dict
         For each run name (the controller; ``VARIANT:CONTROLLER`` in a variant), in order of
         first appearance, from :func:`capsule_mpc.experiments.aggregate.aggregate` of the run
-        table: every numeric entry's mean over the successful runs (NaN values left out; NaN if
-        none is left), every true/false entry as the number of runs where it was true,
-        ``spread`` ``{key: {"sd" (ddof 1, 0 for one value), "min", "max", "n" (finite
-        values)}}``, ``n_runs`` (successful runs), ``n_failed`` (runs whose controller raised),
-        ``status`` (``"ok"``; ``"failed"`` when no run finished; else ``"failed on k of N
-        runs"``), ``errors`` (their messages, when any) and ``error`` (the first message) when no
-        run succeeded; no metrics then. Text entries (``failure``, ``run_dir``, ...) are left out.
+        table: every metric's mean and every flag's count over the successful runs, ``spread``
+        ``{metric: {"sd", "min", "max", "n"}}``, ``n_runs`` (successful runs), ``n_failed`` (runs
+        whose controller raised), ``status`` (``"ok"``; ``"failed"`` when no run finished; else
+        ``"failed on k of N runs"``), ``errors`` (their messages, when any) and ``error`` (the
+        first message) when no run succeeded; no metrics then. Text entries (``failure``,
+        ``run_dir``, ...) are left out.
     """
     table = table_from_entries(per_seed)
     stats = aggregate(table)
