@@ -24,24 +24,21 @@ robot``), once per friction model it is given:
     :data:`SHARP_EPS_MPS` (its friction force then holds up closer to rest);
 suffixes combine in that order (``+preload+sharp``).
 
-Each variant is a set of scenario overrides (:func:`variant`; the draw's own friction and the
-model learned on it are resolved per draw by :func:`capsule_mpc.experiments.sweep.tasks.variant_scenario`),
-and the campaign runs on the sweep's runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep`,
-one Dask task per draw: a ``LocalCluster`` of ``--workers`` processes or the cluster at
-``--scheduler``) into ``--out``'s folder (``runs.csv``, ``summary.json``, resumable). The
+Each variant is a set of scenario overrides (:func:`variant`; the draw's own friction and the model
+learned on it resolved per draw), run with ``paper_0.8v`` beside ``paper`` by the sweep's runner
+(:func:`capsule_mpc.experiments.sweep.campaign.sweep`: one Dask task per draw on a ``LocalCluster`` of
+``--workers`` processes or the cluster at ``--scheduler``; a draw's runs scored on one common window)
+into ``--out``'s folder (``--out`` without ``.json``: ``runs.csv``, ``summary.json``, resumable). The
 demonstrations and the learning of each draw run first, on the same cluster; a draw's learned model
 is kept in ``--work``, and with ``--reuse`` a model already there is used instead of learning again.
 ``--merge A.json B.json --out C.json`` writes one report from the outputs of a campaign run in parts
 (same config and plant; each seed once; the variants every draw ran; the parts' commands kept).
 
-The ``paper_0.8v`` heuristic runs on the same draw, and every run of a draw is scored on one
-window: t = 0 to the latest end among them
-(:func:`capsule_mpc.experiments.sweep.tasks.rescore_on_common_window`).
-Writes the report to ``--out`` (JSON: each draw's numbers, its learning and the command; the
-campaign's folder beside it, ``--out`` without ``.json``), rendered into docs/results.md by
-``benchmarks/results_doc.py``: per variant mean ± sd (worst) over the draws and the paired difference
-to ``paper``; the learned breakaway after 2 s at rest, and after the rest the draw's capsule had
-before its run, against the plant's at the path's start (``--learn-only``: only this).
+The report (``--out``, JSON: each draw's numbers, its learning and the command) is rendered into
+docs/results.md by ``benchmarks/results_doc.py``: per variant mean ± sd (worst) over the draws and
+the paired difference to ``paper``; the learned breakaway after 2 s at rest, and after the rest the
+draw's capsule had before its run, against the plant's at the path's start (``--learn-only``: only
+this).
 
     .venv/bin/python benchmarks/friction_ablation.py --plant lab --draws 20 \\
         --out results/benchmarks/friction_ablation_lab.json
@@ -84,8 +81,6 @@ VARIANTS = tuple(
 SHARP_EPS_MPS = 0.002
 #: ``break_loose.preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
 DEFAULT_PRELOAD = 1.0
-#: Variants run unless --variants says otherwise.
-DEFAULT_VARIANTS = BASE_VARIANTS
 #: The metrics of a draw's runs kept in the report (runs.csv keeps every metric of run.json).
 METRICS = (
     "tracking_rms_mm",
@@ -100,11 +95,6 @@ METRICS = (
 #: Rest time at which the learned breakaway is checked against the plant's, s.
 CHECK_REST_S = 2.0
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def plant_scenario(config: Path, preset: str) -> Scenario:
-    scenario = load_config(config)
-    return scenario.model_copy(update={"plant": scenario.plant.model_copy(update={"preset": preset})})
 
 
 def variant(name: str, base: Scenario, learned_file: str, args: argparse.Namespace) -> Variant:
@@ -139,23 +129,9 @@ def learn_commands(args: argparse.Namespace, work: Path, seed: int) -> list[list
     config.write_text(
         yaml.safe_dump({"base": str(Path(args.config).resolve()), "plant": {"preset": args.plant}})
     )
-    demonstrate = [
-        *exe,
-        "demonstrate",
-        "--config",
-        str(config),
-        "--plant",
-        args.plant,
-        "--seed",
-        str(seed),
-        "--paths",
-        "straight_x",
-        "straight_y",
-        "--speeds",
-        *map(str, args.speeds),
-        "--out",
-        str(work / "demos"),
-    ]
+    demonstrate = [*exe, "demonstrate", "--config", str(config), "--plant", args.plant, "--seed", str(seed)]
+    demonstrate += ["--paths", "straight_x", "straight_y", "--speeds", *map(str, args.speeds)]
+    demonstrate += ["--out", str(work / "demos")]
     if args.pull_preload is not None:
         demonstrate += ["--pull-preload", str(args.pull_preload)]
     learn = [*exe, "learn-friction", "--config", str(config), "--log", str(work / "demos")]
@@ -171,16 +147,11 @@ def learn_and_check(
     todo = [s for s in seeds if not (args.reuse and (works[s] / "model.yaml").exists())]
     # Exit status 1 of demonstrate: some demonstrations failed (on a hard rig a run may stall or
     # decouple); the model is learned from the logs of those that ran, and the draw says so.
-    demos = {
-        s: client.submit(subprocess.run, learn_commands(args, works[s], s)[0], capture_output=True)
-        for s in todo
-    }
+    commands = {s: learn_commands(args, works[s], s) for s in todo}
+    demos = {s: client.submit(subprocess.run, commands[s][0], capture_output=True) for s in todo}
     status = {s: f.result().returncode for s, f in demos.items()}
-    learns = {
-        s: client.submit(subprocess.run, learn_commands(args, works[s], s)[1], capture_output=True)
-        for s in todo
-        if status[s] in (0, 1)
-    }
+    run = subprocess.run
+    learns = {s: client.submit(run, commands[s][1], capture_output=True) for s in todo if status[s] in (0, 1)}
     status.update({s: 2 for s, f in learns.items() if f.result().returncode != 0})
     start = path_from_scenario(base).start_m
     out = {}
@@ -268,31 +239,20 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     add("--plant", choices=("lab", "hard"), default="lab")
     add("--first", type=int, default=0, help="first draw's seed (default 0)")
     add("--draws", type=int, default=20, help="plant draws (default 20)")
-    add("--variants", nargs="+", choices=VARIANTS, default=list(DEFAULT_VARIANTS))
-    add(
-        "--preload",
-        type=float,
-        default=DEFAULT_PRELOAD,
-        help=f"+preload: break_loose.preload, (0, 1] ({DEFAULT_PRELOAD})",
-    )
-    add(
-        "--reuse",
-        action="store_true",
-        help="use a draw's model already learned in --work (default: learn anew)",
-    )
-    add(
-        "--speeds", type=float, nargs="+", default=[0.005, 0.01, 0.02, 0.04], help="demonstration speeds, m/s"
-    )
+    add("--variants", nargs="+", choices=VARIANTS, default=list(BASE_VARIANTS))
+    add("--preload", type=float, default=DEFAULT_PRELOAD,
+        help=f"+preload: break_loose.preload, (0, 1] ({DEFAULT_PRELOAD})")  # fmt: skip
+    add("--reuse", action="store_true",
+        help="use a draw's model already learned in --work (default: learn anew)")  # fmt: skip
+    add("--speeds", type=float, nargs="+", default=[0.005, 0.01, 0.02, 0.04],
+        help="demonstration speeds, m/s")  # fmt: skip
     add("--workers", type=int, default=2, help="worker processes of the LocalCluster (2)")
     add("--scheduler", help="address of a running Dask scheduler to run on instead")
     add("--work", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation_work")
     add("--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json")
     add("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
-    add(
-        "--learn-only",
-        action="store_true",
-        help="learn on each draw and check its breakaway; run no controller",
-    )
+    add("--learn-only", action="store_true",
+        help="learn on each draw and check its breakaway; run no controller")  # fmt: skip
     add("--pull-preload", type=float, default=None, help="demonstrate --pull-preload (default: its default)")
     args = parser.parse_args(argv)
     if args.draws < 1 or args.first < 0 or args.workers < 1:
@@ -308,7 +268,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     t0 = time.perf_counter()
     seeds = list(range(args.first, args.first + args.draws))
-    base = plant_scenario(args.config, args.plant)
+    base = load_config(args.config)
+    base = base.model_copy(update={"plant": base.plant.model_copy(update={"preset": args.plant})})
     learned_file = str(Path(args.work).resolve() / f"{args.plant}_{{seed}}" / "model.yaml")
     variants = [] if args.learn_only else [variant(v, base, learned_file, args) for v in args.variants]
     learns = args.learn_only or any(v.split("+")[0] == "learned" for v in args.variants)

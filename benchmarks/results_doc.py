@@ -31,6 +31,7 @@ import jinja2
 import pandas as pd
 
 from capsule_mpc.experiments.aggregate import aggregate, mean_sd_worst, paired
+from capsule_mpc.experiments.compare import CONTROLLER_ORDER
 from capsule_mpc.experiments.table import run_label, table_from_entries
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -47,8 +48,6 @@ README_OPEN = "<!-- placement table: rendered by benchmarks/results_doc.py -->"
 README_CLOSE = "<!-- end of the rendered table -->"
 README_DATA = ("placement_lab/summary.json", "placement_hard/summary.json")
 
-#: Controllers of the comparison, in table order (others follow alphabetically).
-CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
 #: Friction-model variants of the ablation, in table order, with their labels.
 ABLATION_VARIANTS = {
     "none": "none (μ = 0, no drag)",
@@ -139,7 +138,8 @@ def _flag(values: pd.Series) -> pd.Series:
 
 
 def sweep_context(data: dict[str, Any]) -> dict[str, Any]:
-    """A sweep's ``summary.json`` per controller over its runs: ``rows`` (name, statistics, runs)."""
+    """A sweep's ``summary.json`` per controller over its runs: ``rows`` (name, statistics, runs),
+    in :data:`~capsule_mpc.experiments.compare.CONTROLLER_ORDER`, others alphabetically."""
     table = table_from_entries(data["runs"])
     table["final_within_tol"] = _flag(table["final_error_mm"] <= FINAL_TOL_MM)
     stats = aggregate(table, by=["controller"])

@@ -46,7 +46,6 @@ __all__ = [
     "check_controllers",
     "controller_names",
     "run_figures",
-    "summary_header",
     "summary_markdown",
     "summary_table",
 ]
@@ -77,12 +76,6 @@ CONTROLLER_ORDER = ("follow", "paper_0.8v", "plan", "mpc")
 RUNS_FOLDER = "runs"
 
 
-def _status(n_ok: int, n_failed: int) -> str:
-    if not n_failed:
-        return "ok"
-    return "failed" if not n_ok else f"failed on {n_failed} of {n_ok + n_failed} runs"
-
-
 def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
     """Per-run statistics over the draws, as ``summary.json``'s ``controllers``.
 
@@ -97,13 +90,12 @@ def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str,
     dict of str to dict
         For each run name (the controller; ``VARIANT:CONTROLLER`` in a variant), in order of
         first appearance, from :func:`capsule_mpc.experiments.aggregate.aggregate` of the run
-        table: every numeric entry's mean over the successful runs (NaN values left out; NaN if
-        none is left), every true/false entry as the number of runs where it was true,
-        ``spread`` ``{key: {"sd" (ddof 1, 0 for one value), "min", "max", "n" (finite
-        values)}}``, ``n_runs`` (successful runs), ``n_failed`` (runs whose controller raised),
-        ``status`` (``"ok"``; ``"failed"`` when no run finished; else ``"failed on k of N
-        runs"``), ``errors`` (their messages, when any) and ``error`` (the first message) when no
-        run succeeded; no metrics then. Text entries (``failure``, ``run_dir``, ...) are left out.
+        table: every metric's mean and every flag's count over the successful runs, ``spread``
+        ``{metric: {"sd", "min", "max", "n"}}``, ``n_runs`` (successful runs), ``n_failed`` (runs
+        whose controller raised), ``status`` (``"ok"``; ``"failed"`` when no run finished; else
+        ``"failed on k of N runs"``), ``errors`` (their messages, when any) and ``error`` (the
+        first message) when no run succeeded; no metrics then. Text entries (``failure``,
+        ``run_dir``, ...) are left out.
     """
     table = table_from_entries(per_seed)
     stats = aggregate(table)
@@ -126,7 +118,8 @@ def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str,
             }
         errors = table.loc[(table.variant == variant) & (table.controller == controller), "error"]
         errors = [e for e in errors if e]
-        entry.update(n_runs=n_ok, n_failed=n_failed, status=_status(n_ok, n_failed))
+        status = "failed" if not n_ok else f"failed on {n_failed} of {n_ok + n_failed} runs"
+        entry.update(n_runs=n_ok, n_failed=n_failed, status=status if n_failed else "ok")
         if errors:
             entry["errors"] = errors
         if not n_ok:
@@ -229,21 +222,6 @@ def controller_names(controllers: Sequence[str] | None) -> list[str]:
         return list(controllers)
     known = available_controllers()
     return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
-
-
-def summary_header(
-    meta: Mapping[str, Any], seed: int, path: ReferencePath, runs: int, seeds: Sequence[int]
-) -> dict[str, Any]:
-    """The head of a ``summary.json`` (``compare --runs`` and ``sweep``): provenance and the runs."""
-    return {
-        "config": meta.get("config"),
-        "seed": seed,
-        "speed_mps": path.speed_mps,
-        "waypoints_file": meta.get("waypoints_file"),
-        "path_length_m": path.length_m,
-        "runs_requested": runs,
-        "seeds": list(seeds),
-    }
 
 
 def run_figures(names: Sequence[str], runs: int) -> Workload:

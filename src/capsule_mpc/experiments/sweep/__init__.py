@@ -2,21 +2,16 @@
 ``capsule-mpc sweep`` runs).
 
 Run ``k`` of ``--runs N`` uses the seed ``seed + k``. As in ``compare --runs``, a seed fixes the
-plant drawn around the nominal scenario (the ``plant`` section,
-:func:`capsule_mpc.sim.draw_plant_truth`), the start offset and the camera noise; every controller
-runs on that draw and the runs of one seed are scored on their common window
-(:func:`.tasks.run_seed`). A study's variants (:class:`.tasks.Variant`: scenario overrides, resolved
-per draw) run on the same draws. ``--vary plant.FIELD=LO:HI``
-replaces that field's draw by a uniform draw in [LO, HI] from the run's own stream (:mod:`.vary`):
-the other fields draw as they would without it, and the controllers are given the nominal
-scenario only (their belief), never the plant's values.
+plant drawn around the nominal scenario (:func:`capsule_mpc.sim.draw_plant_truth`), the start
+offset and the camera noise; every controller runs on that draw and the runs of one seed are scored
+on their common window (:func:`.tasks.run_seed`). A study's variants (:class:`.tasks.Variant`:
+scenario overrides, resolved per draw) run on the same draws. ``--vary plant.FIELD=LO:HI`` replaces
+that field's draw by a uniform draw in [LO, HI] (:mod:`.vary`); the controllers are given the
+nominal scenario only (their belief), never the plant's values.
 
-A run (one seed, every controller) is one Dask task (:mod:`.tasks`): on a ``LocalCluster`` of
-``--workers`` processes of one thread each (default the CPU count, no more than the runs), or on
-the cluster whose scheduler is at ``--scheduler``. A task's result does not depend on where it
-runs: the same seeds give the same results on any cluster and any number of workers, except the
-wall-clock figures (:data:`.tasks.WALL_CLOCK_KEYS`) and with ``plant.compute_delay_mode:
-solve_time``.
+A run (one seed, every controller) is one Dask task (:mod:`.tasks`, whose result does not depend on
+where it runs): on a ``LocalCluster`` of ``--workers`` processes (default the CPU count, no more
+than the runs), or on the cluster whose scheduler is at ``--scheduler``.
 
 Writes, into ``--out`` (:func:`.campaign.sweep`; :mod:`.results` reads and writes these files):
 
@@ -25,13 +20,11 @@ Writes, into ``--out`` (:func:`.campaign.sweep`; :mod:`.results` reads and write
 * ``runs/seed_<S>.json``, one per run as soon as it finishes (written atomically): the seed, the
   common window, each controller's metrics and flags as in ``compare``'s ``runs`` (or its
   ``error``), the plant's drawn values (``plant``) and the varied ones (``varied``);
-* ``runs.csv``, the run table: one row per draw and controller (and variant) with every metric
-  of the run, the draw's plant values and the seed (:mod:`capsule_mpc.experiments.table`);
-* ``summary.json``, in the schema of ``compare --runs`` (``controllers.NAME.METRIC`` means,
-  ``controllers.NAME.spread.METRIC`` ``{sd, min, max, n}``, ``runs``: every seed's file;
-  :func:`capsule_mpc.experiments.compare.aggregate_runs`), plus ``plant_preset``, ``vary`` and
-  ``worst`` (:func:`.results.worst_runs`: per controller and metric the seeds of the worst runs,
-  the seeds where a flag was raised, and those that failed);
+* ``runs.csv``, the run table (:mod:`capsule_mpc.experiments.table`);
+* ``summary.json``, in the schema of ``compare --runs``
+  (:func:`capsule_mpc.experiments.compare.aggregate_runs`; ``runs``: every seed's file), plus
+  ``plant_preset``, ``vary`` and ``worst`` (:func:`.results.worst_runs`: per controller and metric
+  the seeds of the worst runs, the seeds where a flag was raised, and those that failed);
 * ``summary.md`` (the table of ``compare --runs``, printed too, and the worst runs);
 * ``metrics.png`` (the distributions of tracking RMS, cross-track RMS and final error) and one
   ``distribution_<metric>.png`` per metric of the table (a box plot per controller, every run a

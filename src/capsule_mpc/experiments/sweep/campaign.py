@@ -28,7 +28,6 @@ from ..compare import (
     check_controllers,
     controller_names,
     run_figures,
-    summary_header,
     summary_markdown,
     summary_table,
 )
@@ -84,7 +83,8 @@ def sweep(
     runs : int
         Number of runs, >= 1.
     controllers : sequence of str, optional
-        As for :func:`capsule_mpc.experiments.sweep.campaign.compare_controllers`.
+        The controllers run on each draw (default every registered one,
+        :func:`~capsule_mpc.experiments.compare.controller_names`).
     vary : sequence of VaryRange
         Plant fields drawn from these ranges instead of the preset's (:func:`parse_vary`).
     variants : sequence of Variant
@@ -145,16 +145,21 @@ def sweep(
         for s in seeds
         if s not in done
     ]
+    local = min(workers or os.cpu_count() or 1, len(todo))
     # a comparison on one local worker runs here: a cluster would only add its start-up
-    here = compare and client is None and min(workers or os.cpu_count() or 1, len(todo)) == 1
+    here = compare and client is None and local == 1
     try:
-        _run(todo, out, done, runs, workers, client, progress, task, here)
+        _run(todo, out, done, runs, local, client, progress, task, here)
     finally:  # also when stopped: the workers' runs then keep what they recorded (RunLogs)
         if compare and not here:
             _adopt(out, [Path(f) for t in todo for f in (t.runs_dir, t.figures_dir) if f is not None])
     per_seed = [done[s] for s in seeds]
     write_table(table_from_entries(per_seed), out / TABLE_FILE)
-    summary = {**summary_header(meta, seed, path, runs, seeds), "controllers": aggregate_runs(per_seed)}
+    summary: dict[str, Any] = {
+        "config": meta.get("config"), "seed": seed, "speed_mps": path.speed_mps,
+        "waypoints_file": meta.get("waypoints_file"), "path_length_m": path.length_m,
+        "runs_requested": runs, "seeds": seeds, "controllers": aggregate_runs(per_seed),
+    }  # fmt: skip
     if compare and runs == 1:  # one run: its text entries (run_dir, failure, traceback) beside its metrics
         for name, entry in summary["controllers"].items():
             single = per_seed[0]["controllers"][name]
@@ -195,20 +200,19 @@ def _run(
     out: Path,
     done: dict[int, dict[str, Any]],
     runs: int,
-    workers: int | None,
+    local: int,
     client: Client | None,
     progress: bool,
     task: Callable[[SeedTask], dict[str, Any]],
     in_process: bool = False,
 ) -> None:
-    """Run ``todo`` on Dask (in this process with ``in_process``), writing each draw's entry to
-    ``runs/seed_<S>.json`` and into ``done``."""
+    """Run ``todo`` on ``client`` (default a ``LocalCluster`` of ``local`` workers; in this process
+    with ``in_process``), writing each draw's entry to ``runs/seed_<S>.json`` and into ``done``."""
     with ExitStack() as stack:
         outcomes: Iterable[Outcome] = ()
         if todo and in_process:
             outcomes = run_here(task, [replace(t, progress=progress) for t in todo])
         elif todo:
-            local = min(workers or os.cpu_count() or 1, len(todo))
             client = client if client is not None else stack.enter_context(dask_client(None, local))
             outcomes = stack.enter_context(closing(run_on_dask(task, todo, client)))
         bar = stack.enter_context(
@@ -358,16 +362,8 @@ def compare_controllers(
     client: Client | None = None,
     task: Callable[[SeedTask], dict[str, Any]] = run_seed,
 ) -> dict[str, Any]:
-    """Run controllers on the same plant, path and seeds: :func:`sweep` with ``command="compare"``
-    (every run's folder written, the first seed's figures, no resume; one local worker: in this
-    process), ``runs`` seeds from ``seed``; the summary written to ``summary.json``
-    (:mod:`capsule_mpc.experiments.compare`).
-
-    Raises
-    ------
-    ValueError
-        If ``runs`` < 1.
-    """
+    """Run controllers on the same plant, path and seeds (:mod:`capsule_mpc.experiments.compare`):
+    :func:`sweep` with ``command="compare"``, its parameters; the summary."""
     return sweep(
         scenario, path, out, seed, runs, controllers=controllers, workers=workers, client=client, meta=meta,
         progress=progress, task=task, command="compare",

@@ -1,24 +1,11 @@
 """The runs of a sweep and where they run: Dask distributed.
 
-A run (:class:`SeedTask`: every controller on one seed's plant draw) is one task, run by
+A run (:class:`SeedTask`: every variant and controller on one seed's plant draw) is one task, run by
 :func:`run_seed` on a Dask worker; its result depends on the seed only (the wall-clock figures
 :data:`WALL_CLOCK_KEYS` apart, and with ``plant.compute_delay_mode: solve_time``), not on the
-worker or the number of workers. :func:`run_on_dask` yields the runs as they finish, with no more
-of them on the cluster than it has worker threads, so that a worker holds the run it executes
-and no other. A run whose worker dies is yielded as :func:`crashed_entry`, and the others go on:
-Dask records a task as failed (``KilledWorker``) once it was running on more workers that died
-than the scheduler's ``distributed.scheduler.allowed-failures``.
-
-:func:`dask_client` connects to a running scheduler or starts a ``LocalCluster`` on this machine:
-worker processes of one thread each, started by nannies (a worker that dies is replaced), with
-``allowed_failures`` 0 (:data:`LOCAL_ALLOWED_FAILURES`: a run that kills its worker is recorded
-as crashed at once, never retried on another worker), no per-worker memory limit (the sweep's
-memory is bounded by :mod:`capsule_mpc.budget` before it starts) and :func:`dask_setup` as the
-workers' preload: Ctrl-C and a hang-up sent to the terminal's process group are the
-``capsule-mpc`` process's to handle (it closes the cluster, which stops the workers; a closing
-worker stops its run at the next frame, and the run keeps its log so far and a finalised MCAP,
-:func:`dask_teardown`). A cluster of one's own (``--scheduler``) keeps its scheduler's setting
-(Dask's default is 3 deaths).
+worker or the number of workers. :func:`run_on_dask` yields the runs as they finish, a run whose
+worker died as :func:`crashed_entry` (the others go on); :func:`dask_client` connects to a running
+scheduler or starts a ``LocalCluster`` on this machine.
 """
 
 from __future__ import annotations
@@ -220,8 +207,9 @@ def run_seed(task: SeedTask) -> dict[str, Any]:
     results: dict[str, RunResult] = {}
     entries: dict[str, dict[str, Any]] = {}
     base = None if task.runs_dir is None else Path(task.runs_dir)
+    arms = _arms(task, truth)
     with RunLogs(base) as logs:
-        for label, name, scenario in _arms(task, truth):
+        for label, name, scenario in arms:
             try:
                 if isinstance(scenario, Exception):
                     raise scenario
@@ -246,29 +234,26 @@ def run_seed(task: SeedTask) -> dict[str, Any]:
         entries[label].update(values)
     if task.figures_dir is not None and results:
         draw_figures(results, task.path, Path(task.figures_dir))
-    order = [label for label, _, _ in _arms(task, truth)]
     return json_value(
         {
             "seed": task.seed,
             "window_end_s": window_end,
-            "controllers": {label: entries[label] for label in order},
+            "controllers": {label: entries[label] for label, _, _ in arms},
             "plant": truth.summary(),
             "varied": varied,
         }
     )
 
 
-def draw_figures(results: Mapping[str, RunResult], path: ReferencePath, out: Path) -> list[str]:
+def draw_figures(results: Mapping[str, RunResult], path: ReferencePath, out: Path) -> None:
     """``trajectories.png``, ``errors.png`` and, when a run predicts, ``mpc_prediction.png`` of one
-    draw's runs; the file names."""
+    draw's runs, into ``out``."""
     logs = {n: r.log for n, r in results.items()}
     plot_trajectories(logs, path, out / "trajectories.png")
     plot_errors(logs, path, out / "errors.png", {n: r.metrics["motion_end_s"] for n, r in results.items()})
-    names = ["trajectories.png", "errors.png"]
-    for result in results.values():
+    for result in results.values():  # the first run that predicts
         if write_prediction_figure(result, out / PREDICTION_FIGURE) is not None:
-            return [*names, PREDICTION_FIGURE]
-    return names
+            break
 
 
 def rescore_on_common_window(
@@ -505,9 +490,15 @@ def run_on_dask(
 def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Client]:
     """A Dask client: of the scheduler at ``scheduler``, else of a new ``LocalCluster``.
 
-    The ``LocalCluster`` (module docstring) has ``workers`` worker processes (default the CPU
-    count) of one thread each, as a cluster's workers run one task at a time; it is closed on
-    exit, its workers stopped, however the block ends.
+    The ``LocalCluster`` has ``workers`` worker processes (default the CPU count) of one thread
+    each, as a cluster's workers run one task at a time, started by nannies (a worker that dies is
+    replaced); ``allowed_failures`` :data:`LOCAL_ALLOWED_FAILURES` (a cluster of one's own keeps
+    its scheduler's setting, Dask's default 3); no per-worker memory limit (the sweep's memory is
+    bounded by :mod:`capsule_mpc.budget` before it starts); :func:`dask_setup` and
+    :func:`dask_teardown` as the workers' preload: Ctrl-C and a hang-up sent to the terminal's
+    process group are the ``capsule-mpc`` process's to handle, which closes the cluster, and a
+    closing worker stops its run at the next frame (the run keeps its log so far, :class:`RunLogs`).
+    It is closed on exit, its workers stopped, however the block ends.
 
     Raises
     ------
