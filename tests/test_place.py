@@ -38,6 +38,21 @@ def test_offset_for_a_linear_spring_is_force_over_stiffness(k: float, force: flo
     assert got == pytest.approx(min(force / k, limit), abs=1e-6)
 
 
+@settings(max_examples=30, deadline=None)
+@given(
+    k=st.floats(5.0, 100.0),
+    force=st.floats(-0.2, 0.0),
+    tiny=st.floats(0.0, 1e-12),
+    direction=st.sampled_from([-1.0, 1.0]),
+)
+def test_no_force_to_reach_needs_no_lead(k: float, force: float, tiny: float, direction: float) -> None:
+    """A belief without friction or drag asks for no force: the offset is 0, also when round-off
+    leaves the force at the equilibrium a hair above 0 (no root to bracket)."""
+    along = lambda x: k * x + direction * tiny  # noqa: E731
+    geo = P.PlaceGeometry(np.array([-0.017, 0.0]), np.array([1.0, 0.0]), along, 0.6)
+    assert geo.offset_for(force, direction, 0.025) == 0.0
+
+
 def _belief(scenario: Scenario) -> FrictionBelief:
     return FrictionBelief.from_scenario(scenario)
 

@@ -178,6 +178,8 @@ class PlaceGeometry:
         def excess(x: float) -> float:
             return direction * self.along_n(direction * x) - force_n
 
+        if excess(0.0) >= 0:  # reached at the equilibrium already (a belief without friction)
+            return 0.0
         if excess(limit_m) < 0:
             return limit_m
         return float(brentq(excess, 0.0, limit_m, xtol=1e-7))
