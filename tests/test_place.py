@@ -263,3 +263,24 @@ def test_an_ambiguous_rest_is_watched_longer() -> None:
 
     assert ends_after(1.5e-4) >= P.LONGEST_OBSERVE_S - 0.05
     assert P.MAX_OBSERVE_S - 0.05 <= ends_after(2e-3) < P.LONGEST_OBSERVE_S - 0.5
+
+
+def test_a_move_that_cannot_be_planned_holds_the_epm_and_gives_up_saying_why(
+    scenario: Scenario, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def unplannable(*args: object, **kwargs: object) -> P.Move:
+        raise ValueError("no jerk-limited profile")
+
+    monkeypatch.setattr(P, "plan_move", unplannable)
+    target = np.array([0.0, -0.03])
+    placement = P.Placement(scenario, scenario.place, linear_geometry(30.0), _belief(scenario), target, 0.3)
+    placement.start(0.0, -1.0)
+    rng = np.random.default_rng(3)
+    epm = np.array([-0.015, -0.03, 0.095])
+    commands = []
+    for i in range(60):
+        frame = target + np.array([2e-3, 0.0]) + rng.normal(scale=3e-4, size=2)
+        commands.append(placement.command(i / 30.0, frame, epm))
+    assert placement.outcome is P.PlaceOutcome.GAVE_UP
+    assert "could not plan placement move 1: no jerk-limited profile" in placement.reason
+    assert np.all(np.array(commands) == 0.0)  # the EPM held still throughout

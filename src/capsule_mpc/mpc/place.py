@@ -514,7 +514,12 @@ class Placement:
         if not still:  # it was still moving: watch again
             self._obs = self._observation(t_s)
             return np.zeros(3)
-        self._decide(t_s, mean, epm)
+        try:
+            self._decide(t_s, mean, epm)
+        except (ValueError, ArithmeticError) as exc:  # a move that cannot be planned: hold, say why
+            self._traj = None
+            self.outcome = PlaceOutcome.GAVE_UP
+            self.reason = f"could not plan placement move {self.moves + 1}: {exc}"
         return np.zeros(3)
 
     def _decide(self, t_s: float, rest_m: np.ndarray, epm: np.ndarray) -> None:
