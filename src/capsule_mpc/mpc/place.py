@@ -30,9 +30,9 @@ EPM has stepped back, the capsule comes to rest where the force along ``d`` has 
 tether drag the belief holds plus a fixed part :data:`STOP_FRICTION` of its static friction just
 after coming to rest, ``s = lead(F_d = drag + STOP_FRICTION mu_s F_N) - lead_eq``; the part was
 measured on closed-loop runs of tuning draws (a rig whose friction is higher stops farther
-behind the EPM). The believed equilibrium ``lead_eq`` is where the force model plus the controller's estimated
-constant force vanishes. Nothing of the plant is read: only camera frames and the EPM position
-the arm reports.
+behind the EPM). The believed equilibrium ``lead_eq`` is where the force model plus the
+controller's estimated constant force vanishes. Nothing of the plant is read: only camera frames
+and the EPM position the arm reports.
 
 Each move is one jerk-limited Ruckig trajectory per segment, within ``limits.speed_mps``,
 ``limits.accel_mps2`` and ``limits.jerk_mps3``; the commands follow it with a proportional
@@ -288,7 +288,7 @@ def plan_move(
     single = ahead >= backoff_scale * fwd_break + RUN_UP_M  # far enough ahead: it breaks loose on the way
     back_len = 0.0 if single else backoff_scale * max(ahead + back_break, fwd_break) + RUN_UP_M
     # Where the capsule comes to rest the force along d has fallen to the drag (paid out by the
-    # way there, out and back) and the part of the sliding friction that still holds it.
+    # way there, out and back) and the part of the static friction that still holds it.
     drag = belief.drag_n(progress_m + (ahead if single else 2.0 * back_len))
     held = STOP_FRICTION * belief.breakaway_mu(0.0) * fn
     model_offset = geometry.offset_for(drag + held, direction, max_lead_m) * d
