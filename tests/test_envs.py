@@ -25,8 +25,11 @@ from capsule_mpc.sim import loop as sim_loop
 
 #: Metrics that time this machine (wall clock) or that the controller reports in its step's stats,
 #: which the agent's seat does not pass on (solves, rejected measurements, its phase).
+#: What a run through the env cannot give as the direct run does: the controller's own statistics
+#: (its phase, placement moves, rejected frames; a policy behind the env reports none) and wall times.
 _NOT_COMPARED = {
     "end_phase",
+    "placement_moves",
     "step_ms_max",
     "solve_ms_median",
     "solve_ms_p99",

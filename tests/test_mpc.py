@@ -76,7 +76,10 @@ def test_mpc_beats_both_baselines_on_the_lab_rig(lab_scenario):
     path = rectangle(speed_mps=0.02)
     runs = {name: simulate(fast_lab, name, path, seed=seed) for name in ("follow", "paper_0.8v", "mpc")}
     window = rescore_on_common_window(runs, path, fast_lab)
-    assert all(r.metrics["window_end_s"] == pytest.approx(window) for r in runs.values())
+    # One window for every controller: the path's metrics stop at its nominal end at the latest.
+    assert all(
+        r.metrics["window_end_s"] == pytest.approx(min(window, path.duration_s)) for r in runs.values()
+    )
     mpc = runs["mpc"].metrics
     assert not mpc["decoupled"] and not mpc["dropped"]
     for name in ("follow", "paper_0.8v"):

@@ -262,7 +262,8 @@ def rescore_on_common_window(
     """Re-score one draw's runs on a common window; returns its end, s (NaN without runs).
 
     The window ends at the latest ``motion_end_s`` (the time a run ended at rest) among the
-    runs; each run's metrics are recomputed on it with :func:`capsule_mpc.metrics.run_metrics`
+    runs (the path's metrics stop at its nominal end at the latest, for every run alike); each
+    run's metrics are recomputed on it with :func:`capsule_mpc.metrics.run_metrics`
     (arrival tolerance ``sim.completion_tol_m``, deadline one camera period) and written into
     its ``metrics`` dict, which keeps the runner's other entries (flags, limit counts).
     """
