@@ -42,11 +42,12 @@ import numpy as np
 import pandas as pd
 from _args import int_at_least
 
+from capsule_mpc.atomic import json_ready
 from capsule_mpc.config import packaged_config_path
 from capsule_mpc.experiments.aggregate import aggregate
 from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.experiments.sweep.campaign import local_workers, sweep, sweep_failures
-from capsule_mpc.experiments.sweep.tasks import Variant, dask_client, json_value
+from capsule_mpc.experiments.sweep.tasks import Variant, dask_client
 from capsule_mpc.experiments.table import TABLE_FILE, read_table
 from capsule_mpc.metrics import tracking_errors
 from capsule_mpc.outputs import output_file_problem, write_report_file
@@ -207,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         machine=platform.machine(),
         load_average=list(os.getloadavg()),
     )
-    if write_report_file(out, json.dumps(json_value(result), indent=2) + "\n", "fault_campaign") != 0:
+    if write_report_file(out, json.dumps(json_ready(result), indent=2) + "\n", "fault_campaign") != 0:
         return 2
     print(f"{result['solver_faults_injected']} solver faults over {result['runs']} runs")
     bad = sum(v for k, v in result["command_checks"].items() if k != "commands")

@@ -83,3 +83,35 @@ def test_a_write_error_that_names_no_file_is_raised_naming_the_target(tmp_path):
     with pytest.raises(OSError, match="No space left on device") as info, atomic_path(target):
         raise OSError(28, "No space left on device")
     assert info.value.filename == str(target) and list(tmp_path.iterdir()) == []
+
+
+def test_json_ready_writes_what_json_can_hold_and_nulls_what_it_cannot():
+    import json
+    import math
+    from pathlib import Path
+
+    import numpy as np
+
+    from capsule_mpc.atomic import json_ready
+
+    value = {
+        1: np.float64(0.5),
+        "nan": math.nan,
+        "inf": np.float32(np.inf),
+        "n": np.int64(3),
+        "flag": np.bool_(True),
+        "path": Path("a/b"),
+        "rows": (np.array([1.0, np.nan]), [np.int32(2)]),
+    }
+    ready = json_ready(value)
+    assert ready == {
+        "1": 0.5,
+        "nan": None,
+        "inf": None,
+        "n": 3,
+        "flag": True,
+        "path": "a/b",
+        "rows": [[1.0, None], [2]],
+    }
+    assert [type(ready[k]) for k in ("1", "n", "flag")] == [float, int, bool]
+    assert json.loads(json.dumps(ready, allow_nan=False)) == ready

@@ -19,13 +19,13 @@ import pandas as pd
 import pytest
 
 import capsule_mpc
+from capsule_mpc.atomic import json_ready
 from capsule_mpc.cli import main
 from capsule_mpc.config import load_config
 from capsule_mpc.experiments.compare import RUNS_FOLDER, aggregate_runs
 from capsule_mpc.experiments.sweep.campaign import sweep
 from capsule_mpc.experiments.sweep.results import SPEC_FILE, spec_difference, worst_runs
 from capsule_mpc.experiments.sweep.tasks import WALL_CLOCK_KEYS, SeedTask, run_seed
-from capsule_mpc.experiments.sweep.tasks import json_value as _json_value
 from capsule_mpc.experiments.sweep.vary import draw_varied, parse_vary, with_plant_values
 from capsule_mpc.experiments.table import NOMINAL, TABLE_FILE, read_table
 from capsule_mpc.outputs import read_manifest
@@ -143,7 +143,7 @@ def test_cli_sweep_writes_a_file_per_run_and_compares_schema(cli_sweep, table):
     assert summary["seeds"] == seeds and summary["runs_requested"] == 2 and summary["plant_preset"] == "lab"
     assert summary["vary"] == {"mu0_scale": [0.8, 1.2]}
     assert summary["runs"] == [files[s] for s in seeds]  # every run's file, in seed order
-    assert summary["controllers"] == _json_value(aggregate_runs(summary["runs"]))  # compare's aggregation
+    assert summary["controllers"] == json_ready(aggregate_runs(summary["runs"]))  # compare's aggregation
     follow = summary["controllers"]["follow"]
     rms = [files[s]["controllers"]["follow"]["tracking_rms_mm"] for s in seeds]
     assert follow["tracking_rms_mm"] == pytest.approx(np.mean(rms))

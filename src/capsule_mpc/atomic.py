@@ -11,16 +11,36 @@ meanwhile. Text is always UTF-8, whatever the locale.
 
 from __future__ import annotations
 
+import math
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from pathlib import Path
+from pathlib import Path, PurePath
+from typing import Any
 
-__all__ = ["ENCODING", "atomic_path", "recording_writes", "write_text_atomic"]
+__all__ = ["ENCODING", "atomic_path", "json_ready", "recording_writes", "write_text_atomic"]
 
 #: The encoding of every text file the package reads or writes.
 ENCODING = "utf-8"
+
+
+def json_ready(value: Any) -> Any:
+    """``value`` made ready for :func:`json.dumps`: mappings with string keys, sequences and numpy
+    arrays as lists, numpy scalars as Python ones, paths as strings, and non-finite floats as None
+    (JSON has no NaN or infinity; the package writes them as null)."""
+    if isinstance(value, Mapping):
+        return {str(k): json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, PurePath):
+        return str(value)
+    if hasattr(value, "tolist"):  # numpy scalars and arrays
+        return json_ready(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
 
 #: The active :func:`recording_writes` blocks: (resolved folder, the files written under it, the
 #: journal file each is appended to, or None).

@@ -26,10 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
-from ..atomic import write_text_atomic
+from ..atomic import json_ready, write_text_atomic
 from ..envs import CapsuleEnv, load_policy
 from ..envs.policies import PolicyFactory
 from ..envs.tasks import PRESETS, TASKS, get_task, task_path, task_scenario, task_success
@@ -238,20 +237,6 @@ def leaderboard_markdown(board: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(float(value)) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    return value
-
-
 def write_benchmark(rows: Sequence[dict[str, Any]], out: str | Path, meta: dict[str, Any]) -> dict[str, Path]:
     """Write ``runs.csv`` (the run table), ``leaderboard.csv``, ``leaderboard.json`` (``meta`` -- the
     command, seeds, commit -- the leaderboard and the runs) and ``leaderboard.md`` into ``out``."""
@@ -267,7 +252,7 @@ def write_benchmark(rows: Sequence[dict[str, Any]], out: str | Path, meta: dict[
         "leaderboard_csv": write_text_atomic(folder / "leaderboard.csv", board.to_csv(index=False)),
     }
     record = {"meta": meta, "leaderboard": board.to_dict("records"), "runs": runs.to_dict("records")}
-    text = json.dumps(_json_safe(record), indent=1, ensure_ascii=False) + "\n"
+    text = json.dumps(json_ready(record), indent=1, ensure_ascii=False) + "\n"
     paths["leaderboard_json"] = write_text_atomic(folder / "leaderboard.json", text)
     paths["leaderboard_md"] = write_text_atomic(folder / "leaderboard.md", leaderboard_markdown(board))
     return paths

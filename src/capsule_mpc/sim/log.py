@@ -48,14 +48,13 @@ from __future__ import annotations
 import csv
 import io
 import json
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..atomic import atomic_path, write_text_atomic
+from ..atomic import atomic_path, json_ready, write_text_atomic
 from ..config import dump_config
 from ..metrics import stack_predictions
 from .columns import INT_COLUMNS, LOG_COLUMNS, REQUIRED_COLUMNS, STR_COLUMNS
@@ -161,23 +160,6 @@ def _is_float(text: str) -> bool:
     return True
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        v = float(value)
-        return v if math.isfinite(v) else None
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
 def write_run(result: RunResult, out_dir: str | Path) -> Path:
     """Write ``log.csv``, ``config.yaml`` and ``run.json`` of a run into ``out_dir`` (created).
 
@@ -192,7 +174,7 @@ def write_run(result: RunResult, out_dir: str | Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     write_log(result.log, out / "log.csv")
     write_text_atomic(out / "config.yaml", dump_config(result.scenario))
-    write_text_atomic(out / "run.json", json.dumps(_jsonable(result.summary()), indent=2) + "\n")
+    write_text_atomic(out / "run.json", json.dumps(json_ready(result.summary()), indent=2) + "\n")
     stacked = stack_predictions(result.predictions)
     if stacked is not None:
         with atomic_path(out / PREDICTIONS_FILE) as tmp:

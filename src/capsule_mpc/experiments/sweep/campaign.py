@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
-from ...atomic import atomic_path, write_text_atomic
+from ...atomic import atomic_path, json_ready, write_text_atomic
 from ...budget import Workload, check_processes
 from ...config import ConfigError, Scenario
 from ...outputs import output_folder
@@ -43,7 +43,7 @@ from .results import (
     worst_table,
 )
 from .results import write_figures as write_figures
-from .tasks import Outcome, SeedTask, Variant, dask_client, json_value, run_here, run_on_dask, run_seed
+from .tasks import Outcome, SeedTask, Variant, dask_client, run_here, run_on_dask, run_seed
 from .vary import VaryRange, check_vary
 
 if TYPE_CHECKING:
@@ -171,7 +171,7 @@ def sweep(
         summary.update(plant_preset=scenario.plant.preset, vary={v.field: [v.lo, v.hi] for v in vary})
         summary["worst"] = worst_runs(per_seed)
     summary.update(runs=per_seed, figures=figures)
-    write_text_atomic(out / "summary.json", json.dumps(json_value(summary), indent=2) + "\n")
+    write_text_atomic(out / "summary.json", json.dumps(json_ready(summary), indent=2) + "\n")
     markdown = summary_markdown(command, scenario, path, summary) + (
         "" if compare else worst_markdown(summary)
     )

@@ -7,13 +7,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from ...atomic import json_ready
 from ...config import ConfigError, Scenario
 from ...paths import ReferencePath
 from ...plots import plot_metrics
 from ..aggregate import worst_runs as worst_of
 from ..compare import RUNS_FOLDER, SUMMARY_COLUMNS
 from ..table import table_from_entries
-from .tasks import Variant, json_value
+from .tasks import Variant
 from .vary import VaryRange
 
 __all__ = [
@@ -66,7 +67,7 @@ def sweep_spec(
         spec["variants"] = {
             v.name: {"overrides": dict(v.overrides), "controllers": v.controllers} for v in variants
         }
-    return dict(json.loads(json.dumps(json_value(spec))))
+    return dict(json.loads(json.dumps(json_ready(spec))))
 
 
 #: The parts of :func:`sweep_spec` checked on resume, and the argument each comes from.

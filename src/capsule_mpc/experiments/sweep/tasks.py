@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 from tqdm import tqdm
 
+from ...atomic import json_ready
 from ...config import ConfigError, Scenario, config_from_dict, scenario_data
 from ...interrupt import Interrupted, raise_if_interrupted
 from ...metrics import run_metrics
@@ -234,7 +235,7 @@ def run_seed(task: SeedTask) -> dict[str, Any]:
         entries[label].update(values)
     if task.figures_dir is not None and results:
         draw_figures(results, task.path, Path(task.figures_dir))
-    return json_value(
+    return json_ready(
         {
             "seed": task.seed,
             "window_end_s": window_end,
@@ -283,19 +284,6 @@ def rescore_on_common_window(
             )
         )
     return common
-
-
-def json_value(value: Any) -> Any:
-    """``value`` made JSON-ready: numpy scalars as Python ones, non-finite floats as None."""
-    if isinstance(value, dict):
-        return {str(k): json_value(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_value(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if hasattr(value, "item"):  # numpy scalars
-        return json_value(value.item())
-    return value
 
 
 class RunLogs:
