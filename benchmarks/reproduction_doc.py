@@ -77,48 +77,67 @@ def _paper_cell(record: dict[str, Any], exp: str, which: str) -> str:
     return f"{value:+.1f} %" if which == "change" else f"{value:.1f}"
 
 
+def _row(cells: Sequence[str]) -> str:
+    """One row of a Markdown table."""
+    return "| " + " | ".join(cells) + " |"
+
+
+def _head(names: Sequence[str]) -> list[str]:
+    """A Markdown table's header row and its rule."""
+    return [_row(names), "|" + "---|" * len(names)]
+
+
 def _side_by_side(record: dict[str, Any], n_lab: int) -> list[str]:
-    lines = [
-        f"| experiment | v (m/s) | arm | paper (mm) | nominal rig (mm) | `lab`, {n_lab} draws (mm) |",
-        "|---|---|---|---|---|---|",
-    ]
+    lines = _head(
+        ["experiment", "v (m/s)", "arm", "paper (mm)", "nominal rig (mm)", f"`lab`, {n_lab} draws (mm)"]
+    )
     for exp, (title, speed) in EXPERIMENT_TITLES.items():
         ideal, lab = _pairs(record, exp, "ideal"), _pairs(record, exp, "lab")
         for i, (arm, which) in enumerate((("v", "v"), ("0.8 v", "0.8v"))):
             nominal = f"{ideal[0][i]['paper_std_mm']:.2f}" if ideal else "n/a"
             draws = _msw([p[i]["paper_std_mm"] for p in lab])
             cells = [title, speed, arm, _paper_cell(record, exp, which), nominal, draws]
-            lines.append("| " + " | ".join(cells) + " |")
+            lines.append(_row(cells))
         lab_change = _changes(lab, "paper_std_mm")
         nominal_change = f"{_changes(ideal, 'paper_std_mm')[0]:+.1f} %" if ideal else "n/a"
         draws_change = f"{_msw(lab_change, '{:+.1f}')} %, {_lower(lab_change)}"
         cells = [title, speed, "change", _paper_cell(record, exp, "change"), nominal_change, draws_change]
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(_row(cells))
     return lines
 
 
 def _metric_ways(record: dict[str, Any]) -> list[str]:
-    lines = [
-        "| experiment | v (m/s) | true positions, arm moving | camera, arm moving | true positions, "
-        "t = 0 to the motion's end |",
-        "|---|---|---|---|---|",
-    ]
+    lines = _head(
+        [
+            "experiment",
+            "v (m/s)",
+            "true positions, arm moving",
+            "camera, arm moving",
+            "true positions, t = 0 to the motion's end",
+        ]
+    )
     for exp, (title, speed) in EXPERIMENT_TITLES.items():
         lab = _pairs(record, exp, "lab")
         cells = [title, speed]
         for key in ("paper_std_mm", "paper_std_camera_mm", "paper_std_window_mm"):
             ch = _changes(lab, key)
             cells.append(f"{_msw(ch, '{:+.1f}')} %, {_lower(ch)}")
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(_row(cells))
     return lines
 
 
 def _hidden(record: dict[str, Any]) -> list[str]:
-    lines = [
-        "| experiment | v (m/s) | arm | tracking RMS (mm) | final error (mm) | completed "
-        "| arrival / nominal |",
-        "|---|---|---|---|---|---|---|",
-    ]
+    lines = _head(
+        [
+            "experiment",
+            "v (m/s)",
+            "arm",
+            "tracking RMS (mm)",
+            "final error (mm)",
+            "completed",
+            "arrival / nominal",
+        ]
+    )
     for exp, (title, speed) in EXPERIMENT_TITLES.items():
         lab = _pairs(record, exp, "lab")
         for i, arm in enumerate(("v", "0.8 v")):
@@ -127,23 +146,20 @@ def _hidden(record: dict[str, Any]) -> list[str]:
             cells = [title, speed, arm, _msw([r["tracking_rms_mm"] for r in runs])]
             cells += [_msw([r["final_error_mm"] for r in runs]), done]
             cells += [_msw([r["arrival_ratio"] for r in runs])]
-            lines.append("| " + " | ".join(cells) + " |")
+            lines.append(_row(cells))
     return lines
 
 
 def _headings(record: dict[str, Any]) -> list[str]:
-    lines = [
-        "| experiment | v (m/s) | arm | lead, legs along x (mm) | lead, legs along y (mm) | STD (mm) "
-        "| STD within the legs (mm) |",
-        "|---|---|---|---|---|---|---|",
-    ]
+    legs = ["lead, legs along x (mm)", "lead, legs along y (mm)", "STD (mm)", "STD within the legs (mm)"]
+    lines = _head(["experiment", "v (m/s)", "arm", *legs])
     for exp, (title, speed) in EXPERIMENT_TITLES.items():
         lab = _pairs(record, exp, "lab")
         for i, arm in enumerate(("v", "0.8 v")):
             runs = [p[i] for p in lab]
             keys = ("lead_x_legs_mm", "lead_y_legs_mm", "paper_std_mm", "paper_std_within_legs_mm")
             cells = [title, speed, arm] + [_msw([r[k] for r in runs]) for k in keys]
-            lines.append("| " + " | ".join(cells) + " |")
+            lines.append(_row(cells))
     return lines
 
 
@@ -158,11 +174,8 @@ def _sensitivity_value(parameter: str, value: float) -> str:
 
 
 def _sensitivity(record: dict[str, Any], nominal: dict[str, float]) -> list[str]:
-    lines = [
-        "| constant | value | STD at v (mm) | STD at 0.8 v (mm) | change | change, camera | "
-        "tracking RMS at v / 0.8 v (mm) |",
-        "|---|---|---|---|---|---|---|",
-    ]
+    stds = ["STD at v (mm)", "STD at 0.8 v (mm)", "change", "change, camera"]
+    lines = _head(["constant", "value", *stds, "tracking RMS at v / 0.8 v (mm)"])
     for parameter, title in PARAMETER_TITLES.items():
         for value in record["sensitivity_axes"][parameter]:
             a, b = _sensitivity_pair(record, parameter, value)
@@ -172,7 +185,7 @@ def _sensitivity(record: dict[str, Any], nominal: dict[str, float]) -> list[str]
             cells += [f"{_pct(b['paper_std_mm'], a['paper_std_mm']):+.1f} %"]
             cells += [f"{_pct(b['paper_std_camera_mm'], a['paper_std_camera_mm']):+.1f} %"]
             cells += [f"{a['tracking_rms_mm']:.2f} / {b['tracking_rms_mm']:.2f}"]
-            lines.append("| " + " | ".join(cells) + " |")
+            lines.append(_row(cells))
     return lines
 
 
@@ -189,10 +202,7 @@ def _not_helping(record: dict[str, Any]) -> list[str]:
 
 def _pipe_speeds(record: dict[str, Any]) -> list[str]:
     speeds = sorted({r["speed_mps"] for r in record["pipe_speeds"]})
-    lines = [
-        "| friction of the rig | a - b | " + " | ".join(f"STD at {v:g} m/s (mm)" for v in speeds) + " |",
-        "|---|---|" + "---|" * len(speeds),
-    ]
+    lines = _head(["friction of the rig", "a - b", *(f"STD at {v:g} m/s (mm)" for v in speeds)])
     paper = record["paper"]
     lines.append("| the paper's rig | | " + " | ".join(f"{paper[f'pipe_{v:g}']:.1f}" for v in speeds) + " |")
     nominal = record["nominal"]
@@ -203,7 +213,7 @@ def _pipe_speeds(record: dict[str, Any]) -> list[str]:
         stds = [next(r for r in law_rows if r["speed_mps"] == v) for v in speeds]
         title = "grows with speed (nominal)" if a > b else "weakens with speed"
         cells = [title, f"{a - b:+.3f}"] + [f"{r['paper_std_mm']:.2f}" for r in stds]
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(_row(cells))
     return lines
 
 
