@@ -2,7 +2,7 @@
 
 from .dipole import MU0, dipole_field, dipole_force, dipole_torque, magnet_moment
 from .finite import finite_force, halbach_array, ipm_magnet, ipm_position
-from .force_map import ForceMap, cache_directory, force_map, force_map_axes, force_map_key
+from .force_map import ForceMap, cache_directory, force_map, force_map_axes, force_map_key, magnet_table_key
 from .models import (
     ORIENTATION_EPS_T,
     capsule_force_function,
@@ -38,5 +38,6 @@ __all__ = [
     "ipm_position",
     "ipm_volume_m3",
     "magnet_moment",
+    "magnet_table_key",
     "model_equilibrium_lead",
 ]

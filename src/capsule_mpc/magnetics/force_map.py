@@ -26,7 +26,7 @@ from ..cache import cache_folder, load_or_build
 from ..config import Scenario
 from .finite import finite_force
 
-__all__ = ["ForceMap", "cache_directory", "force_map", "force_map_axes", "force_map_key"]
+__all__ = ["ForceMap", "cache_directory", "force_map", "force_map_axes", "force_map_key", "magnet_table_key"]
 
 #: Bump when the table's meaning or layout changes, to invalidate old caches.
 _FORMAT_VERSION = 1
@@ -61,21 +61,30 @@ def _axes(scenario: Scenario) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return lead, lead.copy(), heights
 
 
+def magnet_table_key(
+    scenario: Scenario, lead_m: np.ndarray, heights_m: np.ndarray, format_version: int, **extra: object
+) -> str:
+    """A hash of everything a table of finite-magnet forces depends on: the magnets, the grid
+    (``lead_m``, ``heights_m``), the meshing, magpylib's version, the table's ``format_version`` and
+    whatever ``extra`` its builder adds (JSON values)."""
+    payload: dict[str, object] = {
+        "format": format_version,
+        "magpylib": magpy.__version__,
+        "ipm": scenario.ipm.model_dump(mode="json"),
+        "epm": scenario.epm.model_dump(mode="json"),
+        "lead": np.asarray(lead_m).round(9).tolist(),
+        "heights": np.asarray(heights_m).round(9).tolist(),
+        "meshing": scenario.force_map.meshing,
+        **extra,
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def force_map_key(scenario: Scenario) -> str:
     """A hash of everything the nominal table depends on (magnets, grid, meshing, magpylib version);
     the plant's drawn magnets have their own table (:mod:`capsule_mpc.sim.magnet_table`)."""
     lead_x, _, heights = _axes(scenario)
-    payload: dict[str, object] = {
-        "format": _FORMAT_VERSION,
-        "magpylib": magpy.__version__,
-        "ipm": scenario.ipm.model_dump(mode="json"),
-        "epm": scenario.epm.model_dump(mode="json"),
-        "lead": lead_x.round(9).tolist(),
-        "heights": heights.round(9).tolist(),
-        "meshing": scenario.force_map.meshing,
-    }
-    blob = json.dumps(payload, sort_keys=True).encode()
-    return hashlib.sha256(blob).hexdigest()[:16]
+    return magnet_table_key(scenario, lead_x, heights, _FORMAT_VERSION)
 
 
 @dataclass(frozen=True)

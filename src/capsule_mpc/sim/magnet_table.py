@@ -39,7 +39,6 @@ from dataclasses import dataclass
 from multiprocessing import current_process, get_context
 from pathlib import Path
 
-import magpylib as magpy
 import numpy as np
 from scipy import ndimage
 
@@ -53,6 +52,7 @@ from ..magnetics import (
     force_map_axes,
     halbach_array,
     ipm_position,
+    magnet_table_key,
 )
 from .truth import PlantTruth
 
@@ -117,21 +117,6 @@ def _plant_axes(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
             "plate.epm_height_m + offsets must stay > 0 with the draws' height offsets and tilts"
         )
     return lead_axis, height_axis
-
-
-def _table_key(scenario: Scenario, lead: np.ndarray, heights: np.ndarray) -> str:
-    payload = {
-        "kind": "plant_magnets",
-        "format": _FORMAT_VERSION,
-        "magpylib": magpy.__version__,
-        "ipm": scenario.ipm.model_dump(mode="json"),
-        "epm": scenario.epm.model_dump(mode="json"),
-        "lead": lead.round(9).tolist(),
-        "heights": heights.round(9).tolist(),
-        "meshing": scenario.force_map.meshing,
-        "orientation_step": ORIENTATION_STEP_RAD,
-    }
-    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
 
 
 @dataclass(frozen=True)
@@ -260,7 +245,9 @@ def plant_magnet_table(scenario: Scenario, *, progress: bool = False) -> PlantMa
         Show a progress bar while computing.
     """
     lead, heights = _plant_axes(scenario)
-    key = _table_key(scenario, lead, heights)
+    key = magnet_table_key(
+        scenario, lead, heights, _FORMAT_VERSION, kind="plant_magnets", orientation_step=ORIENTATION_STEP_RAD
+    )
     path = cache_directory(scenario) / f"plant_magnets_{key}.npz"
 
     def load(stored: Path) -> PlantMagnetTable:
