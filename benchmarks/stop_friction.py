@@ -25,18 +25,19 @@ from pathlib import Path
 
 import numpy as np
 
+from capsule_mpc.config import Scenario
 from capsule_mpc.experiments import runs
 from capsule_mpc.interfaces import make_controller
 from capsule_mpc.mpc import place as P
+from capsule_mpc.paths import ReferencePath
 from capsule_mpc.sim.loop import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def first_stop(config: Path, plant: str, seed: int) -> dict[str, float] | None:
+def first_stop(scenario: Scenario, path: ReferencePath, seed: int) -> dict[str, float] | None:
     """The first move's shortfall (m, along the approach) and the belief's k, mu_s, F_N of one run
     with ``STOP_FRICTION = 0``; None when the run needed no move."""
-    scenario, path, _ = runs.prepare_run(config, None, None, plant)
     controller = make_controller("mpc")
     simulate(scenario, controller, path, seed)
     placement = controller.placement.placement  # type: ignore[attr-defined]
@@ -80,9 +81,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "results" / "stop_friction_lab.json")
     args = ap.parse_args(argv)
     P.STOP_FRICTION = 0.0  # the part being measured: the belief's stop from the drag alone
+    scenario, path, _ = runs.prepare_run(args.config, None, None, args.plant)
     rows = []
     for seed in range(args.first, args.first + args.draws):
-        row = first_stop(args.config, args.plant, seed)
+        row = first_stop(scenario, path, seed)
         if row is not None:
             rows.append(row)
             print(f"draw {seed}: first move stopped {1e3 * row['shortfall_m']:+.3f} mm short", flush=True)
