@@ -21,6 +21,7 @@ import pytest
 
 import capsule_mpc
 from capsule_mpc.cli import main
+from capsule_mpc.config import load_config
 from capsule_mpc.interrupt import (
     TERMINATING_SIGNALS,
     Interrupted,
@@ -372,6 +373,10 @@ def _alive(procs: list) -> list:
 def test_a_sweep_stopped_by_a_signal_exits_128_plus_n_and_leaves_no_process(tmp_path, signum):
     """A signal to the ``capsule-mpc`` process alone (as ``kill`` sends it), once runs are written."""
     psutil = pytest.importorskip("psutil")
+    from capsule_mpc.sim.magnet_table import plant_magnet_table
+
+    # the plant's magnet table is built once per cache: not by the command's workers on the clock
+    plant_magnet_table(load_config(QUICK))
     (tmp_path / "wp.csv").write_text(SHORT_PATH)
     out = tmp_path / "sw"
     args = [
@@ -403,7 +408,7 @@ def test_a_sweep_stopped_by_a_signal_exits_128_plus_n_and_leaves_no_process(tmp_
     )
     try:
         deadline = time.monotonic() + 4 * START_TIMEOUT_S
-        while not (out / "runs").is_dir():
+        while not any((out / "runs").glob("seed_*.json")):  # a run's folder appears when it starts
             assert proc.poll() is None, proc.stderr.read().decode()[-2000:]  # type: ignore[union-attr]
             assert time.monotonic() < deadline, "no run finished"
             time.sleep(0.05)
@@ -421,7 +426,9 @@ def test_a_sweep_stopped_by_a_signal_exits_128_plus_n_and_leaves_no_process(tmp_
     assert manifest["status"] == "interrupted" and manifest["exit_status"] == 128 + signum
     assert not (out / LOCK_NAME).exists()
     assert not (out / "summary.json").exists()
-    for run in (out / "runs").iterdir():  # complete files only
+    finished = sorted((out / "runs").glob("seed_*.json"))
+    assert finished
+    for run in finished:  # complete files only
         assert json.loads(run.read_text())["controllers"]["follow"]
     deadline = time.monotonic() + 15
     while _alive(children) and time.monotonic() < deadline:
