@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from capsule_mpc.cli import main
-from capsule_mpc.experiments.sweep.results import SPEC_FILE, sweep_spec
+from capsule_mpc.experiments.sweep.results import SPEC_FILE, code_fingerprint, sweep_spec
 from capsule_mpc.experiments.sweep.vary import parse_vary
 
 REPO = Path(__file__).resolve().parents[1]
@@ -173,4 +173,27 @@ def test_a_folder_holding_another_sweep_is_left_as_it_is(base, tmp_path, capsys)
         capsys,
     )
     assert '(config plant.preset: "lab" in the folder, "hard" now)' in line
+    assert sorted((p.relative_to(out), p.read_bytes()) for p in out.rglob("*") if p.is_file()) == before
+
+
+def test_a_sweep_begun_by_other_code_is_not_resumed(base, tmp_path, capsys):
+    """The folder's runs were made by another version of the package's code: the same arguments
+    do not resume it (its runs and the new ones would mix two controllers under one name)."""
+    from capsule_mpc.experiments.runs import prepare_run
+
+    out = tmp_path / "out"
+    (out / "runs").mkdir(parents=True)
+    scenario, path, _ = prepare_run(RECTANGLE, base[4], None, None)
+    spec = sweep_spec(scenario, path, scenario.sim.seed, 2, ["follow"], [])
+    assert spec["code"] == code_fingerprint() and len(spec["code"]["sha256"]) == 16
+    spec["code"] = {**spec["code"], "sha256": "0" * 16}
+    (out / SPEC_FILE).write_text(json.dumps(spec))
+    (out / "runs" / "seed_0.json").write_text("{}")
+    before = sorted((p.relative_to(out), p.read_bytes()) for p in out.rglob("*") if p.is_file())
+    line = _refused([*base, "--runs", "2", "--out", str(out)], capsys)
+    assert line.startswith(
+        f"capsule-mpc: --out: {out} holds a sweep with other arguments (the capsule_mpc code: "
+    )
+    assert '"0000000000000000"' in line and code_fingerprint()["sha256"] in line
+    assert line.endswith("its runs cannot be resumed by this code; use another folder")
     assert sorted((p.relative_to(out), p.read_bytes()) for p in out.rglob("*") if p.is_file()) == before

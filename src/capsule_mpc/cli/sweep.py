@@ -28,7 +28,8 @@ def register(sub: Any) -> None:
             "finishes, then runs.csv (the run table: a row per draw and controller), summary.json (the "
             "schema of compare --runs, plus the worst runs' seeds), summary.md, metrics.png and "
             "distribution_<metric>.png. Re-run with the same arguments, an "
-            "interrupted sweep resumes and skips its finished runs. A worker that dies loses its run only "
+            "interrupted sweep resumes and skips its finished runs (not with other capsule_mpc code: "
+            "its folder records the code's SHA-256). A worker that dies loses its run only "
             "(recorded as crashed; exit status 1)."
         ),
     )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -21,6 +23,7 @@ __all__ = [
     "SPEC_FILE",
     "WORST_COUNT",
     "check_resume",
+    "code_fingerprint",
     "finished_runs",
     "spec_difference",
     "sweep_spec",
@@ -40,6 +43,22 @@ _FLAGS = ("decoupled", "dropped", "stalled")
 _RANKED = tuple((key, header) for key, header, _ in SUMMARY_COLUMNS if key not in _FLAGS)
 
 
+@functools.cache
+def code_fingerprint() -> dict[str, str]:
+    """The ``capsule_mpc`` code this process runs: its version and a SHA-256 (16 hex digits) of its
+    Python sources and packaged data, so that a sweep resumed by other code is refused (its first
+    runs and the rest would not be one experiment)."""
+    from ...cli import package_version  # the CLI imports the experiments: no cycle at import
+
+    root = Path(__file__).resolve().parents[2]
+    digest = hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".yaml") and p.is_file()):
+        digest.update(path.relative_to(root).as_posix().encode())
+        digest.update(b"\0")
+        digest.update(path.read_bytes())
+    return {"version": package_version(), "sha256": digest.hexdigest()[:16]}
+
+
 def sweep_spec(
     scenario: Scenario,
     path: ReferencePath,
@@ -52,6 +71,7 @@ def sweep_spec(
     """What a sweep is, as kept in ``sweep.json`` (JSON-ready): a resumed sweep must match it."""
     spec = {
         "command": "sweep",
+        "code": code_fingerprint(),
         "config": scenario.model_dump(mode="json"),
         "path": {
             "waypoints_m": path.waypoints_m.tolist(),
@@ -70,9 +90,11 @@ def sweep_spec(
     return dict(json.loads(json.dumps(json_ready(spec))))
 
 
+_CODE_LABEL = "the capsule_mpc code"
 #: The parts of :func:`sweep_spec` checked on resume, and the argument each comes from.
 _SPEC_ARGUMENTS = (
     ("command", "the command"),
+    ("code", _CODE_LABEL),
     ("seed", "--seed"),
     ("runs", "--runs"),
     ("controllers", "--controllers"),
@@ -131,10 +153,12 @@ def check_resume(out: str | Path, spec: Mapping[str, Any]) -> bool:
         ) from None
     difference = spec_difference(held if isinstance(held, dict) else {}, spec)
     if difference is not None:
-        raise ConfigError(
-            f"--out: {out} holds a sweep with other arguments ({difference}); re-run it with the same "
-            "arguments to resume it, or use another folder"
+        hint = (
+            "its runs cannot be resumed by this code; use another folder"
+            if difference.startswith(_CODE_LABEL)
+            else "re-run it with the same arguments to resume it, or use another folder"
         )
+        raise ConfigError(f"--out: {out} holds a sweep with other arguments ({difference}); {hint}")
     return True
 
 
