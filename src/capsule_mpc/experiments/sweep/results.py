@@ -45,18 +45,16 @@ _RANKED = tuple((key, header) for key, header, _ in SUMMARY_COLUMNS if key not i
 
 @functools.cache
 def code_fingerprint() -> dict[str, str]:
-    """The ``capsule_mpc`` code this process runs: its version and a SHA-256 (16 hex digits) of its
-    Python sources and packaged data, so that a sweep resumed by other code is refused (its first
+    """The ``capsule_mpc`` code this process runs: a SHA-256 (16 hex digits) of its Python sources
+    and packaged configs, so that a sweep resumed by other code is refused (its first
     runs and the rest would not be one experiment)."""
-    from ...cli import package_version  # the CLI imports the experiments: no cycle at import
-
     root = Path(__file__).resolve().parents[2]
     digest = hashlib.sha256()
     for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".yaml") and p.is_file()):
         digest.update(path.relative_to(root).as_posix().encode())
         digest.update(b"\0")
         digest.update(path.read_bytes())
-    return {"version": package_version(), "sha256": digest.hexdigest()[:16]}
+    return {"sha256": digest.hexdigest()[:16]}
 
 
 def sweep_spec(
