@@ -88,11 +88,10 @@ def sweep_spec(
     return dict(json.loads(json.dumps(json_ready(spec))))
 
 
-_CODE_LABEL = "the capsule_mpc code"
 #: The parts of :func:`sweep_spec` checked on resume, and the argument each comes from.
 _SPEC_ARGUMENTS = (
     ("command", "the command"),
-    ("code", _CODE_LABEL),
+    ("code", "the capsule_mpc code"),
     ("seed", "--seed"),
     ("runs", "--runs"),
     ("controllers", "--controllers"),
@@ -153,7 +152,7 @@ def check_resume(out: str | Path, spec: Mapping[str, Any]) -> bool:
     if difference is not None:
         hint = (
             "its runs cannot be resumed by this code; use another folder"
-            if difference.startswith(_CODE_LABEL)
+            if isinstance(held, dict) and held.get("code") != spec.get("code")
             else "re-run it with the same arguments to resume it, or use another folder"
         )
         raise ConfigError(f"--out: {out} holds a sweep with other arguments ({difference}); {hint}")
