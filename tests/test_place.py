@@ -284,3 +284,89 @@ def test_a_move_that_cannot_be_planned_holds_the_epm_and_gives_up_saying_why(
     assert placement.outcome is P.PlaceOutcome.GAVE_UP
     assert "could not plan placement move 1: no jerk-limited profile" in placement.reason
     assert np.all(np.array(commands) == 0.0)  # the EPM held still throughout
+
+
+def _slide(
+    leads: P.SlideLeads, t0: float, start: np.ndarray, velocity: np.ndarray, lead: np.ndarray, seconds: float
+) -> tuple[float, np.ndarray]:
+    """Feed ``leads`` 30 Hz frames of a capsule sliding at ``velocity`` with the EPM ``lead`` ahead."""
+    t, pos = t0, np.asarray(start, dtype=float)
+    for _ in range(round(seconds * 30)):
+        leads.add(t, pos, np.array([*(pos + lead), 0.095]))
+        t += 1 / 30
+        pos = pos + velocity / 30
+    return t, pos
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    speed=st.floats(0.55 * P.LEG_SPEED_MPS, 1.45 * P.LEG_SPEED_MPS),  # inside the band, not on its edge
+    axis=st.sampled_from([0, 1]),
+    sign=st.sampled_from([-1.0, 1.0]),
+    lead_along=st.floats(1e-3, 6e-3),
+    lead_across=st.floats(-1e-3, 1e-3),
+)
+def test_the_leads_of_a_leg_are_the_settled_ones_of_that_axis_and_direction(
+    speed: float, axis: int, sign: float, lead_along: float, lead_across: float
+) -> None:
+    """A leg at a constant lead, then a turn onto the other axis where the lead differs: the leg's
+    mean is its own lead (the turn's frames and the start are trimmed); nothing is recorded for the
+    other direction, nor for a leg too short to settle."""
+    e = np.eye(2)
+    v = sign * speed * e[axis]
+    lead = -sign * 0.017 * e[axis] + sign * lead_along * e[axis] + lead_across * e[1 - axis]
+    leads = P.SlideLeads()
+    t, pos = _slide(leads, 0.0, np.zeros(2), v, lead, 4.0)
+    # The MPC turns before the corner: the last half second of the leg has another lead.
+    t, pos = _slide(leads, t, pos, v, lead + 2e-3 * e[1 - axis], 0.4)
+    _slide(leads, t, pos, speed * e[1 - axis], np.array([0.003, -0.004]), 1.0)  # too short to settle
+    leads.close()
+    np.testing.assert_allclose(leads.lead(axis, sign), lead, atol=1e-12)
+    assert leads.lead(axis, -sign) is None
+    assert leads.lead(1 - axis, 1.0) is None
+
+
+def test_no_leg_is_recorded_at_rest_or_off_the_speed() -> None:
+    """At rest, creeping (a tenth of the path's speed) or rushing (thrice it) is no leg."""
+    for speed in (0.0, 0.1 * P.LEG_SPEED_MPS, 3.0 * P.LEG_SPEED_MPS):
+        leads = P.SlideLeads()
+        _slide(leads, 0.0, np.zeros(2), np.array([speed, 0.0]), np.array([0.002, 0.0]), 5.0)
+        leads.close()
+        assert leads.lead(0, 1.0) is None
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    k=st.floats(15.0, 60.0),
+    leg_along=st.floats(0.5e-3, 6e-3),
+    leg_across=st.floats(-1e-3, 1e-3),
+    direction=st.sampled_from([-1.0, 1.0]),
+)
+def test_with_a_leg_the_first_stop_is_a_part_of_the_legs_force(
+    scenario: Scenario, k: float, leg_along: float, leg_across: float, direction: float
+) -> None:
+    """Linear spring: the slide's leg held the lead ``leg_along`` beyond the equilibrium along the
+    approach, so the stop is ``STOP_FROM_SLIDE leg_along`` beyond it (the force's part, over k); across
+    the approach it keeps the leg's lead. The belief's drag and static friction play no part."""
+    base = linear_geometry(k)
+    d = np.array([direction, 0.0])
+    leg = base.lead_eq_m + leg_along * d + np.array([0.0, leg_across])
+    geo = P.PlaceGeometry(base.lead_eq_m, base.axis, base.along_n, base.normal_n, {direction: leg})
+    target = np.array([0.0, -0.03])
+    rest = target - 1e-3 * d
+    move = P.plan_move(
+        geo, _belief(scenario), rest, target, direction, np.zeros(2), 1.0, 0.3, 1.0, 0.095, 0.025, 0.02
+    )
+    expected = P.STOP_FROM_SLIDE * leg_along * d + np.array([0.0, leg_across])
+    np.testing.assert_allclose(move.model_offset_m, expected, atol=1e-7)
+    np.testing.assert_allclose(move.final_m[:2], target + base.lead_eq_m + expected, atol=1e-7)
+    # A leg only the other way, or one that held the capsule back, leaves the belief's law.
+    for legs in ({-direction: leg}, {direction: base.lead_eq_m - leg_along * d}):
+        other = P.PlaceGeometry(base.lead_eq_m, base.axis, base.along_n, base.normal_n, legs)
+        fallback = P.plan_move(
+            other, _belief(scenario), rest, target, direction, np.zeros(2), 1.0, 0.3, 1.0, 0.095, 0.025, 0.02
+        )
+        plain = P.plan_move(
+            base, _belief(scenario), rest, target, direction, np.zeros(2), 1.0, 0.3, 1.0, 0.095, 0.025, 0.02
+        )
+        np.testing.assert_allclose(fallback.model_offset_m, plain.model_offset_m, atol=1e-12)

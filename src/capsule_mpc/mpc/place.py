@@ -21,18 +21,25 @@ sliding, as an operator does with a sticky slide:
   ``s`` is replaced by the one just observed (``e_f - lead_eq - rest``, what the rig did: slope 1
   in ``e_f``), and the next move starts, up to ``place.max_moves``.
 
-The belief enters twice. The *static* friction sizes the back-off: the EPM must pull the lead
-beyond the breakaway of :meth:`~capsule_mpc.friction.FrictionBelief.breakaway_n` (after the rest
-so far, by :data:`BREAKAWAY_MARGIN`), both to break loose backward and, after a short stop, forward;
-too short a back-off leaves the capsule where it was, and the next move backs off
-:data:`GROWTH` times farther. The static friction also gives the first stop offset: once the
-EPM has stepped back, the capsule comes to rest where the force along ``d`` has fallen to the
-tether drag the belief holds plus a fixed part :data:`STOP_FRICTION` of its static friction just
-after coming to rest, ``s = lead(F_d = drag + STOP_FRICTION mu_s F_N) - lead_eq``; the part was
-measured on closed-loop runs of tuning draws (a rig whose friction is higher stops farther
-behind the EPM). The believed equilibrium ``lead_eq`` is where the force model plus the
-controller's estimated constant force vanishes. Nothing of the plant is read: only camera frames
-and the EPM position the arm reports.
+The belief sizes the back-off: the EPM must pull the lead beyond the breakaway of the *static*
+friction, :meth:`~capsule_mpc.friction.FrictionBelief.breakaway_n` (after the rest so far, by
+:data:`BREAKAWAY_MARGIN`), both to break loose backward and, after a short stop, forward; too short
+a back-off leaves the capsule where it was, and the next move backs off :data:`GROWTH` times
+farther.
+
+Where the capsule comes to rest is read from the slide. While it slid along the path's legs the
+camera saw the lead that dragged it, per axis and direction (:class:`SlideLeads`): that lead holds
+the rig's coupling and sliding friction together, which the force model and the friction belief
+each know only nominally. Once the EPM has stepped back, the capsule comes to rest where the force
+along the approach has fallen to a part :data:`STOP_FROM_SLIDE` of the force at the leg's lead in
+the same direction, and across the approach at the lead that leg held. Without such a leg (a path
+that never slid along the stiff axis that way at about :data:`LEG_SPEED_MPS`) the belief alone
+gives the stop: where the force has fallen to the tether drag it holds plus a part
+:data:`STOP_FRICTION` of its static friction just after coming to rest. Both parts were fitted on
+the first moves of closed-loop runs of tuning draws (``benchmarks/stop_friction.py``); the slide's
+law leaves about half the scatter of the belief's. The believed equilibrium ``lead_eq`` is where
+the force model plus the controller's estimated constant force vanishes. Nothing of the plant is
+read: only camera frames (through the estimator) and the EPM position the arm reports.
 
 Each move is one jerk-limited Ruckig trajectory per segment, within ``limits.speed_mps``,
 ``limits.accel_mps2`` and ``limits.jerk_mps3``; the commands follow it with a proportional
@@ -43,8 +50,9 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import ruckig
@@ -60,11 +68,13 @@ from .slide import SlideProducer
 __all__ = [
     "BREAKAWAY_MARGIN",
     "GROWTH",
+    "STOP_FROM_SLIDE",
     "Move",
     "PlaceGeometry",
     "PlaceOutcome",
     "Placement",
     "PlacementProducer",
+    "SlideLeads",
     "place_geometry",
     "plan_move",
 ]
@@ -125,11 +135,32 @@ STAGE_REST_S = 0.3
 #: The placement starts once the estimator has seen the capsule at rest this long after the path,
 #: s (the MPC holds the path's end meanwhile).
 REST_BEFORE_S = 0.3
-#: Fraction of the belief's static friction (just after coming to rest) that still holds the
-#: capsule where it comes to rest after the release: the force along the approach there is the
-#: drag plus ``STOP_FRICTION mu_s F_N``. Fitted on the first moves of closed-loop runs on tuning
+#: Without a leg of the slide along the approach: the fraction of the belief's static friction
+#: (just after coming to rest) that still holds the capsule where it comes to rest after the
+#: release; the force along the approach there is the drag plus ``STOP_FRICTION mu_s F_N``. Fitted
+#: on the first moves of closed-loop runs on tuning draws by ``benchmarks/stop_friction.py``
+#: (docs/results/stop_friction_lab.json).
+STOP_FRICTION = 0.262
+#: Where the path gave the camera a leg along the approach, the capsule comes to rest where the force
+#: along the approach is this part of the force that dragged it along that leg (both in the force
+#: model, at the lead the camera saw): the slide measures the rig's coupling and friction together,
+#: which no belief of the friction alone does. Fitted on the first moves of closed-loop runs on tuning
 #: draws by ``benchmarks/stop_friction.py`` (docs/results/stop_friction_lab.json).
-STOP_FRICTION = 0.260
+STOP_FROM_SLIDE = 0.602
+#: A leg counts once the capsule has slid this long in one direction along the axis, s (its lateral
+#: offset has relaxed), and up to this long before it stops doing so (the MPC turns before a
+#: corner); its frames are averaged if there are at least :data:`LEG_MIN_FRAMES`.
+LEG_SETTLED_S = 1.5
+LEG_TRIM_S = 0.8
+LEG_MIN_FRAMES = 15
+#: The capsule slides along an axis when its speed along it, over the last :data:`LEG_WINDOW_S`,
+#: is within this band of ``LEG_SPEED_MPS`` (the speed :data:`STOP_FROM_SLIDE` was fitted at; the
+#: sliding friction depends on the speed) and the speed across is below :data:`LEG_ACROSS`
+#: of it.
+LEG_SPEED_MPS = 0.02
+LEG_SPEED_BAND = (0.5, 1.5)
+LEG_ACROSS = 0.25
+LEG_WINDOW_S = 0.5
 #: Step of the force's finite differences, m.
 _FD_STEP_M = 1e-4
 #: The believed equilibrium is trusted this far from the model's own, m (beyond: a root finder
@@ -159,12 +190,17 @@ class PlaceGeometry:
         Believed force along ``axis`` at the lead ``lead_eq + x axis`` (x in m), N.
     normal_n : float
         Believed normal force at ``lead_eq``, N.
+    legs_m : Mapping[float, numpy.ndarray (2,)]
+        What the slide showed of the coupling: the mean lead the camera saw while the capsule slid
+        along ``direction * axis`` at about :data:`LEG_SPEED_MPS`, per direction (+1, -1) it did,
+        m (:class:`SlideLeads`).
     """
 
     lead_eq_m: np.ndarray
     axis: np.ndarray
     along_n: Callable[[float], float]
     normal_n: float
+    legs_m: Mapping[float, np.ndarray] = field(default_factory=dict)
 
     @property
     def stiffness_n_per_m(self) -> float:
@@ -219,6 +255,65 @@ def place_geometry(
         along_n=lambda x: float(lateral(lead_eq + x * axis) @ axis),
         normal_n=normal(f_att),
     )
+
+
+class SlideLeads:
+    """The leads (EPM minus capsule, the estimator's position at the frame's time) the camera saw
+    while the capsule slid steadily along an axis of the plate, per axis and direction.
+
+    A frame belongs to a run while the capsule's mean velocity over the last :data:`LEG_WINDOW_S`
+    points along one axis and direction (within :data:`LEG_ACROSS`) at a speed within
+    :data:`LEG_SPEED_BAND` of :data:`LEG_SPEED_MPS`; when the run ends, its frames from
+    :data:`LEG_SETTLED_S` after its start to :data:`LEG_TRIM_S` before its end count.
+    """
+
+    def __init__(self) -> None:
+        self._sums: dict[tuple[int, float], np.ndarray] = {}
+        self._counts: dict[tuple[int, float], int] = {}
+        self._recent: deque[tuple[float, np.ndarray]] = deque()
+        self._key: tuple[int, float] | None = None
+        self._run: list[tuple[float, np.ndarray]] = []
+
+    def add(self, t_s: float, position_m: np.ndarray, epm_m: np.ndarray) -> None:
+        """One frame: the estimated capsule position and the EPM's (m)."""
+        pos = np.asarray(position_m, dtype=float)[:2]
+        self._recent.append((t_s, pos))
+        while self._recent[0][0] < t_s - LEG_WINDOW_S:
+            self._recent.popleft()
+        key = None
+        t0, p0 = self._recent[0]
+        if t_s - t0 >= 0.8 * LEG_WINDOW_S:
+            v = (pos - p0) / (t_s - t0)
+            i = int(np.argmax(np.abs(v)))
+            speed = abs(float(v[i]))
+            lo, hi = LEG_SPEED_BAND
+            if (
+                lo * LEG_SPEED_MPS <= speed <= hi * LEG_SPEED_MPS
+                and abs(float(v[1 - i])) <= LEG_ACROSS * speed
+            ):
+                key = (i, 1.0 if v[i] > 0 else -1.0)
+        if key != self._key:
+            self.close()
+            self._key = key
+        if key is not None:
+            self._run.append((t_s, np.asarray(epm_m, dtype=float)[:2] - pos))
+
+    def close(self) -> None:
+        """End the current run: its settled frames count."""
+        if self._key is not None and self._run:
+            start, end = self._run[0][0], self._run[-1][0]
+            leads = [lead for t, lead in self._run if start + LEG_SETTLED_S <= t <= end - LEG_TRIM_S]
+            if leads:
+                self._sums[self._key] = self._sums.get(self._key, np.zeros(2)) + np.sum(leads, axis=0)
+                self._counts[self._key] = self._counts.get(self._key, 0) + len(leads)
+        self._key, self._run = None, []
+
+    def lead(self, axis_index: int, direction: float) -> np.ndarray | None:
+        """The mean lead (2,) over the runs along ``direction`` (+-1) times the unit vector of axis
+        ``axis_index`` (0: x, 1: y), m; None with fewer than :data:`LEG_MIN_FRAMES` frames."""
+        key = (axis_index, float(direction))
+        n = self._counts.get(key, 0)
+        return self._sums[key] / n if n >= LEG_MIN_FRAMES else None
 
 
 @dataclass(frozen=True)
@@ -290,8 +385,10 @@ def plan_move(
     # Where the capsule comes to rest the force along d has fallen to the drag (paid out by the
     # way there, out and back) and the part of the static friction that still holds it.
     drag = belief.drag_n(progress_m + (ahead if single else 2.0 * back_len))
-    held = STOP_FRICTION * belief.breakaway_mu(0.0) * fn
-    model_offset = geometry.offset_for(drag + held, direction, max_lead_m) * d
+    model_offset = _stop_from_slide(geometry, direction, max_lead_m)
+    if model_offset is None:
+        held = STOP_FRICTION * belief.breakaway_mu(0.0) * fn
+        model_offset = geometry.offset_for(drag + held, direction, max_lead_m) * d
     final_xy = np.asarray(target_m) + lead_now + model_offset + np.asarray(residual_m)
     final = np.array([*final_xy, height_m])
     release = np.array([*(final_xy - RELEASE_M * d), height_m])
@@ -311,6 +408,22 @@ def plan_move(
         final,
         model_offset,
     )
+
+
+def _stop_from_slide(geometry: PlaceGeometry, direction: float, max_lead_m: float) -> np.ndarray | None:
+    """The stop offset (2,) beyond ``lead_eq`` from the slide's leg along the approach
+    (:data:`STOP_FROM_SLIDE`; across the approach, the lead the leg held), m; None without a leg
+    that pulled the capsule along the approach."""
+    leg = geometry.legs_m.get(direction)
+    if leg is None:
+        return None
+    offset = np.asarray(leg, dtype=float) - geometry.lead_eq_m
+    along = float(offset @ geometry.axis)
+    dragged = direction * geometry.along_n(along)
+    if dragged <= 0.0:
+        return None
+    stop = geometry.offset_for(STOP_FROM_SLIDE * dragged, direction, max_lead_m)
+    return stop * direction * geometry.axis + (offset - along * geometry.axis)
 
 
 @dataclass
@@ -408,7 +521,9 @@ class _Memory:
     progress_m: float
     direction: float = 0.0
     backoff_scale: float = 1.0
-    points: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    #: Per move that broke loose: the tether paid out, the stop offset it showed beyond ``lead_eq``
+    #: and the one it was planned with (2,), m.
+    points: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
     planned: Move | None = None
     last_rest: np.ndarray | None = None
     moved_m: float = 0.0  # how far the camera saw the capsule from its last rest during a move
@@ -417,8 +532,8 @@ class _Memory:
         """The residual expected at a stop after ``progress_m`` of tether (2,), m."""
         if not self.points:
             return np.zeros(2)
-        prog = np.array([p for p, _ in self.points])
-        res = np.array([r for _, r in self.points])
+        prog = np.array([p for p, _, _ in self.points])
+        res = np.array([seen - planned for _, seen, planned in self.points])
         along = res @ axis
         across = res - np.outer(along, axis)
         lateral = across[0]
@@ -440,7 +555,7 @@ class _Memory:
             self.backoff_scale *= GROWTH
             return
         observed = move.final_m[:2] - lead_eq_m - rest_m
-        self.points.append((self.progress_m, observed - move.model_offset_m))
+        self.points.append((self.progress_m, observed, move.model_offset_m))
 
 
 class Placement:
@@ -526,6 +641,8 @@ class Placement:
         """At rest at ``rest_m``: placed, gave up, or the next move."""
         cfg = self.settings
         self._obs = None
+        mem = self.memory
+        mem.learn(rest_m, self.geometry.lead_eq_m)  # also from the last move: what it showed is on record
         error = self.target_m - rest_m
         if float(np.linalg.norm(error)) <= cfg.tolerance_m:
             self.outcome = PlaceOutcome.PLACED
@@ -536,10 +653,8 @@ class Placement:
                 f"{self.moves} moves spent, {1e3 * float(np.linalg.norm(error)):.2f} mm off the target"
             )
             return
-        mem = self.memory
         if self.moves == 0:
             mem.direction = 1.0 if float(error @ self.geometry.axis) >= 0 else -1.0
-        mem.learn(rest_m, self.geometry.lead_eq_m)
         if math.isnan(self._rest_since_s):
             self._rest_since_s = t_s
         last_length = 0.0 if mem.planned is None else mem.planned.length_m
@@ -621,6 +736,7 @@ class PlacementProducer:
         self.belief = belief
         self.progress_m = float(progress_m)
         self.placement: Placement | None = None
+        self.leads = SlideLeads()
         self._ended = False
 
     @property
@@ -629,7 +745,10 @@ class PlacementProducer:
         return 0 if self.placement is None else self.placement.moves
 
     def observe(self, ctx: FrameContext) -> None:
-        """Nothing to keep: the placement reads the frames it needs in :meth:`produce`."""
+        """Until the placement begins, the leads of the slide (:class:`SlideLeads`); the placement
+        reads the frames it needs in :meth:`produce`."""
+        if self.placement is None:
+            self.leads.add(ctx.t_s, ctx.position_m, ctx.epm_m)
 
     def _begin(self, ctx: FrameContext) -> Placement:
         """The placement of this run, from the belief at this frame (its disturbance included)."""
@@ -639,6 +758,10 @@ class PlacementProducer:
             return float(normal_force_expr(self.scenario, f_att))
 
         geometry = place_geometry(self.force, self.lead_eq_m, height, ctx.disturbance_n[0:2], normal)
+        self.leads.close()
+        index = int(np.argmax(np.abs(geometry.axis)))
+        legs = {d: self.leads.lead(index, d) for d in (1.0, -1.0)}
+        geometry = replace(geometry, legs_m={d: lead for d, lead in legs.items() if lead is not None})
         placement = Placement(
             self.scenario, self.scenario.place, geometry, self.belief, ctx.target_m, self.progress_m
         )
