@@ -261,10 +261,12 @@ class SlideLeads:
     """The leads (EPM minus capsule, the estimator's position at the frame's time) the camera saw
     while the capsule slid steadily along an axis of the plate, per axis and direction.
 
-    A frame belongs to a run while the capsule's mean velocity over the last :data:`LEG_WINDOW_S`
-    points along one axis and direction (within :data:`LEG_ACROSS`) at a speed within
-    :data:`LEG_SPEED_BAND` of :data:`LEG_SPEED_MPS`; when the run ends, its frames from
-    :data:`LEG_SETTLED_S` after its start to :data:`LEG_TRIM_S` before its end count.
+    A run starts when the capsule's mean velocity over the last :data:`LEG_WINDOW_S` points along
+    one axis and direction (within :data:`LEG_ACROSS`) at a speed within :data:`LEG_SPEED_BAND` of
+    :data:`LEG_SPEED_MPS`, and goes on while it keeps moving that way faster than across and than
+    half the band's lower end (a stick-slipping capsule's speed swings about the path's). When it
+    ends, its frames from :data:`LEG_SETTLED_S` after its start to :data:`LEG_TRIM_S` before its
+    end count, if their mean speed is within the band.
     """
 
     def __init__(self) -> None:
@@ -272,7 +274,21 @@ class SlideLeads:
         self._counts: dict[tuple[int, float], int] = {}
         self._recent: deque[tuple[float, np.ndarray]] = deque()
         self._key: tuple[int, float] | None = None
-        self._run: list[tuple[float, np.ndarray]] = []
+        self._run: list[tuple[float, np.ndarray, np.ndarray]] = []  # (t, position, lead)
+
+    def _direction(self, v: np.ndarray) -> tuple[int, float] | None:
+        """The run this windowed velocity (2,) continues or starts, or None."""
+        lo, hi = LEG_SPEED_BAND
+        if self._key is not None:
+            i, sign = self._key
+            along = sign * float(v[i])
+            if along >= 0.5 * lo * LEG_SPEED_MPS and abs(float(v[1 - i])) <= along:
+                return self._key
+        i = int(np.argmax(np.abs(v)))
+        speed = abs(float(v[i]))
+        if lo * LEG_SPEED_MPS <= speed <= hi * LEG_SPEED_MPS and abs(float(v[1 - i])) <= LEG_ACROSS * speed:
+            return (i, 1.0 if v[i] > 0 else -1.0)
+        return None
 
     def add(self, t_s: float, position_m: np.ndarray, epm_m: np.ndarray) -> None:
         """One frame: the estimated capsule position and the EPM's (m)."""
@@ -280,32 +296,29 @@ class SlideLeads:
         self._recent.append((t_s, pos))
         while self._recent[0][0] < t_s - LEG_WINDOW_S:
             self._recent.popleft()
-        key = None
         t0, p0 = self._recent[0]
-        if t_s - t0 >= 0.8 * LEG_WINDOW_S:
-            v = (pos - p0) / (t_s - t0)
-            i = int(np.argmax(np.abs(v)))
-            speed = abs(float(v[i]))
-            lo, hi = LEG_SPEED_BAND
-            if (
-                lo * LEG_SPEED_MPS <= speed <= hi * LEG_SPEED_MPS
-                and abs(float(v[1 - i])) <= LEG_ACROSS * speed
-            ):
-                key = (i, 1.0 if v[i] > 0 else -1.0)
+        key = self._direction((pos - p0) / (t_s - t0)) if t_s - t0 >= 0.8 * LEG_WINDOW_S else None
         if key != self._key:
             self.close()
             self._key = key
         if key is not None:
-            self._run.append((t_s, np.asarray(epm_m, dtype=float)[:2] - pos))
+            self._run.append((t_s, pos, np.asarray(epm_m, dtype=float)[:2] - pos))
 
     def close(self) -> None:
-        """End the current run: its settled frames count."""
+        """End the current run: its settled frames count if their mean speed is within the band."""
         if self._key is not None and self._run:
             start, end = self._run[0][0], self._run[-1][0]
-            leads = [lead for t, lead in self._run if start + LEG_SETTLED_S <= t <= end - LEG_TRIM_S]
-            if leads:
-                self._sums[self._key] = self._sums.get(self._key, np.zeros(2)) + np.sum(leads, axis=0)
-                self._counts[self._key] = self._counts.get(self._key, 0) + len(leads)
+            kept = [
+                (t, p, lead) for t, p, lead in self._run if start + LEG_SETTLED_S <= t <= end - LEG_TRIM_S
+            ]
+            if len(kept) >= 2:
+                i, sign = self._key
+                speed = sign * float(kept[-1][1][i] - kept[0][1][i]) / (kept[-1][0] - kept[0][0])
+                lo, hi = LEG_SPEED_BAND
+                if lo * LEG_SPEED_MPS <= speed <= hi * LEG_SPEED_MPS:
+                    leads = np.sum([lead for _, _, lead in kept], axis=0)
+                    self._sums[self._key] = self._sums.get(self._key, np.zeros(2)) + leads
+                    self._counts[self._key] = self._counts.get(self._key, 0) + len(kept)
         self._key, self._run = None, []
 
     def lead(self, axis_index: int, direction: float) -> np.ndarray | None:
