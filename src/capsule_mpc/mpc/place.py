@@ -36,8 +36,8 @@ the same direction, and across the approach at the lead that leg held. Without s
 that never slid along the stiff axis that way at about :data:`LEG_SPEED_MPS`) the belief alone
 gives the stop: where the force has fallen to the tether drag it holds plus a part
 :data:`STOP_FRICTION` of its static friction just after coming to rest. Both parts were fitted on
-the first moves of closed-loop runs of tuning draws (``benchmarks/stop_friction.py``); the slide's
-law leaves about half the scatter of the belief's. The believed equilibrium ``lead_eq`` is where
+the first moves of closed-loop runs of tuning draws (``benchmarks/stop_friction.py``, which
+reports the scatter each law leaves). The believed equilibrium ``lead_eq`` is where
 the force model plus the controller's estimated constant force vanishes. Nothing of the plant is
 read: only camera frames (through the estimator) and the EPM position the arm reports.
 
