@@ -22,7 +22,9 @@ from capsule_mpc.arm import (
 )
 from capsule_mpc.config import config_from_dict
 from capsule_mpc.experiments.sweep.tasks import rescore_on_common_window
+from capsule_mpc.interfaces import make_controller
 from capsule_mpc.mpc import build_mpc_stack
+from capsule_mpc.mpc import place as P
 from capsule_mpc.paths import rectangle
 from capsule_mpc.safety import safe_command
 from capsule_mpc.sim import draw_plant_truth, simulate
@@ -55,11 +57,34 @@ def short_rectangle():
 
 
 @pytest.fixture(scope="module")
-def runs(lab_robot, short_rectangle):
+def controllers():
+    """The MPC and the two baselines, kept to look inside after their runs."""
+    return {name: make_controller(name) for name in ("mpc", "follow", "paper_0.8v")}
+
+
+@pytest.fixture(scope="module")
+def runs(lab_robot, short_rectangle, controllers):
     """The MPC and the two baselines on the same lab draw with the robot arm in the loop."""
-    return {
-        name: simulate(lab_robot, name, short_rectangle, seed=1) for name in ("mpc", "follow", "paper_0.8v")
-    }
+    return {name: simulate(lab_robot, ctl, short_rectangle, seed=1) for name, ctl in controllers.items()}
+
+
+def test_the_placement_reads_its_stop_from_the_leg_the_capsule_slid_along(runs, controllers):
+    """The path slid the capsule along +x (the stiff axis) and +y, never -x: the placement holds the
+    +x leg's lead, the capsule lagging the EPM beyond the believed equilibrium by the force that
+    dragged it (a few millimetres at this rig's 40-50 N/m), and nothing for -x. A first move along
+    +x stops where less force holds the capsule than dragged it: between the equilibrium and the
+    leg's lead."""
+    placement = controllers["mpc"].placement.placement
+    assert placement is not None, runs["mpc"].metrics
+    geo = placement.geometry
+    assert set(geo.legs_m) == {1.0}
+    along = float((geo.legs_m[1.0] - geo.lead_eq_m) @ geo.axis)
+    assert 0.5e-3 < along < 10e-3
+    for _, _, planned in placement.memory.points:
+        if placement.memory.direction == 1.0:
+            assert 0.0 < float(planned @ geo.axis) < along
+    stop = geo.offset_for(P.STOP_FROM_SLIDE * geo.along_n(along), 1.0, 0.05)
+    assert 0.0 < stop < along
 
 
 def _commands(run) -> np.ndarray:
