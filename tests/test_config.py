@@ -130,7 +130,7 @@ def test_the_nested_mpc_sections_load_and_round_trip(tmp_path):
     path.write_text("base: paper\nplace:\n  approach_speed_mps: 0.02\n")
     s = load_config(path)
     assert s.place.approach_speed_mps == 0.02
-    assert s.place.max_moves == 5  # the others default
+    assert s.place.max_moves == 8  # the others default
     dumped = dump_config(s)
     assert load_config(_write(tmp_path, yaml.safe_load(dumped))).model_dump() == s.model_dump()
 

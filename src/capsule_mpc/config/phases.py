@@ -95,7 +95,7 @@ class PlaceConfig(StrictModel):
         ),
     )
     max_moves: Integer = Field(
-        5,
+        8,
         ge=0,
         le=50,
         description=(
