@@ -31,7 +31,7 @@ class SimConfig(StrictModel):
         description="Time the capsule settles under the resting EPM before motion, s, [0, 30].",
     )
     tail_s: Number = Field(
-        30.0,
+        60.0,
         ge=0,
         le=300,
         description=(
