@@ -53,21 +53,21 @@ def first_stop(scenario: Scenario, path: ReferencePath, seed: int) -> dict[str, 
     direction = placement.memory.direction
     progress, seen, _ = placement.memory.points[0]
     along = float(seen @ geo.axis)
+    normal = np.array([-geo.axis[1], geo.axis[0]])  # across the approach
     row = {
         "seed": seed,
         "direction": direction,
         "stop_along_mm": 1e3 * direction * along,
-        "stop_across_mm": 1e3 * float(seen @ np.array([-geo.axis[1], geo.axis[0]])),
+        "stop_across_mm": 1e3 * float(seen @ normal),
         "force_rest_n": direction * geo.along_n(along),
         "drag_n": placement.belief.drag_n(progress),
         "static_n": placement.belief.breakaway_mu(0.0) * geo.normal_n,
         "stiffness_n_per_m": geo.stiffness_n_per_m,
     }
-    leg = geo.legs_m.get(direction)
-    if leg is not None:
-        offset = np.asarray(leg) - geo.lead_eq_m
-        row["force_leg_n"] = direction * geo.along_n(float(offset @ geo.axis))
-        row["leg_across_mm"] = 1e3 * float(offset @ np.array([-geo.axis[1], geo.axis[0]]))
+    pull = geo.leg_pull(direction)
+    if pull is not None:
+        row["force_leg_n"] = pull[0]
+        row["leg_across_mm"] = 1e3 * float(pull[1] @ normal)
     return row
 
 
@@ -81,8 +81,9 @@ def fit(rows: list[dict[str, float]]) -> dict[str, float]:
     force = np.array([r["force_rest_n"] for r in rows])
     k = np.array([r["stiffness_n_per_m"] for r in rows])
     static = np.array([r["static_n"] for r in rows])
-    stop_friction = _through_origin(static, force - np.array([r["drag_n"] for r in rows]))
-    left_belief = 1e3 * (force - np.array([r["drag_n"] for r in rows]) - stop_friction * static) / k
+    held = force - np.array([r["drag_n"] for r in rows])
+    stop_friction = _through_origin(static, held)
+    left_belief = 1e3 * (held - stop_friction * static) / k
     legged = [i for i, r in enumerate(rows) if "force_leg_n" in r]
     leg = np.array([rows[i]["force_leg_n"] for i in legged])
     from_slide = _through_origin(leg, force[legged])

@@ -80,8 +80,8 @@ def test_the_placement_reads_its_stop_from_the_leg_the_capsule_slid_along(runs, 
     assert set(geo.legs_m) == {1.0}
     along = float((geo.legs_m[1.0] - geo.lead_eq_m) @ geo.axis)
     assert 0.5e-3 < along < 10e-3
-    for _, _, planned in placement.memory.points:
-        if placement.memory.direction == 1.0:
+    if placement.memory.direction == 1.0:
+        for _, _, planned in placement.memory.points:
             assert 0.0 < float(planned @ geo.axis) < along
     stop = geo.offset_for(P.STOP_FROM_SLIDE * geo.along_n(along), 1.0, 0.05)
     assert 0.0 < stop < along

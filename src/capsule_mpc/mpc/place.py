@@ -220,6 +220,17 @@ class PlaceGeometry:
             return limit_m
         return float(brentq(excess, 0.0, limit_m, xtol=1e-7))
 
+    def leg_pull(self, direction: float) -> tuple[float, np.ndarray] | None:
+        """What the slide's leg along ``direction * axis`` showed: the believed force along it at
+        the leg's lead (N; > 0 when the leg dragged the capsule that way) and the leg's offset from
+        ``lead_eq`` across the axis (2,), m; None without such a leg."""
+        leg = self.legs_m.get(direction)
+        if leg is None:
+            return None
+        offset = np.asarray(leg, dtype=float) - self.lead_eq_m
+        along = float(offset @ self.axis)
+        return direction * self.along_n(along), offset - along * self.axis
+
 
 def place_geometry(
     force: Callable[[np.ndarray, float], np.ndarray],
@@ -276,17 +287,21 @@ class SlideLeads:
         self._key: tuple[int, float] | None = None
         self._run: list[tuple[float, np.ndarray, np.ndarray]] = []  # (t, position, lead)
 
+    @staticmethod
+    def _in_band(speed_mps: float) -> bool:
+        lo, hi = LEG_SPEED_BAND
+        return lo * LEG_SPEED_MPS <= speed_mps <= hi * LEG_SPEED_MPS
+
     def _direction(self, v: np.ndarray) -> tuple[int, float] | None:
         """The run this windowed velocity (2,) continues or starts, or None."""
-        lo, hi = LEG_SPEED_BAND
         if self._key is not None:
             i, sign = self._key
             along = sign * float(v[i])
-            if along >= 0.5 * lo * LEG_SPEED_MPS and abs(float(v[1 - i])) <= along:
+            if along >= 0.5 * LEG_SPEED_BAND[0] * LEG_SPEED_MPS and abs(float(v[1 - i])) <= along:
                 return self._key
         i = int(np.argmax(np.abs(v)))
         speed = abs(float(v[i]))
-        if lo * LEG_SPEED_MPS <= speed <= hi * LEG_SPEED_MPS and abs(float(v[1 - i])) <= LEG_ACROSS * speed:
+        if self._in_band(speed) and abs(float(v[1 - i])) <= LEG_ACROSS * speed:
             return (i, 1.0 if v[i] > 0 else -1.0)
         return None
 
@@ -314,8 +329,7 @@ class SlideLeads:
             if len(kept) >= 2:
                 i, sign = self._key
                 speed = sign * float(kept[-1][1][i] - kept[0][1][i]) / (kept[-1][0] - kept[0][0])
-                lo, hi = LEG_SPEED_BAND
-                if lo * LEG_SPEED_MPS <= speed <= hi * LEG_SPEED_MPS:
+                if self._in_band(speed):
                     leads = np.sum([lead for _, _, lead in kept], axis=0)
                     self._sums[self._key] = self._sums.get(self._key, np.zeros(2)) + leads
                     self._counts[self._key] = self._counts.get(self._key, 0) + len(kept)
@@ -427,16 +441,12 @@ def _stop_from_slide(geometry: PlaceGeometry, direction: float, max_lead_m: floa
     """The stop offset (2,) beyond ``lead_eq`` from the slide's leg along the approach
     (:data:`STOP_FROM_SLIDE`; across the approach, the lead the leg held), m; None without a leg
     that pulled the capsule along the approach."""
-    leg = geometry.legs_m.get(direction)
-    if leg is None:
+    pull = geometry.leg_pull(direction)
+    if pull is None or pull[0] <= 0.0:
         return None
-    offset = np.asarray(leg, dtype=float) - geometry.lead_eq_m
-    along = float(offset @ geometry.axis)
-    dragged = direction * geometry.along_n(along)
-    if dragged <= 0.0:
-        return None
+    dragged, across = pull
     stop = geometry.offset_for(STOP_FROM_SLIDE * dragged, direction, max_lead_m)
-    return stop * direction * geometry.axis + (offset - along * geometry.axis)
+    return stop * direction * geometry.axis + across
 
 
 @dataclass
