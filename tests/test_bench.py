@@ -213,3 +213,18 @@ def test_bad_options_exit_2_when_parsed(capsys, option, value, says):
         capsys.readouterr().err.strip().splitlines()[-1]
         == f"capsule-mpc bench: error: argument {option}: {says}"
     )
+
+
+def test_the_benchmark_cache_holds_the_plant_tables_but_no_compiled_code(tmp_path):
+    # The closed-loop runs must find the plant's magnet table (building it takes minutes), while
+    # the MPC's compiled code must be absent so that the first start is cold.
+    from capsule_mpc.experiments.bench import _fresh_cache
+
+    source = tmp_path / "cache"
+    (source / "mpc").mkdir(parents=True)
+    names = ["force_map_a.npz", "force_map_a.npz.sha256", "plant_magnets_b.npz", "plant_magnets_b.npz.sha256"]
+    for name in [*names, "mpc/nlp.so"]:
+        (source / name).write_bytes(name.encode())
+    folder = _fresh_cache(tmp_path, source)
+    assert sorted(p.name for p in folder.iterdir()) == sorted(names)
+    assert all((folder / n).read_bytes() == n.encode() for n in names)

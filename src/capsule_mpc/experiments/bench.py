@@ -54,6 +54,7 @@ from ..mpc.controller import MPCController, build_mpc_stack
 from ..mpc.solver import QP_SOLVERS
 from ..paths import ReferencePath, path_from_scenario
 from ..sim import simulate
+from ..sim.magnet_table import plant_magnet_table
 from .inputs import refuse_repeats
 
 __all__ = [
@@ -438,11 +439,12 @@ def machine_info() -> dict[str, Any]:
 
 
 def _fresh_cache(parent: Path, source: Path) -> Path:
-    """An empty cache folder holding copies of the force maps and their checksums (so nothing but
-    the MPC is cold)."""
+    """An empty cache folder holding copies of the force maps, the plant's magnet table and their
+    checksums (so nothing but the MPC is cold)."""
     folder = Path(tempfile.mkdtemp(dir=parent))
-    for table in source.glob("force_map_*.npz*"):
-        shutil.copy2(table, folder / table.name)
+    for pattern in ("force_map_*.npz*", "plant_magnets_*.npz*"):
+        for table in source.glob(pattern):
+            shutil.copy2(table, folder / table.name)
     return folder
 
 
@@ -582,7 +584,9 @@ def run_benchmark(
     config_path = Path(config) if config is not None else packaged_config_path("rectangle")
     base = load_config(config_path)
     seed = base.sim.seed if seed is None else int(seed)
-    force_map(base)  # computed once and cached (the copies in the benchmark's caches come from it)
+    # Computed once and cached: the copies in the benchmark's caches come from them.
+    force_map(base)
+    plant_magnet_table(base)
     full = path_from_scenario(base)
     path = full if frames is None else path_first_frames(full, frames, base.camera.rate_hz)
     cases = []
