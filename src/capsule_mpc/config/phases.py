@@ -20,7 +20,7 @@ class EstimatorConfig(StrictModel):
         description="Kalman filter process noise: capsule acceleration standard deviation, m/s^2, > 0.",
     )
     disturbance_gain: Number = Field(
-        0.15,
+        0.5,
         ge=0,
         le=1,
         description="Gain of the force-disturbance observer (offset-free MPC), [0, 1]; 0 disables it.",
