@@ -141,8 +141,8 @@ def test_the_disturbance_observer_learns_along_and_across_the_motion_and_nothing
     est.update_disturbance(np.zeros(2), np.array([0.01, 0.0]))  # at rest: static friction holds it
     assert np.all(est.disturbance_n == 0)
     est.update_disturbance(np.array([0.009, 0.001]), np.array([0.01, 0.0]))  # slower and off to +y
-    gain, mass = scenario.estimator.disturbance_gain, scenario.capsule.mass_kg
-    expected = gain * mass * np.array([-0.001, 0.001]) / FRAME_S
+    cfg, mass = scenario.estimator, scenario.capsule.mass_kg
+    expected = mass * np.array([-0.001 * cfg.friction_gain, 0.001 * cfg.disturbance_gain]) / FRAME_S
     assert est.disturbance_n[2] == pytest.approx(-expected[0])  # more friction along the motion
     assert est.disturbance_n[0] == pytest.approx(0.0, abs=1e-15)
     assert est.disturbance_n[1] == pytest.approx(expected[1])  # a constant force across it

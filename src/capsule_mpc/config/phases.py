@@ -23,7 +23,20 @@ class EstimatorConfig(StrictModel):
         0.5,
         ge=0,
         le=1,
-        description="Gain of the force-disturbance observer (offset-free MPC), [0, 1]; 0 disables it.",
+        description=(
+            "Gain of the force-disturbance observer (offset-free MPC) for the constant force across the "
+            "motion (all of it for a capsule the plan holds still), [0, 1]; 0: not learned."
+        ),
+    )
+    friction_gain: Number = Field(
+        0.3,
+        ge=0,
+        le=1,
+        description=(
+            "Gain of the force-disturbance observer for the extra friction along the motion, [0, 1]; "
+            "0: not learned. Lower than disturbance_gain: the friction's transients (breakaway, "
+            "stick-slip) are not a lasting disturbance."
+        ),
     )
     disturbance_max_n: Number = Field(
         0.15,

@@ -5,11 +5,11 @@ Three parts, each a few lines of bookkeeping around :class:`capsule_mpc.estimati
 * the Kalman filter: position and velocity from delayed, noisy camera positions (outliers gated),
   predicted over the latency to the frame's time;
 * the force-disturbance observer (offset-free MPC): the velocity the last plan predicted for now
-  against the estimate, turned into the force that explains the difference over one frame
-  (``estimator.disturbance_gain``), split into a constant force across the motion and an extra
-  friction along it (bounded by ``estimator.disturbance_max_n`` and ``estimator.friction_max_n``);
-  a capsule at rest teaches nothing
-  (static friction holds it);
+  against the estimate, turned into the force that explains the difference over one frame, split
+  into a constant force across the motion (gain ``estimator.disturbance_gain``, bounded by
+  ``estimator.disturbance_max_n``) and an extra friction along it (``estimator.friction_gain``,
+  bounded by ``estimator.friction_max_n``); a capsule at rest teaches nothing (static friction
+  holds it);
 * the rest calibration: while the rig holds the EPM before t = 0, where the capsule rests under it
   tells the model's force bias; at t = 0 the constant disturbance is set to cancel the model's
   lateral force at the mean rest lead;
@@ -134,18 +134,18 @@ class StateEstimator:
         prediction ``v_pred``, m/s) into the disturbance: along the predicted motion as extra
         friction, across it (or all of it, for a capsule the plan holds still) as a constant force.
         Nothing while the capsule is (nearly) at rest: static friction holds it."""
-        gain = self.cfg.disturbance_gain
-        if gain == 0 or float(np.linalg.norm(v_est)) < MOVING_MPS:
+        across_gain, along_gain = self.cfg.disturbance_gain, self.cfg.friction_gain
+        if float(np.linalg.norm(v_est)) < MOVING_MPS:
             return
-        innov = gain * self.mass_kg * (v_est - v_pred) / self.dt_s
+        innov = self.mass_kg * (v_est - v_pred) / self.dt_s
         speed = float(np.linalg.norm(v_pred))
         d = self.disturbance_n.copy()
         if speed > MOVING_MPS:
             v_hat = v_pred / speed
             along = float(innov @ v_hat)
-            d[2] -= along
-            d[0:2] += innov - along * v_hat
+            d[2] -= along_gain * along
+            d[0:2] += across_gain * (innov - along * v_hat)
         else:
-            d[0:2] += innov
+            d[0:2] += across_gain * innov
         limit = np.array([self.cfg.disturbance_max_n] * 2 + [self.cfg.friction_max_n])
         self.disturbance_n = np.clip(d, -limit, limit)
