@@ -138,7 +138,7 @@ def _cell(entry: Mapping[str, Any], key: str, fmt: str, runs: int) -> str:
     if runs > 1 and spread is not None:
         text = f"{number(value)} ± {number(spread['sd'])}"
         return text if spread["n"] >= n_runs else f"{text} ({spread['n']}/{n_runs})"
-    if runs > 1 and key not in entry.get("spread", {}) and isinstance(value, int):  # a flag's count
+    if runs > 1 and isinstance(value, int):  # a flag's count
         return f"{value}/{n_runs}"
     return number(value)
 
