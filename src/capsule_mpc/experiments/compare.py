@@ -39,7 +39,6 @@ __all__ = [
     "SUMMARY_COLUMNS",
     "aggregate_runs",
     "check_controllers",
-    "controller_names",
     "run_figures",
     "summary_markdown",
     "summary_table",
@@ -195,8 +194,8 @@ def summary_markdown(
 
 
 def check_controllers(controllers: Sequence[str] | None) -> list[str]:
-    """The controllers a comparison runs (:func:`controller_names`), after refusing an unknown one
-    or one given twice.
+    """The controllers a campaign runs: ``controllers``, or every registered one in
+    :data:`CONTROLLER_ORDER`, then the others.
 
     Raises
     ------
@@ -204,19 +203,13 @@ def check_controllers(controllers: Sequence[str] | None) -> list[str]:
         ``--controllers: unknown [...]; available: [...]`` or ``--controllers: 'x' is given more than once``.
     """
     known = available_controllers()
-    unknown = [n for n in controllers or [] if n not in known]
+    if controllers is None:
+        return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
+    unknown = [n for n in controllers if n not in known]
     if unknown:
         raise ConfigError(f"--controllers: unknown {unknown}; available: {known}")
-    refuse_repeats("--controllers", controllers or [])
-    return controller_names(controllers)
-
-
-def controller_names(controllers: Sequence[str] | None) -> list[str]:
-    """``controllers``, or every registered controller in :data:`CONTROLLER_ORDER`, then the others."""
-    if controllers is not None:
-        return list(controllers)
-    known = available_controllers()
-    return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
+    refuse_repeats("--controllers", controllers)
+    return list(controllers)
 
 
 def run_figures(names: Sequence[str], runs: int) -> Workload:

@@ -26,7 +26,6 @@ from ..compare import (
     RUNS_FOLDER,
     aggregate_runs,
     check_controllers,
-    controller_names,
     run_figures,
     summary_markdown,
     summary_table,
@@ -74,7 +73,7 @@ def sweep(
         Seed of the first run (run ``k`` uses ``seed + k``) and the number of runs, >= 1.
     controllers : sequence of str, optional
         The controllers run on each draw (default every registered one,
-        :func:`~capsule_mpc.experiments.compare.controller_names`).
+        :func:`~capsule_mpc.experiments.compare.check_controllers`).
     vary : sequence of VaryRange
         Plant fields drawn from these ranges instead of the preset's (:mod:`.vary`).
     variants : sequence of Variant
@@ -107,14 +106,14 @@ def sweep(
     ValueError
         ``runs`` < 1.
     ConfigError
-        ``out`` holds a sweep with other arguments.
+        An unknown controller, or ``out`` holds a sweep with other arguments.
     """
     if runs < 1:
         raise ValueError(f"runs: must be an integer >= 1, got {runs}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
-    names = controller_names(controllers)
+    names = check_controllers(controllers)
     seeds = [seed + k for k in range(runs)]
     compare = command == "compare"
     done: dict[int, dict[str, Any]] = {}
