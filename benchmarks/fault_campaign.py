@@ -1,26 +1,21 @@
 """Solver-fault campaign: at least 1,000 injected solver faults over lab runs of the MPC, checked.
 
 Runs the MPC on ``--config`` (default configs/rectangle.yaml: the ``lab`` plant, 0.02 m/s) on the
-draws of seeds 0 .. ``--runs - 1``, each draw twice (two variants of one campaign on the sweep's
-runner, :func:`capsule_mpc.experiments.sweep.campaign.sweep`: a ``LocalCluster`` of ``--workers``
-processes or the cluster at ``--scheduler``): ``faults``, with solver failures, NaN solutions and
-late solves injected (``faults.solver_*_probability``, per frame) and the deadline enforced
-(``mpc.enforce_deadline``: a late solve's command is replaced by the shifted plan, as on the rig),
-and ``no_faults``. Every command in the logs of a faulty run is checked against the limits,
-independently of the controller's own counters: finite, per-axis speed <= ``limits.speed_mps``,
-change from one frame to the next <= ``limits.accel_mps2 / camera.rate_hz`` (no jump), and the EPM
-inside the workspace. Per fault, the recovery times from its end
-(:func:`capsule_mpc.sim.faults.recovery_times`): ``recovery_s`` to the error's level before it (an
-upper bound that includes the path's own error excursions), ``recovery_vs_fault_free_s`` to the
-fault-free run of the same seed. The late solves are decided by the reported solve time, so a real
-solve past the frame deadline on a loaded machine also makes the MPC fall back (``late_real``:
-frames whose solve was late without an injected late solve).
+draws of seeds 0 .. ``--runs - 1``, each draw as two variants of one campaign on the sweep's runner
+(:func:`capsule_mpc.experiments.sweep.campaign.sweep`): ``faults``, with solver failures, NaN
+solutions and late solves injected (``faults.solver_*_probability``, per frame) and the deadline
+enforced (``mpc.enforce_deadline``: a late solve's command is replaced by the shifted plan), and
+``no_faults``. Every command logged in a faulty run is checked against the limits, independently of
+the controller's own counters: finite, per-axis speed <= ``limits.speed_mps``, change per frame <=
+``limits.accel_mps2 / camera.rate_hz``, and the EPM inside the workspace. Per fault, the recovery
+times from its end (:func:`capsule_mpc.sim.faults.recovery_times`): ``recovery_s`` to the error's
+level before it, ``recovery_vs_fault_free_s`` to the fault-free run of the same seed. A real solve
+past the frame deadline also makes the MPC fall back (``late_real``: late frames without an
+injected late solve).
 
-Writes the campaign's folder (``--out`` without ``.json``: ``runs.csv``, one row per draw and
-variant with every metric and these checks, resumable) and the report ``--out``, aggregated from
-the run table by :mod:`capsule_mpc.experiments.aggregate`. Exit status 1 when a command broke a
-limit, a run failed or fewer than ``--target`` solver faults were injected (then raise ``--runs``);
-2 for a bad ``--out``.
+Writes the campaign's folder (``--out`` without ``.json``, resumable) and the report ``--out``,
+aggregated from its run table. Exit status 1 when a command broke a limit, a run failed or fewer
+than ``--target`` solver faults were injected (then raise ``--runs``); 2 for a bad ``--out``.
 
     .venv/bin/python benchmarks/fault_campaign.py [--runs 8] [--target 1000] [--probability 0.1]
         [--out results/benchmarks/fault_campaign.json]

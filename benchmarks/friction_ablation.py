@@ -24,21 +24,18 @@ robot``), once per friction model it is given:
     :data:`SHARP_EPS_MPS` (its friction force then holds up closer to rest);
 suffixes combine in that order (``+preload+sharp``).
 
-Each variant is a set of scenario overrides (:func:`variant`; the draw's own friction and the model
-learned on it resolved per draw), run with ``paper_0.8v`` beside ``paper`` by the sweep's runner
-(:func:`capsule_mpc.experiments.sweep.campaign.sweep`: one Dask task per draw on a ``LocalCluster`` of
-``--workers`` processes or the cluster at ``--scheduler``; a draw's runs scored on one common window)
-into ``--out``'s folder (``--out`` without ``.json``: ``runs.csv``, ``summary.json``, resumable). The
-demonstrations and the learning of each draw run first, on the same cluster; a draw's learned model
-is kept in ``--work``, and with ``--reuse`` a model already there is used instead of learning again.
-``--merge A.json B.json --out C.json`` writes one report from the outputs of a campaign run in parts
-(same config and plant; each seed once; the variants every draw ran; the parts' commands kept).
+Each variant is a set of scenario overrides (:func:`variant`), run with ``paper_0.8v`` beside
+``paper`` by the sweep's runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep`, on a
+``LocalCluster`` of ``--workers`` processes or the cluster at ``--scheduler``) into ``--out``'s
+folder (``--out`` without ``.json``, resumable). Each draw's demonstrations and learning run first,
+on the same cluster; its model is kept in ``--work`` (``--reuse``: a model already there is used).
+``--merge A.json B.json --out C.json`` writes one report from the reports of a campaign run in
+parts (same config and plant; each seed once; the variants every draw ran).
 
-The report (``--out``, JSON: each draw's numbers, its learning and the command) is rendered into
-docs/results.md by ``benchmarks/results_doc.py``: per variant mean ± sd (worst) over the draws and
-the paired difference to ``paper``; the learned breakaway after 2 s at rest, and after the rest the
-draw's capsule had before its run, against the plant's at the path's start (``--learn-only``: only
-this).
+The report (``--out``: each draw's numbers, its learning and the command) is rendered into
+docs/results.md by ``benchmarks/results_doc.py``; it also holds the learned breakaway after 2 s at
+rest, and after the rest the draw's capsule had before its run, against the plant's at the path's
+start (``--learn-only``: only this).
 
     .venv/bin/python benchmarks/friction_ablation.py --plant lab --draws 20 \\
         --out results/benchmarks/friction_ablation_lab.json

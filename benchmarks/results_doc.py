@@ -133,15 +133,11 @@ def paired_cell(metric: str, stats: pd.Series, diff: pd.Series | None, total: in
 
 
 # ------------------------------------------------------------------------- campaigns' aggregation
-def _flag(values: pd.Series) -> pd.Series:
-    return values.astype("boolean")
-
-
 def sweep_context(data: dict[str, Any]) -> dict[str, Any]:
     """A sweep's ``summary.json`` per controller over its runs: ``rows`` (name, statistics, runs),
     in :data:`~capsule_mpc.experiments.compare.CONTROLLER_ORDER`, others alphabetically."""
     table = table_from_entries(data["runs"])
-    table["final_within_tol"] = _flag(table["final_error_mm"] <= FINAL_TOL_MM)
+    table["final_within_tol"] = table["final_error_mm"] <= FINAL_TOL_MM
     stats = aggregate(table, by=["controller"])
     present = list(stats.index)
     names = [n for n in CONTROLLER_ORDER if n in present] + sorted(set(present) - set(CONTROLLER_ORDER))
@@ -166,40 +162,33 @@ def placement_context(data: dict[str, Any]) -> dict[str, Any]:
     table = table_from_entries(data["runs"])
     preset = data.get("plant_preset", "lab")
     seen_mm = PLACED_SEEN_MM.get(preset, 0.2)
-    table["seen_ok"] = _flag(table["final_error_seen_mm"] <= seen_mm)
-    table["truth_ok"] = _flag(table["final_error_mm"] <= table["camera_bias_mm"] + PLACED_TRUTH_MARGIN_MM)
+    table["seen_ok"] = table["final_error_seen_mm"] <= seen_mm
+    table["truth_ok"] = table["final_error_mm"] <= table["camera_bias_mm"] + PLACED_TRUTH_MARGIN_MM
     if "end_phase" in table:
-        table["gave_up"] = _flag(table["end_phase"].astype(str) == "failed")
+        table["gave_up"] = table["end_phase"].astype(str) == "failed"
     if "first_motion_ratio" in table:
         ratio = table["first_motion_ratio"]
-        table["prompt"] = _flag(ratio <= START_BOUND_FACTOR).mask(ratio.isna())
+        table["prompt"] = (ratio <= START_BOUND_FACTOR).astype("boolean").mask(ratio.isna())
     stats = aggregate(table, by=["controller"], quantiles={"p95": 0.95}).sort_index()
     rows = [(name, st, int(st[("runs", "n")])) for name, st in stats.iterrows()]
     seen = {"seen_mm": seen_mm, "margin_mm": PLACED_TRUTH_MARGIN_MM, "bound": START_BOUND_FACTOR}
     return {**data, **seen, "rows": rows, "seeds": [r["seed"] for r in data["runs"]], "preset": preset}
 
 
-def ablation_table(data: dict[str, Any]) -> pd.DataFrame:
-    """The run table of a friction ablation's report: its variants run by the MPC, ``paper_0.8v``
-    on the paper's variant, each draw's learning as ``learning.*``."""
-    entries = []
-    for draw in data["draws"]:
-        runs = {
-            run_label(BASELINE, name) if name == "paper_0.8v" else run_label(name, ABLATION_CONTROLLER): run
-            for name, run in draw["runs"].items()
-        }
-        entries.append({**draw, "controllers": runs, "runs": None})
-    return table_from_entries(entries)
-
-
 def _ablation_rows(data: dict[str, Any], metrics: Sequence[str]) -> dict[str, Any]:
     """The MPC's runs of an ablation per variant (every draw ran): (label, statistics, paired
-    difference to the baseline or None)."""
-    table = ablation_table(data)
-    table = table[table["controller"] == ABLATION_CONTROLLER].copy()
-    table["final_within_tol"] = _flag(table["final_error_mm"] <= FINAL_TOL_MM)
+    difference to the baseline or None); ``paper_0.8v``, not in :data:`ABLATION_VARIANTS`, is no row."""
+    table = table_from_entries(
+        {
+            **d,
+            "runs": None,
+            "controllers": {run_label(v, ABLATION_CONTROLLER): r for v, r in d["runs"].items()},
+        }
+        for d in data["draws"]
+    )
+    table["final_within_tol"] = table["final_error_mm"] <= FINAL_TOL_MM
     if "time_to_place_s" in table:
-        table["quick"] = _flag(table["time_to_place_s"] <= QUICK_PLACE_S)
+        table["quick"] = table["time_to_place_s"] <= QUICK_PLACE_S
     n = int(table["seed"].nunique())
     stats = aggregate(table, by=["variant"])
     variants = [v for v in ABLATION_VARIANTS if v in stats.index and stats.loc[v, ("runs", "n")] == n]
@@ -247,7 +236,7 @@ def _breakaway(draws: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         for when, (mine, plant) in checks.items()
     ]
     errors = pd.concat(rows, ignore_index=True)
-    errors["within"] = _flag(errors["error_pct"] <= BREAKAWAY_TOL_PCT)
+    errors["within"] = errors["error_pct"] <= BREAKAWAY_TOL_PCT
     stats = aggregate(errors, by=["check"])
     return {
         "breakaway": [(when, stats.loc[when], len(learned)) for when in checks],

@@ -19,22 +19,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
 
 import pandas as pd
 from pandas.api.types import is_bool_dtype, is_numeric_dtype
 
-from .table import KEYS, run_label
+from .table import KEYS
 
-__all__ = [
-    "aggregate",
-    "flag_columns",
-    "mean_sd_worst",
-    "metric_columns",
-    "paired",
-    "succeeded",
-    "worst_runs",
-]
+__all__ = ["aggregate", "mean_sd_worst", "paired", "succeeded"]
 
 #: The numeric statistics of a metric, as pandas names them, and their names here.
 _STATS = {
@@ -55,23 +46,6 @@ def succeeded(table: pd.DataFrame) -> pd.DataFrame:
     return table if "error" not in table else table[table["error"].fillna("") == ""]
 
 
-def flag_columns(table: pd.DataFrame) -> list[str]:
-    """The true/false columns of ``table`` (outside the row's keys)."""
-    return [c for c in table.columns if c not in _NOT_METRICS and is_bool_dtype(table[c])]
-
-
-def metric_columns(table: pd.DataFrame) -> list[str]:
-    """The numeric columns of ``table`` that are metrics (not flags, keys or draw values)."""
-    return [
-        c
-        for c in table.columns
-        if c not in _NOT_METRICS
-        and not c.startswith(("plant.", "varied."))
-        and is_numeric_dtype(table[c])
-        and not is_bool_dtype(table[c])
-    ]
-
-
 def aggregate(
     table: pd.DataFrame,
     by: Sequence[str] = ("variant", "controller"),
@@ -87,7 +61,8 @@ def aggregate(
     by : sequence of str
         The grouping columns; groups in order of first appearance.
     metrics : sequence of str, optional
-        Numeric columns to summarise (default :func:`metric_columns`); flags are always counted.
+        Numeric columns to summarise (default every numeric column but the keys, flags and the
+        draw's ``plant.*`` and ``varied.*`` values); flags are always counted.
     quantiles : mapping of str to float, optional
         Further statistics of each metric: name to quantile in [0, 1] (e.g. ``{"p95": 0.95}``).
 
@@ -99,8 +74,10 @@ def aggregate(
     """
     keys = list(by)
     ok = succeeded(table)
-    metrics = metric_columns(table) if metrics is None else list(metrics)
-    flags = flag_columns(table)
+    measured = [c for c in table.columns if c not in _NOT_METRICS and is_numeric_dtype(table[c])]
+    flags = [c for c in measured if is_bool_dtype(table[c])]
+    if metrics is None:
+        metrics = [c for c in measured if c not in flags and not c.startswith(("plant.", "varied."))]
     groups = table.groupby(keys, sort=False).size().index
     parts = []
     if metrics:
@@ -171,42 +148,8 @@ def paired(
     return pd.DataFrame(out)
 
 
-def _finite(value: float) -> bool:
-    return value is not None and isinstance(value, (int, float)) and math.isfinite(value)
-
-
 def mean_sd_worst(mean: float, sd: float, worst: float, digits: int = 2) -> str:
     """``mean ± sd (worst)``, each with ``digits`` decimals; ``n/a`` when the mean is not finite."""
-    if not _finite(mean):
+    if not isinstance(mean, (int, float)) or not math.isfinite(mean):
         return "n/a"
     return f"{mean:.{digits}f} ± {sd:.{digits}f} ({worst:.{digits}f})"
-
-
-def worst_runs(
-    table: pd.DataFrame, metrics: Sequence[str], flags: Sequence[str], count: int
-) -> dict[str, dict[str, Any]]:
-    """The worst runs of each variant and controller of a run table.
-
-    Returns
-    -------
-    dict of str to dict
-        Per run label (:func:`~.table.run_label`): ``metrics``, for each of ``metrics``, the
-        ``count`` runs with the largest finite values, ``[{"seed", "value"}]`` from the worst, ties
-        by seed; ``flags``, for each of ``flags``, the seeds where it was raised; ``failed``, the
-        seeds whose run did not finish.
-    """
-    out: dict[str, dict[str, Any]] = {}
-    for (variant, controller), runs in table.groupby(["variant", "controller"], sort=False):
-        ok = succeeded(runs)
-        ranked = {}
-        for m in metrics:  # a metric or flag no run recorded: no seeds
-            values = ok.reindex(columns=["seed", m]).replace([math.inf, -math.inf], math.nan).dropna()
-            top = values.sort_values([m, "seed"], ascending=[False, True]).head(count)
-            ranked[m] = [{"seed": int(s), "value": float(v)} for s, v in zip(top["seed"], top[m])]
-        raised = {f: ok.reindex(columns=[f])[f].eq(True).fillna(False).astype(bool) for f in flags}
-        out[run_label(variant, controller)] = {
-            "metrics": ranked,
-            "flags": {f: [int(s) for s in ok.loc[mask, "seed"]] for f, mask in raised.items()},
-            "failed": [int(s) for s in runs.loc[~runs.index.isin(ok.index), "seed"]],
-        }
-    return out

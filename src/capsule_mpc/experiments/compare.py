@@ -1,24 +1,19 @@
 """Compare controllers on the same plant, path and seeds (what ``capsule-mpc compare`` runs).
 
-Each run ``k`` of ``--runs N`` uses the seed ``seed + k``; a seed fixes the plant drawn around the
-nominal scenario, the start offset and the camera noise, and every controller runs on it. The runs
-of one seed end at different times (at rest after the path's end), so they are all re-scored on a
-common window, from t = 0 to the latest end among them. A comparison is a campaign on the sweep's
-runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep`, ``command="compare"``; one seed or
-``--workers 1``: in this process). It writes one run folder per controller and seed (``OUT/NAME/``
-for one run, ``OUT/runs/seed_<S>/NAME/`` for several), ``runs/seed_<S>.json``, ``runs.csv`` (the run
-table, :mod:`capsule_mpc.experiments.table`), ``summary.json``, ``summary.md`` and the first seed's
-figures ``trajectories.png`` (paper Fig. 7a), ``errors.png`` (Fig. 8), ``mpc_prediction.png`` and
-``metrics.png``.
+Each run ``k`` of ``--runs N`` uses the seed ``seed + k``, which fixes the plant drawn around the
+nominal scenario, the start offset and the camera noise; every controller runs on it, and the runs
+of one seed are scored on a common window (t = 0 to the latest end among them). A comparison is a
+campaign on the sweep's runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep` with
+``command="compare"``), which writes one run folder per controller and seed (``OUT/NAME/`` for one
+run, ``OUT/runs/seed_<S>/NAME/`` for several), ``runs.csv``, ``summary.json`` (its ``controllers``:
+:func:`aggregate_runs`), ``summary.md`` and the first seed's figures.
 
-``summary.json``'s ``controllers`` is :func:`aggregate_runs` of the run table. A controller fails on
-a seed when it raises instead of running (e.g. ``plan`` when the planner's solve does not converge):
-that run has ``{"error", "traceback"}`` instead of metrics. Exit status: 0 when every controller ran
-on every seed, 1 when any failed (each named on stderr), 2 on bad input, 130 on Ctrl-C (nothing
-summarised; each run in progress keeps its log so far and a finalised ``run.mcap``). The runs are not
-paced to the wall clock (``simulate --realtime`` is), so late solves are accepted and runs are
-deterministic; the solver's figures (``solve_ms_*``, ``deadline_misses``, ``step_ms_max``) are
-measured all the same.
+A controller that raises on a seed (e.g. ``plan`` when the planner's solve does not converge) has
+``{"error", "traceback"}`` instead of metrics there. Exit status: 0 when every controller ran on
+every seed, 1 when any failed (each named on stderr), 2 on bad input, 130 on Ctrl-C (nothing
+summarised; each run in progress keeps its log so far and a finalised ``run.mcap``). The runs are
+not paced to the wall clock, so they are deterministic; the solver's timings are measured all the
+same.
 """
 
 from __future__ import annotations
@@ -32,7 +27,7 @@ from ..config import ConfigError, Scenario
 from ..interfaces import available_controllers
 from ..metrics import START_WINDOW_S
 from ..paths import ReferencePath
-from .aggregate import aggregate, flag_columns, metric_columns
+from .aggregate import aggregate
 from .inputs import refuse_repeats
 from .sweep.tasks import PLANNING_CONTROLLER
 from .table import run_label, table_from_entries
@@ -44,7 +39,6 @@ __all__ = [
     "SUMMARY_COLUMNS",
     "aggregate_runs",
     "check_controllers",
-    "controller_names",
     "run_figures",
     "summary_markdown",
     "summary_table",
@@ -99,9 +93,11 @@ def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str,
     """
     table = table_from_entries(per_seed)
     stats = aggregate(table)
-    metrics, flags = metric_columns(table), flag_columns(table)
+    metrics = [m for m, stat in stats.columns if stat == "mean"]
+    flags = [f for f, stat in stats.columns if stat == "count"]
+    errors = table[table["error"] != ""].groupby(["variant", "controller"], sort=False)["error"].agg(list)
     out: dict[str, dict[str, Any]] = {}
-    for (variant, controller), row in stats.iterrows():
+    for key, row in stats.iterrows():
         n_ok, n_failed = int(row[("runs", "n")]), int(row[("failed", "n")])
         entry: dict[str, Any] = {}
         if n_ok:
@@ -116,15 +112,13 @@ def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str,
                 }
                 for m in metrics
             }
-        errors = table.loc[(table.variant == variant) & (table.controller == controller), "error"]
-        errors = [e for e in errors if e]
         status = "failed" if not n_ok else f"failed on {n_failed} of {n_ok + n_failed} runs"
         entry.update(n_runs=n_ok, n_failed=n_failed, status=status if n_failed else "ok")
-        if errors:
-            entry["errors"] = errors
+        if n_failed:
+            entry["errors"] = errors[key]
         if not n_ok:
-            entry["error"] = errors[0]
-        out[run_label(variant, controller)] = entry
+            entry["error"] = errors[key][0]
+        out[run_label(*key)] = entry
     return out
 
 
@@ -143,7 +137,7 @@ def _cell(entry: Mapping[str, Any], key: str, fmt: str, runs: int) -> str:
     if runs > 1 and spread is not None:
         text = f"{number(value)} ± {number(spread['sd'])}"
         return text if spread["n"] >= n_runs else f"{text} ({spread['n']}/{n_runs})"
-    if runs > 1 and key not in entry.get("spread", {}) and isinstance(value, int):  # a flag's count
+    if runs > 1 and isinstance(value, int):  # a flag's count
         return f"{value}/{n_runs}"
     return number(value)
 
@@ -200,8 +194,8 @@ def summary_markdown(
 
 
 def check_controllers(controllers: Sequence[str] | None) -> list[str]:
-    """The controllers a comparison runs (:func:`controller_names`), after refusing an unknown one
-    or one given twice.
+    """The controllers a campaign runs: ``controllers``, or every registered one in
+    :data:`CONTROLLER_ORDER`, then the others.
 
     Raises
     ------
@@ -209,19 +203,13 @@ def check_controllers(controllers: Sequence[str] | None) -> list[str]:
         ``--controllers: unknown [...]; available: [...]`` or ``--controllers: 'x' is given more than once``.
     """
     known = available_controllers()
-    unknown = [n for n in controllers or [] if n not in known]
+    if controllers is None:
+        return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
+    unknown = [n for n in controllers if n not in known]
     if unknown:
         raise ConfigError(f"--controllers: unknown {unknown}; available: {known}")
-    refuse_repeats("--controllers", controllers or [])
-    return controller_names(controllers)
-
-
-def controller_names(controllers: Sequence[str] | None) -> list[str]:
-    """``controllers``, or every registered controller in :data:`CONTROLLER_ORDER`, then the others."""
-    if controllers is not None:
-        return list(controllers)
-    known = available_controllers()
-    return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]
+    refuse_repeats("--controllers", controllers)
+    return list(controllers)
 
 
 def run_figures(names: Sequence[str], runs: int) -> Workload:

@@ -26,22 +26,13 @@ from ..compare import (
     RUNS_FOLDER,
     aggregate_runs,
     check_controllers,
-    controller_names,
     run_figures,
     summary_markdown,
     summary_table,
 )
 from ..runs import PREDICTION_FIGURE, prepare_run
 from ..table import TABLE_FILE, table_from_entries, write_table
-from .results import (
-    SPEC_FILE,
-    check_resume,
-    finished_runs,
-    sweep_spec,
-    worst_markdown,
-    worst_runs,
-    worst_table,
-)
+from .results import SPEC_FILE, WORST_COUNT, check_resume, finished_runs, sweep_spec, worst_runs, worst_table
 from .results import write_figures as write_figures
 from .tasks import Outcome, SeedTask, Variant, dask_client, run_here, run_on_dask, run_seed
 from .vary import VaryRange, check_vary
@@ -78,24 +69,21 @@ def sweep(
         As for :func:`capsule_mpc.sim.simulate` (with the ``--plant`` preset applied).
     out : str or Path
         Output folder (created).
-    seed : int
-        Seed of the first run; run ``k`` uses ``seed + k``.
-    runs : int
-        Number of runs, >= 1.
+    seed, runs : int
+        Seed of the first run (run ``k`` uses ``seed + k``) and the number of runs, >= 1.
     controllers : sequence of str, optional
         The controllers run on each draw (default every registered one,
-        :func:`~capsule_mpc.experiments.compare.controller_names`).
+        :func:`~capsule_mpc.experiments.compare.check_controllers`).
     vary : sequence of VaryRange
-        Plant fields drawn from these ranges instead of the preset's (:func:`parse_vary`).
+        Plant fields drawn from these ranges instead of the preset's (:mod:`.vary`).
     variants : sequence of Variant
         The study's variants (default the scenario as given), each run by ``controllers``.
     workers : int, optional
-        Worker processes of the ``LocalCluster`` started when ``client`` is None (default the CPU
-        count; no more than there are runs to do). A comparison with one worker runs its draws in
-        this process, one after the other, with no cluster.
+        Worker processes of the ``LocalCluster`` started when ``client`` is None and a run is left
+        to do (default the CPU count, no more than the runs); a comparison with one worker runs its
+        draws in this process.
     client : distributed.Client, optional
-        The Dask cluster to run on; default a new ``LocalCluster``
-        (:func:`~.tasks.dask_client`), started only if a run is left to do.
+        The Dask cluster to run on.
     meta : dict, optional
         Provenance (``config``, ``waypoints_file``) for the summary.
     progress : bool
@@ -118,14 +106,14 @@ def sweep(
     ValueError
         ``runs`` < 1.
     ConfigError
-        ``out`` holds a sweep with other arguments.
+        An unknown controller, or ``out`` holds a sweep with other arguments.
     """
     if runs < 1:
         raise ValueError(f"runs: must be an integer >= 1, got {runs}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
-    names = controller_names(controllers)
+    names = check_controllers(controllers)
     seeds = [seed + k for k in range(runs)]
     compare = command == "compare"
     done: dict[int, dict[str, Any]] = {}
@@ -172,9 +160,12 @@ def sweep(
         summary["worst"] = worst_runs(per_seed)
     summary.update(runs=per_seed, figures=figures)
     write_text_atomic(out / "summary.json", json.dumps(json_ready(summary), indent=2) + "\n")
-    markdown = summary_markdown(command, scenario, path, summary) + (
-        "" if compare else worst_markdown(summary)
-    )
+    markdown = summary_markdown(command, scenario, path, summary)
+    if not compare:
+        markdown += (
+            f"\n## Worst runs\n\nPer controller and metric, the seeds of the {WORST_COUNT} largest values; "
+            "flags and failures: every seed where raised.\n\n" + worst_table(summary["worst"])
+        )
     write_text_atomic(out / "summary.md", markdown)
     return summary
 
@@ -277,25 +268,9 @@ def run_sweep(
     """``capsule-mpc sweep``: check the input, then run :func:`sweep` into ``out`` (resuming the
     one there) and print its table, its worst runs and what failed; the exit status.
 
-    Parameters
-    ----------
-    config, waypoints, speed, plant
-        As for :func:`capsule_mpc.experiments.runs.prepare_run`.
-    out : str or Path
-        The ``--out`` folder (:func:`capsule_mpc.outputs.output_folder`).
-    runs : int
-        Number of runs, >= 1.
-    controllers : sequence of str, optional
-        ``--controllers`` (default every available one;
-        :func:`~capsule_mpc.experiments.compare.check_controllers`).
-    seed : int, optional
-        Seed of the first run (default the config's ``sim.seed``).
-    vary : sequence of VaryRange
-        ``--vary`` ranges (:func:`~.vary.check_vary` refuses those the scenario cannot take).
-    workers, scheduler
-        ``--workers`` and ``--scheduler`` (:func:`local_workers`).
-    progress : bool
-        A progress bar over the runs.
+    The arguments are the command's options: ``config``, ``waypoints``, ``speed`` and ``plant`` as
+    for :func:`capsule_mpc.experiments.runs.prepare_run`, ``seed`` (default the config's
+    ``sim.seed``), ``workers`` and ``scheduler`` as for :func:`local_workers`.
 
     Returns
     -------

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -13,9 +14,9 @@ from ...atomic import json_ready
 from ...config import ConfigError, Scenario
 from ...paths import ReferencePath
 from ...plots import plot_metrics
-from ..aggregate import worst_runs as worst_of
+from ..aggregate import succeeded
 from ..compare import RUNS_FOLDER, SUMMARY_COLUMNS
-from ..table import table_from_entries
+from ..table import run_label, table_from_entries
 from .tasks import Variant
 from .vary import VaryRange
 
@@ -27,7 +28,6 @@ __all__ = [
     "finished_runs",
     "spec_difference",
     "sweep_spec",
-    "worst_markdown",
     "worst_runs",
     "worst_table",
     "write_figures",
@@ -102,11 +102,6 @@ _SPEC_ARGUMENTS = (
 )
 
 
-def _short(value: Any, limit: int = 80) -> str:
-    text = json.dumps(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def _first_difference(held: Any, now: Any, where: str = "") -> tuple[str, Any, Any]:
     """The first dotted key where two JSON values differ, with both values there."""
     if isinstance(held, dict) and isinstance(now, dict):
@@ -119,11 +114,14 @@ def _first_difference(held: Any, now: Any, where: str = "") -> tuple[str, Any, A
 def spec_difference(held: Mapping[str, Any], now: Mapping[str, Any]) -> str | None:
     """How the sweep in a folder (``held``) differs from the one asked for (``now``); None if alike."""
     for key, label in _SPEC_ARGUMENTS:
-        if held.get(key) != now.get(key):
-            if key == "config" and isinstance(held.get(key), dict):
-                where, a, b = _first_difference(held[key], now[key])
-                return f"config {where}: {_short(a)} in the folder, {_short(b)} now"
-            return f"{label}: {_short(held.get(key))} in the folder, {_short(now.get(key))} now"
+        a, b = held.get(key), now.get(key)
+        if a != b:
+            if key == "config" and isinstance(a, dict):
+                where, a, b = _first_difference(a, b)
+                label = f"config {where}"
+            a, b = (json.dumps(v) for v in (a, b))
+            a, b = (v if len(v) <= 80 else v[:77] + "..." for v in (a, b))
+            return f"{label}: {a} in the folder, {b} now"
     return None
 
 
@@ -178,11 +176,34 @@ def finished_runs(out: Path, seeds: Sequence[int]) -> dict[int, dict[str, Any]]:
 
 
 def worst_runs(per_seed: Sequence[Mapping[str, Any]], count: int = WORST_COUNT) -> dict[str, dict[str, Any]]:
-    """The worst runs per controller: ``summary.json``'s ``worst``
-    (:func:`capsule_mpc.experiments.aggregate.worst_runs` of the run table of ``per_seed``, the
-    metrics of the table, ``decoupled``, ``dropped`` and ``stalled``)."""
+    """The worst runs per controller, ``summary.json``'s ``worst``.
+
+    Returns
+    -------
+    dict of str to dict
+        Per run label: ``metrics``, for each metric of the table, the ``count`` runs with the
+        largest finite values, ``[{"seed", "value"}]`` from the worst, ties by seed; ``flags``, for
+        ``decoupled``, ``dropped`` and ``stalled``, the seeds where it was raised; ``failed``, the
+        seeds whose run did not finish.
+    """
     table = table_from_entries(per_seed)
-    return worst_of(table, [key for key, _ in _RANKED], _FLAGS, count)
+    out: dict[str, dict[str, Any]] = {}
+    for (variant, controller), runs in table.groupby(["variant", "controller"], sort=False):
+        ok = succeeded(runs)
+        ranked = {}
+        for m, _ in _RANKED:  # a metric no run recorded: no seeds
+            values = ok.reindex(columns=["seed", m]).replace([math.inf, -math.inf], math.nan).dropna()
+            top = values.sort_values([m, "seed"], ascending=[False, True]).head(count)
+            ranked[m] = [{"seed": int(s), "value": float(v)} for s, v in zip(top["seed"], top[m])]
+        out[run_label(variant, controller)] = {
+            "metrics": ranked,
+            "flags": {
+                f: [int(s) for s in ok["seed"][ok.reindex(columns=[f])[f].eq(True).fillna(False)]]
+                for f in _FLAGS
+            },
+            "failed": [int(s) for s in runs.loc[~runs.index.isin(ok.index), "seed"]],
+        }
+    return out
 
 
 def worst_table(worst: Mapping[str, Mapping[str, Any]]) -> str:
@@ -200,14 +221,6 @@ def worst_table(worst: Mapping[str, Mapping[str, Any]]) -> str:
         if entry["failed"]:
             lines.append(f"| {name} | failed | {', '.join(map(str, entry['failed']))} |")
     return "\n".join(lines) + "\n"
-
-
-def worst_markdown(summary: Mapping[str, Any]) -> str:
-    """The worst-runs section of a sweep's summary.md."""
-    return (
-        f"\n## Worst runs\n\nPer controller and metric, the seeds of the {WORST_COUNT} largest values; "
-        "flags and failures: every seed where raised.\n\n" + worst_table(summary["worst"])
-    )
 
 
 def write_figures(out: Path, per_seed: Sequence[Mapping[str, Any]], distributions: bool = True) -> list[str]:

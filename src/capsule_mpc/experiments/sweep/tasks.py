@@ -64,17 +64,11 @@ __all__ = [
     "SCHEDULER_TIMEOUT_S",
     "WALL_CLOCK_KEYS",
     "Outcome",
-    "RunLogs",
     "SeedTask",
     "Variant",
-    "crashed_entry",
     "dask_client",
-    "dask_setup",
-    "dask_teardown",
     "failure_line",
     "rescore_on_common_window",
-    "run_entry",
-    "run_folder",
     "run_here",
     "run_on_dask",
     "run_seed",
@@ -91,8 +85,6 @@ SCHEDULER_TIMEOUT_S = 10.0
 #: a task before the task fails with ``KilledWorker``. 0: the first death records the run as
 #: crashed (a run that kills its worker does so again on another one).
 LOCAL_ALLOWED_FAILURES = 0
-#: The preload of a ``LocalCluster``'s workers (the module holding :func:`dask_setup`).
-WORKER_PRELOAD = __name__
 #: The controller that needs the offline plan (solved once per worker process, then cached).
 PLANNING_CONTROLLER = "plan"
 #: An override value standing for the draw's own friction (an oracle no real rig gives).
@@ -166,29 +158,10 @@ def variant_scenario(
     return config_from_dict(data)
 
 
-def _arms(task: SeedTask, truth: PlantTruth) -> list[tuple[str, str, Scenario | Exception]]:
-    """(label, controller, the controller's scenario or why it has none) of every run of the draw."""
-    arms: list[tuple[str, str, Scenario | Exception]] = []
-    for variant in task.variants or (Variant(NOMINAL),):
-        try:
-            scenario: Scenario | Exception = variant_scenario(task.scenario, variant, truth, task.path)
-        except (ConfigError, OSError, ValueError) as exc:
-            scenario = exc
-        for name in variant.controllers or task.controllers:
-            arms.append((run_label(variant.name, name), name, scenario))
-    return arms
-
-
-def run_entry(result: RunResult) -> dict[str, Any]:
-    """A run's entry of its draw: every metric of its ``run.json``, its limit counts, ``failure``
-    and ``realtime_factor``."""
-    limits = {f"limit_counts.{k}": v for k, v in result.limit_counts.items()}
-    return {
-        **result.metrics,
-        **limits,
-        "failure": result.flags.failure,
-        "realtime_factor": result.realtime_factor,
-    }
+def _arms(task: SeedTask) -> list[tuple[str, str, Variant]]:
+    """(label, controller, variant) of every run of the draw."""
+    variants = task.variants or (Variant(NOMINAL),)
+    return [(run_label(v.name, n), n, v) for v in variants for n in v.controllers or task.controllers]
 
 
 def run_seed(task: SeedTask) -> dict[str, Any]:
@@ -198,7 +171,8 @@ def run_seed(task: SeedTask) -> dict[str, Any]:
     -------
     dict
         ``{"seed", "window_end_s", "controllers": {label (:func:`~..table.run_label`): the run's
-        entries (:func:`run_entry`; ``run_dir`` with ``runs_dir``), or {"error", "traceback"}},
+        metrics, limit counts, ``failure`` and ``realtime_factor``; ``run_dir`` with ``runs_dir``), or
+        {"error", "traceback"}},
         "plant": the drawn truth (:meth:`~capsule_mpc.sim.PlantTruth.summary`), "varied": {field:
         value}}``; the runs are scored on their common window (:func:`rescore_on_common_window`).
     """
@@ -208,12 +182,14 @@ def run_seed(task: SeedTask) -> dict[str, Any]:
     results: dict[str, RunResult] = {}
     entries: dict[str, dict[str, Any]] = {}
     base = None if task.runs_dir is None else Path(task.runs_dir)
-    arms = _arms(task, truth)
+    arms = _arms(task)
+    scenarios: dict[str, Scenario] = {}
     with RunLogs(base) as logs:
-        for label, name, scenario in arms:
+        for label, name, variant in arms:
             try:
-                if isinstance(scenario, Exception):
-                    raise scenario
+                if variant.name not in scenarios:
+                    scenarios[variant.name] = variant_scenario(task.scenario, variant, truth, task.path)
+                scenario = scenarios[variant.name]
                 if name == PLANNING_CONTROLLER:
                     cached_plan(scenario, task.path, progress=task.progress)
                 plant = CapsulePlant(plant_scenario, truth=truth)  # one rig for every run of the draw
@@ -226,9 +202,15 @@ def run_seed(task: SeedTask) -> dict[str, Any]:
                 entries[label] = {"error": failure_line(name, exc), "traceback": traceback.format_exc()}
         window_end = rescore_on_common_window(results, task.path, task.scenario)
         for label, result in results.items():
-            entries[label] = run_entry(result)
+            limits = {f"limit_counts.{k}": v for k, v in result.limit_counts.items()}
+            entries[label] = {
+                **result.metrics,
+                **limits,
+                "failure": result.flags.failure,
+                "realtime_factor": result.realtime_factor,
+            }
             if base is not None:
-                entries[label]["run_dir"] = str(write_run(result, run_folder(base, label)))
+                entries[label]["run_dir"] = str(write_run(result, logs.folder(label)))
                 logs.keep(label)
     extra = task.measure(results) if task.measure is not None and results else {}
     for label, values in extra.items():
@@ -307,9 +289,13 @@ class RunLogs:
         watch: list[Observer] = [_StopWhenClosing()]
         if self.base is None:
             return watch
-        log = self.logs[name] = Telemetry(run_folder(self.base, name) / MCAP_NAME, hold=True)
+        log = self.logs[name] = Telemetry(self.folder(name) / MCAP_NAME, hold=True)
         partial = self.partial[name] = PartialRun()
         return [log, partial, *watch]
+
+    def folder(self, name: str) -> Path:
+        """The folder of run ``name``."""
+        return (self.base or Path()) / name.replace("/", "_").replace(":", "_")
 
     def keep(self, name: str) -> None:
         """Close ``name``'s log into its run folder."""
@@ -319,14 +305,13 @@ class RunLogs:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        base = self.base or Path()
         for name, log in self.logs.items():
-            if isinstance(exc[1], KeyboardInterrupt) and self.partial[name].write(run_folder(base, name)):
+            if isinstance(exc[1], KeyboardInterrupt) and self.partial[name].write(self.folder(name)):
                 log.__exit__(*exc)  # the MCAP so far, finalised
                 continue
             log.close(complete=False)
             with contextlib.suppress(OSError):  # refused unless empty: the folder only held the log
-                run_folder(base, name).rmdir()
+                self.folder(name).rmdir()
         self.logs.clear()
 
 
@@ -341,11 +326,6 @@ class _StopWhenClosing(Observer):
     def frame_end(self, loop: ClosedLoop, frame: Frame) -> None:
         if _closing.is_set():
             raise Interrupted(signal.SIGTERM)
-
-
-def run_folder(base: Path, name: str) -> Path:
-    """The folder of run ``name`` under ``base``."""
-    return base / name.replace("/", "_").replace(":", "_")
 
 
 #: Longest reason kept in a failure line, characters.
@@ -379,16 +359,11 @@ def failure_line(name: str, exc: BaseException) -> str:
 def crashed_entry(task: SeedTask, reason: str) -> dict[str, Any]:
     """The entry of a draw whose worker died or could not run it: every run failed."""
     error = f"run crashed: {reason}"
-    labels = [
-        run_label(v.name, n)
-        for v in task.variants or (Variant(NOMINAL),)
-        for n in v.controllers or task.controllers
-    ]
     return {
         "seed": task.seed,
         "window_end_s": None,
         "crashed": reason,
-        "controllers": {label: {"error": error} for label in labels},
+        "controllers": {label: {"error": error} for label, _, _ in _arms(task)},
         "plant": None,
         "varied": draw_varied(task.vary, task.seed),
     }
@@ -477,24 +452,20 @@ def run_on_dask(
 
 @contextmanager
 def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Client]:
-    """A Dask client: of the scheduler at ``scheduler``, else of a new ``LocalCluster``.
+    """A Dask client: of the scheduler at ``scheduler``, else of a new ``LocalCluster``, closed on
+    exit (its workers stopped) however the block ends.
 
     The ``LocalCluster`` has ``workers`` worker processes (default the CPU count) of one thread
-    each, as a cluster's workers run one task at a time, started by nannies (a worker that dies is
-    replaced); ``allowed_failures`` :data:`LOCAL_ALLOWED_FAILURES` (a cluster of one's own keeps
-    its scheduler's setting, Dask's default 3); no per-worker memory limit (the sweep's memory is
-    bounded by :mod:`capsule_mpc.budget` before it starts); :func:`dask_setup` and
-    :func:`dask_teardown` as the workers' preload: Ctrl-C and a hang-up sent to the terminal's
-    process group are the ``capsule-mpc`` process's to handle, which closes the cluster, and a
-    closing worker stops its run at the next frame (the run keeps its log so far, :class:`RunLogs`).
-    It is closed on exit, its workers stopped, however the block ends.
+    each, restarted by nannies when they die, ``allowed_failures`` :data:`LOCAL_ALLOWED_FAILURES`
+    and no memory limit (:mod:`capsule_mpc.budget` bounds the sweep before it starts); its
+    workers' preload (:func:`dask_setup`, :func:`dask_teardown`) leaves Ctrl-C to this process and
+    stops a closing worker's run at its next frame.
 
     Raises
     ------
     ConfigError
         The scheduler cannot be reached within :data:`SCHEDULER_TIMEOUT_S`.
     """
-
     from distributed import Client, LocalCluster  # lazy: Dask only when it runs the sweep
 
     if scheduler is not None:
@@ -512,7 +483,7 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Client]:
             threads_per_worker=1,
             processes=True,
             memory_limit=0,
-            preload=[WORKER_PRELOAD],
+            preload=[__name__],  # dask_setup and dask_teardown
             scheduler_kwargs={"allowed_failures": LOCAL_ALLOWED_FAILURES},
             dashboard_address=":0",  # a free port: no warning when another cluster holds 8787
             silence_logs=logging.CRITICAL,

@@ -34,11 +34,6 @@ class VaryRange:
     lo: float
     hi: float
 
-    @property
-    def text(self) -> str:
-        """As given on the command line."""
-        return f"plant.{self.field}={self.lo:g}:{self.hi:g}"
-
 
 def _field_range(name: str) -> tuple[str, Callable[[float], bool]]:
     """The allowed range of a ``PlantConfig`` field as text, and a test of a value against it."""
@@ -131,5 +126,6 @@ def check_vary(scenario: Scenario, vary: Sequence[VaryRange]) -> None:
                 draw_plant_truth(varied, scenario.sim.seed)
             except ValueError as exc:  # ConfigError included
                 reason = " ".join(str(exc).split()).removeprefix("invalid config: ")
-                raise ConfigError(f"--vary {v.text}: with plant.{v.field} = {value:g}: {reason}") from None
+                given = f"plant.{v.field}={v.lo:g}:{v.hi:g}"
+                raise ConfigError(f"--vary {given}: with plant.{v.field} = {value:g}: {reason}") from None
         data["plant"].pop(v.field)
