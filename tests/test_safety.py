@@ -106,3 +106,32 @@ def test_the_filter_is_safe_command_chained_and_counts_what_it_clipped(scenario,
         slope, prev, clipped = (cmd - prev) / dt, cmd, clipped + int(was)
     assert filt.clipped == clipped
     assert np.array_equal(filt.u_prev, prev) and np.array_equal(filt.slope_prev, slope)
+
+
+@settings(max_examples=200, deadline=None)
+@given(wanted=st.lists(st.tuples(*[st.floats(-1.0, 1.0)] * 2), min_size=3, max_size=80))
+def test_away_from_the_faces_a_filtered_stream_never_breaks_the_jerk_limit(scenario, wanted):
+    """Whatever is asked (beyond the speed limit too), the commands sent from rest at the workspace's
+    centre keep every second difference within the jerk limit: the speed limit is approached with a
+    shrinking change, never reached at full acceleration and stopped there."""
+    lim = scenario.limits
+    epm = np.array([0.0, 0.0, scenario.plate.epm_height_m])
+    filt = SafetyFilter(scenario, DT)
+    sent = [np.zeros(3), np.zeros(3)]
+    for ux, uy in wanted:
+        cmd, _ = filt.apply(np.array([ux, uy, 0.0]), epm)  # the EPM held at the centre: no face near
+        sent.append(cmd)
+    cmd = np.array(sent)
+    assert np.abs(cmd).max() <= lim.speed_mps
+    assert np.abs(np.diff(cmd, axis=0)).max() <= lim.accel_mps2 * DT + 1e-12
+    assert (np.abs(np.diff(cmd, n=2, axis=0)) / DT**2).max() <= lim.jerk_mps3 * (1 + 1e-9)
+
+
+def test_full_speed_wanted_from_rest_reaches_the_speed_limit(scenario):
+    """The jerk-limited approach still gets to the speed limit (it is not held below it)."""
+    epm = np.array([0.0, 0.0, scenario.plate.epm_height_m])
+    filt = SafetyFilter(scenario, DT)
+    for _ in range(300):
+        cmd, _ = filt.apply(np.array([1.0, -1.0, 0.0]), epm)
+    speed = scenario.limits.speed_mps
+    assert cmd[0] == pytest.approx(speed, rel=1e-6) and cmd[1] == pytest.approx(-speed, rel=1e-6)

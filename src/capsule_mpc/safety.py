@@ -17,9 +17,10 @@ arm's own clamp would do). The height command is 0 unless ``mpc.height_control``
 
 Jerk (``limits.jerk_mps3``): given the previous command's slope (its change over its frame),
 the command's change stays within ``limits.jerk_mps3 * dt_s**2`` of that slope's, so the stream
-of commands is one the jerk-limited arm can follow. Priority when the limits conflict: workspace,
-then speed and the braking envelope, then acceleration, then jerk -- a command that must brake
-harder than the jerk limit allows (an EPM fast toward a face or the speed limit, a braking
+of commands is one the jerk-limited arm can follow; the speed limit is approached with the change
+shrinking within that bound (it never has to stop growing at once). Priority when the limits
+conflict: workspace, then speed and the braking envelope, then acceleration, then jerk -- a
+command that must brake harder than the jerk limit allows (an EPM fast toward a face, a braking
 command after a fault) keeps the acceleration bound and is reported as clipped.
 """
 
@@ -121,6 +122,12 @@ def safe_command(
         u = np.minimum(np.maximum(u, lo_j), hi_j)
         if known:
             u = np.minimum(np.maximum(u, -envelope[3:]), envelope[:3])
+        # The speed limit approached within the jerk limit: a change s per frame, shrinking by dj
+        # each frame, still adds at most s^2 / (2 dj) before it has stopped growing, so the change
+        # is kept to the s with u + s^2 / (2 dj) <= speed (each frame then leaves the next one room).
+        room_hi, room_lo = np.maximum(speed - prev, 0.0), np.maximum(speed + prev, 0.0)
+        u = np.minimum(u, prev + dj * (np.sqrt(1.0 + 2.0 * room_hi / dj) - 1.0))
+        u = np.maximum(u, prev - dj * (np.sqrt(1.0 + 2.0 * room_lo / dj) - 1.0))
         u = np.minimum(np.maximum(u, -speed), speed)
     u = np.minimum(np.maximum(u, prev - da), prev + da)
     if known:  # outside the envelope already: stop on the face rather than cross it
