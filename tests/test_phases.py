@@ -173,3 +173,27 @@ def test_the_phase_column_of_a_short_closed_loop_run(fast):
         follow["t_s"] < 0, "settle", np.where(follow["t_s"] < path.duration_s, "slide", "hold")
     )
     assert np.array_equal(follow["phase"], expected)
+
+
+def test_the_disturbance_estimate_learns_nothing_while_the_rig_holds_the_epm(lab_scenario):
+    """Before t = 0 the rig holds the EPM and the plans' commands are replaced by 0, so the motion
+    they predicted is no evidence of a disturbance: the estimate stays at 0 until the rest
+    calibration at t = 0 (on a `lab` draw, whose camera noise makes the filter's velocity pass
+    the learning threshold now and then)."""
+    sc = lab_scenario.model_copy(
+        update={
+            "mpc": lab_scenario.mpc.model_copy(update={"compile_c": False}),
+            "place": lab_scenario.place.model_copy(update={"max_moves": 0}),
+            "sim": lab_scenario.sim.model_copy(update={"settle_s": 1.0, "tail_s": 0.5}),
+        }
+    )
+    path = ReferencePath(np.array([[-0.05, -0.03], [-0.04, -0.03]]), closed=False, speed_mps=0.02)
+    run = simulate(sc, MPCController(), path, seed=3)
+    names = ("disturbance_x_n", "disturbance_y_n", "disturbance_friction_n")
+    before = [
+        [stats.extra[n] for n in names]
+        for t, stats in zip(run.log["t_s"], run.step_stats, strict=True)
+        if t < 0 and names[0] in stats.extra
+    ]
+    assert len(before) > 20
+    assert np.all(np.array(before) == 0.0)

@@ -140,13 +140,13 @@ REST_BEFORE_S = 0.3
 #: release; the force along the approach there is the drag plus ``STOP_FRICTION mu_s F_N``. Fitted
 #: on the first moves of closed-loop runs on tuning draws by ``benchmarks/stop_friction.py``
 #: (docs/results/stop_friction_lab.json).
-STOP_FRICTION = 0.282
+STOP_FRICTION = 0.283
 #: Where the path gave the camera a leg along the approach, the capsule comes to rest where the force
 #: along the approach is this part of the force that dragged it along that leg (both in the force
 #: model, at the lead the camera saw): the slide measures the rig's coupling and friction together,
 #: which no belief of the friction alone does. Fitted on the first moves of closed-loop runs on tuning
 #: draws by ``benchmarks/stop_friction.py`` (docs/results/stop_friction_lab.json).
-STOP_FROM_SLIDE = 0.622
+STOP_FROM_SLIDE = 0.621
 #: A leg counts once the capsule has slid this long in one direction along the axis, s (its lateral
 #: offset has relaxed), and up to this long before it stops doing so (the MPC turns before a
 #: corner); its frames are averaged if there are at least :data:`LEG_MIN_FRAMES`.

@@ -174,7 +174,10 @@ class SlideProducer:
         x0 = np.concatenate([ctx.position_m, ctx.velocity_mps, ctx.epm_m])
         drag = self.reference.drag_growth_n(ctx.t_s)
         plan = self.plan
-        if ctx.measured and plan is not None:  # a dropped or rejected frame teaches nothing
+        # A dropped or rejected frame teaches nothing, and nor does the settle phase: the rig holds
+        # the EPM, so the plan's commands were replaced by 0 and its predicted motion never had a
+        # chance (the rest calibration learns from it instead).
+        if ctx.measured and plan is not None and ctx.t_s >= 0:
             v_pred = plan.state((plan.age + 1) * self.dt_s)[2:4]
             self.estimator.update_disturbance(ctx.velocity_mps, v_pred)
         # The model's drag grows with the tether paid out: its growth so far joins the estimated
