@@ -9,7 +9,7 @@ Three parts, each a few lines of bookkeeping around :class:`capsule_mpc.estimati
   into a constant force across the motion (gain ``estimator.disturbance_gain``, bounded by
   ``estimator.disturbance_max_n``) and an extra friction along it (``estimator.friction_gain``,
   bounded by ``estimator.friction_max_n``); a capsule at rest teaches nothing (static friction
-  holds it);
+  holds it), and nor does the settle phase (the sliding producer folds innovations in from t = 0);
 * the rest calibration: while the rig holds the EPM before t = 0, where the capsule rests under it
   tells the model's force bias; at t = 0 the constant disturbance is set to cancel the model's
   lateral force at the mean rest lead;
