@@ -1,5 +1,6 @@
-"""Argument types the benchmark scripts share: each turns a bad value into an argparse error (exit
-status 2, before any work) that says what the option must be and what it got.
+"""What the benchmark scripts share on their command line: argument types that turn a bad value
+into an argparse error (exit status 2, before any work) saying what the option must be and what it
+got, and :func:`exit_with`, which reports the package's refusals in one line.
 
 The scripts run as ``python benchmarks/NAME.py``, which puts this folder on the import path.
 """
@@ -7,9 +8,25 @@ The scripts run as ``python benchmarks/NAME.py``, which puts this folder on the 
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable
+from pathlib import Path
+from typing import NoReturn
 
-__all__ = ["int_at_least"]
+from capsule_mpc.errors import ConfigError
+
+__all__ = ["exit_with", "int_at_least"]
+
+
+def exit_with(main: Callable[[], int]) -> NoReturn:
+    """Exit with ``main()``'s status; a :class:`~capsule_mpc.errors.ConfigError` (a bad argument, a
+    campaign folder of other arguments) is one line on stderr and status 2, not a traceback."""
+    try:
+        code = main()
+    except ConfigError as exc:
+        print(f"{Path(sys.argv[0]).name}: error: {exc}", file=sys.stderr)
+        code = 2
+    sys.exit(code)
 
 
 def int_at_least(minimum: int, maximum: int | None = None) -> Callable[[str], int]:

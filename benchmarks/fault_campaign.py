@@ -35,11 +35,10 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from _args import int_at_least
+from _args import exit_with, int_at_least
 
 from capsule_mpc.atomic import json_ready
 from capsule_mpc.config import packaged_config_path
-from capsule_mpc.errors import ConfigError
 from capsule_mpc.experiments.aggregate import aggregate
 from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.experiments.sweep.campaign import local_workers, sweep, sweep_failures
@@ -212,9 +211,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    try:
-        code = main()
-    except ConfigError as exc:  # a bad argument or a campaign folder of other arguments: one line
-        print(f"fault_campaign.py: error: {exc}", file=sys.stderr)
-        code = 2
-    sys.exit(code)
+    exit_with(main)

@@ -55,9 +55,9 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from _args import exit_with
 
 from capsule_mpc.config import LearnedFrictionModel, Scenario, load_config
-from capsule_mpc.errors import ConfigError
 from capsule_mpc.experiments.sweep.campaign import sweep
 from capsule_mpc.experiments.sweep.tasks import ORACLE, Variant, dask_client
 from capsule_mpc.experiments.table import split_label
@@ -317,9 +317,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    try:
-        code = main()
-    except ConfigError as exc:  # a bad argument or a campaign folder of other arguments: one line
-        print(f"friction_ablation.py: error: {exc}", file=sys.stderr)
-        code = 2
-    sys.exit(code)
+    exit_with(main)
