@@ -222,3 +222,27 @@ def test_arriving_fast_breaks_the_capsule_loose_sooner_in_closed_loop(lab_start_
         assert runs[arrival].metrics["arm_ok"]
     assert _first_slip_s(runs[0.9]) <= _first_slip_s(runs[0.0]) - 1.5 / 30
     assert runs[0.9].metrics["start_tracking_rms_mm"] < runs[0.0].metrics["start_tracking_rms_mm"] - 0.2
+
+
+def test_the_first_motion_is_timed_at_the_plants_step_not_the_cameras_frame(lab_start_leg):
+    """The simulator times the start's first motion to the plant step: the same time whether the
+    plant runs in one compiled call per frame or one call per step, a step's multiple, and within
+    the frame before the first camera frame that saw the capsule slide."""
+    from capsule_mpc.sim.loop import ClosedLoop
+
+    sc, leg = lab_start_leg
+    firsts = []
+    for per_step in (False, True):
+        loop = ClosedLoop(sc, "mpc", leg, 5)
+        if per_step:
+            loop._advance = loop._advance_each  # type: ignore[method-assign]
+        loop.reset()
+        while np.isnan(loop.first_motion_s):
+            frame = loop.step()
+        firsts.append(loop.first_motion_s)
+    first = firsts[0]
+    assert firsts[1] == pytest.approx(first, abs=1e-12)
+    assert first == pytest.approx(round(first / loop.dt) * loop.dt, abs=1e-12)
+    assert frame.t_s - loop.frame_s < first <= frame.t_s + 1e-12
+    assert frame.row["stuck"] == 0
+    assert 0.0 < first < PRELOAD_MAX_S

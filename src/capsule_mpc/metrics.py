@@ -480,18 +480,25 @@ def end_metrics(
     }
 
 
-def start_metrics(log: Mapping[str, np.ndarray], bound_s: float) -> dict[str, Any]:
-    """When the capsule first moved after t = 0 (the plant's ``stuck`` column), against the draw's
-    arm-limited bound (:func:`capsule_mpc.sim.start_bound.breakaway_bound_s`).
+def start_metrics(first_motion_s: float, bound_s: float) -> dict[str, Any]:
+    """When the capsule first slid after t = 0, against the draw's arm-limited bound
+    (:func:`capsule_mpc.sim.start_bound.breakaway_bound_s`).
+
+    Parameters
+    ----------
+    first_motion_s : float
+        The end of the first plant step at t >= 0 after which the capsule was not held by static
+        friction, s (the simulator records it at the plant's rate: the camera's frames would round
+        it up by up to a frame); NaN if it never moved.
+    bound_s : float
+        The draw's arm-limited bound, s.
 
     Returns
     -------
     dict
-        ``first_motion_s`` (NaN if it never moved), ``first_motion_bound_s`` and
-        ``first_motion_ratio`` (first motion / bound; NaN without a finite, positive bound).
+        ``first_motion_s``, ``first_motion_bound_s`` and ``first_motion_ratio`` (first motion /
+        bound; NaN without a finite, positive bound).
     """
-    t = np.asarray(log["t_s"], dtype=float)
-    moving = (np.asarray(log["stuck"]) == 0) & (t >= 0)
-    first = float(t[moving][0]) if np.any(moving) else math.nan
+    first = float(first_motion_s)
     ratio = first / bound_s if math.isfinite(bound_s) and bound_s > 0 else math.nan
     return {"first_motion_s": first, "first_motion_bound_s": bound_s, "first_motion_ratio": ratio}

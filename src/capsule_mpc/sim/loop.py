@@ -466,6 +466,7 @@ class ClosedLoop:
         self.tracker = PathProgress(path)
         self.flags = RunFlags()
         self.rest_s = 0.0
+        self.first_motion_s = math.nan  # when the capsule first slid at t >= 0, s
         self.cmd_applied = np.zeros(3)
         self.stall_end_k = -(2**62)  # plant step at which an arm stall ends
         self._arm_log: list[tuple[float, np.ndarray]] = []  # arm commands not yet noted by _advance
@@ -524,7 +525,7 @@ class ClosedLoop:
             j = self._next_arm_input(k + i, k_to) - k
             advance(self.dt, epm[i:j])
             i = j
-        steps, status = self.plant.advance(self.dt, epm)
+        steps, status = self._plant_advance(k, epm)
         if steps < n:  # the plant failed early: the arm only reached the failing step
             self.actuator.restore(state)  # type: ignore[attr-defined]
             for i in range(steps):
@@ -532,6 +533,28 @@ class ClosedLoop:
                     self.actuator.set_velocity_command(t_s, vel)
                 self.actuator.step_xyz(self.dt)
         return k + steps, status
+
+    def _plant_advance(self, k: int, epm: np.ndarray) -> tuple[int, int]:
+        """The plant from step ``k`` over the EPM positions ``epm`` (n, 3) in one compiled call; until
+        the capsule first slides at t >= 0, one call per step, so that time is known to the plant's
+        step (:attr:`first_motion_s`). Returns (steps, status) as :meth:`CapsulePlant.advance`."""
+        plant, n = self.plant, len(epm)
+        if not math.isnan(self.first_motion_s) or k + n < 0:
+            return plant.advance(self.dt, epm)
+        for i in range(n):
+            _, status = plant.advance(self.dt, epm[i : i + 1])
+            if status != OK:
+                return i + 1, status
+            if self._note_motion(k + i + 1) and i + 1 < n:
+                steps, status = plant.advance(self.dt, epm[i + 1 :])
+                return i + 1 + steps, status
+        return n, OK
+
+    def _note_motion(self, k: int) -> bool:
+        """After plant step ``k``: whether the capsule has slid at t >= 0 (its first time noted)."""
+        if math.isnan(self.first_motion_s) and k >= 0 and not self.plant.stuck:
+            self.first_motion_s = k * self.dt
+        return not math.isnan(self.first_motion_s)
 
     def _next_arm_input(self, k: int, k_to: int) -> int:
         """The first plant step after ``k`` (and at most ``k_to``) at which a command reaches the arm."""
@@ -572,6 +595,7 @@ class ClosedLoop:
             ex, ey, ez = step_act(self.dt)
             status = step_plant(self.dt, ex, ey, ez)
             k += 1
+            self._note_motion(k)
             if status != OK:
                 break
         self._arm_log.clear()
@@ -714,7 +738,7 @@ class ClosedLoop:
         bias = np.array([self.truth.camera_bias_x_m, self.truth.camera_bias_y_m])
         moves = max((int(st.extra.get("placement_moves", 0)) for st in stats), default=0)
         metrics.update(end_metrics(arrays, self.path, bias, moves, self.flags.at_rest))
-        metrics.update(start_metrics(arrays, self.start_bound_s))
+        metrics.update(start_metrics(self.first_motion_s, self.start_bound_s))
         metrics["measurements_rejected"] = sum(int(st.extra.get("measurement_rejected", 0)) for st in stats)
         for obs in self.observers:
             obs.on_end(self, metrics)
