@@ -166,3 +166,35 @@ def test_breakaway_check_from_synthetic_json(results_doc):
     assert "3.3 ± 4.7 (6.7) %" in text
     assert "before the draw's run, against the plant's at the path's start: within 10 % on 1 of 2" in text
     assert "No static friction was learned on 1 draws." in text
+
+
+def test_placement_time_by_moves_from_synthetic_json(results_doc):
+    """The placement section gives the time to place per number of moves: the runs and their median."""
+    moves_and_times = [(0, 0.3), (1, 2.0), (1, 3.0), (2, 6.0), (2, 7.0), (2, 11.0)]
+    runs = [
+        {
+            "seed": i,
+            "controllers": {
+                "mpc": {
+                    "final_error_seen_mm": 0.1,
+                    "final_error_mm": 0.15,
+                    "camera_bias_mm": 0.1,
+                    "time_to_place_s": t,
+                    "placement_moves": m,
+                    "stalled": False,
+                    "end_phase": "hold",
+                    "first_motion_ratio": 1.2,
+                    "tracking_rms_mm": 1.0,
+                    "cross_track_rms_mm": 0.5,
+                }
+            },
+        }
+        for i, (m, t) in enumerate(moves_and_times)
+    ]
+    lines = results_doc.section_lines("placement", {"plant_preset": "lab", "runs": runs})
+    line = next(line for line in lines if line.startswith("Time to place by the moves"))
+    assert line.endswith(
+        ": 0 moves: 1 run, median 0.3 s; 1 move: 2 runs, median 2.5 s; 2 moves: 3 runs, median 7.0 s."
+    )
+    row = next(line for line in lines if line.startswith("| `mpc`"))
+    assert "| 4.5 / 10.0 (11.0) |" in row  # median (3 and 6), p95 (linear between 7 and 11), worst
