@@ -19,6 +19,7 @@ from capsule_mpc.metrics import (
     run_metrics,
     solver_metrics,
     stack_predictions,
+    start_metrics,
 )
 from capsule_mpc.paths import ReferencePath, rectangle
 
@@ -305,3 +306,16 @@ def test_cross_track_never_exceeds_tracking(vertices, capsule, speed):
     m = run_metrics(line_log(t, np.array(capsule), path=path), path, window_end_s=float(t[-1]))
     assert m["cross_track_rms_mm"] <= m["tracking_rms_mm"] + 1e-9
     assert m["cross_track_max_mm"] <= m["tracking_max_mm"] + 1e-9
+
+
+def test_start_metrics_give_the_first_motion_against_the_bound():
+    m = start_metrics(0.26, 0.2)
+    assert m == {
+        "first_motion_s": 0.26,
+        "first_motion_bound_s": 0.2,
+        "first_motion_ratio": pytest.approx(1.3),
+    }
+    assert math.isnan(start_metrics(0.26, math.inf)["first_motion_ratio"])  # no breakaway within reach
+    assert math.isnan(start_metrics(0.26, 0.0)["first_motion_ratio"])
+    never = start_metrics(math.nan, 0.2)
+    assert math.isnan(never["first_motion_s"]) and math.isnan(never["first_motion_ratio"])
