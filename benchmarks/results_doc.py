@@ -171,8 +171,10 @@ def placement_context(data: dict[str, Any]) -> dict[str, Any]:
         table["prompt"] = (ratio <= START_BOUND_FACTOR).astype("boolean").mask(ratio.isna())
     stats = aggregate(table, by=["controller"], quantiles={"p95": 0.95}).sort_index()
     rows = [(name, st, int(st[("runs", "n")])) for name, st in stats.iterrows()]
-    by_moves = table.groupby(["controller", "placement_moves"])["time_to_place_s"].agg(["size", "median"])
-    moves = {name: list(by_moves.loc[name].itertuples()) for name, _, _ in rows}
+    by_moves = aggregate(
+        table, by=["controller", "placement_moves"], metrics=["time_to_place_s"]
+    ).sort_index()
+    moves = {name: list(by_moves.loc[name].iterrows()) for name, _, _ in rows}
     seen = {"seen_mm": seen_mm, "margin_mm": PLACED_TRUTH_MARGIN_MM, "bound": START_BOUND_FACTOR}
     return {
         **data,
