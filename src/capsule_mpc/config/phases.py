@@ -82,6 +82,17 @@ class BreakLooseConfig(StrictModel):
             "the capsule breaks loose). [0, 1]."
         ),
     )
+    toward_path: Number = Field(
+        0.4,
+        ge=0,
+        le=1,
+        description=(
+            "The pre-load's EPM target moves across the path's initial direction, to the far side "
+            "of the path's first line from where the capsule rests, by this fraction of the "
+            "capsule's offset from that line: once it breaks loose, the capsule is drawn onto the "
+            "path instead of sliding on beside it. [0, 1]; 0: along the path's direction only."
+        ),
+    )
     blend_s: Number = Field(
         2.0,
         ge=0,

@@ -19,6 +19,11 @@ and never below the path's speed. Arriving at the path's speed
 instead would spend the last tenth of a second slowing down while the capsule, still stuck, falls
 behind the reference; arriving fast, the EPM overshoots the lead once the capsule breaks loose,
 and the larger force makes the capsule catch up with the reference it lost while it was stuck.
+A capsule held off the path's first line (the coupling's dead zone is widest across its soft
+axis) would slide on beside it while the MPC's lateral pull builds up; so the EPM's target also
+moves across û, to the far side of the line, by ``break_loose.toward_path`` times the capsule's
+offset from it, and the capsule that breaks loose is drawn onto the path at once (Ruckig stops
+that axis there).
 The phase ends there (pre-loaded), or earlier when the camera sees the capsule leave its rest
 position (:class:`~capsule_mpc.mpc.contact.RestDetector`), when the lead would leave the coupling
 limit (``limits.max_lead_m`` around the model's equilibrium lead), or after :data:`PRELOAD_MAX_S`;
@@ -125,13 +130,14 @@ class StartPreload:
         speed = float(np.linalg.norm(velocity))
         self.direction = velocity / speed if speed > 0 else np.zeros(2)
         self.speed_mps = speed
+        self.start_m = np.asarray(path.start_m, dtype=float)[:2]
         self.active = self.fraction is not None and speed > 0
         self.target_lead_m: np.ndarray | None = None
         self.arrival_mps = speed
         self.end_reason = ""
         self._otg = epm_ruckig(scenario, dt_s)
         self._state: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._target_m = np.zeros(3)
+        self.target_epm_m: np.ndarray | None = None  # the EPM's target position (3,), m
 
     @property
     def fraction(self) -> float | None:
@@ -214,7 +220,11 @@ class StartPreload:
             self.target_lead_m = self.target_lead(
                 epm_m[0:2] - rest_pos, float(epm_m[2]), self.rest.rest_s(t_s), disturbance_xy_n
             )
-            self._target_m = np.append(rest_pos + self.target_lead_m, float(epm_m[2]))
+            normal = np.array([-self.direction[1], self.direction[0]])
+            beside = float((rest_pos - self.start_m) @ normal)  # the rest's offset from the first line
+            across = -self.scenario.break_loose.toward_path * beside * normal
+            self.target_epm_m = np.append(rest_pos + self.target_lead_m + across, float(epm_m[2]))
+        assert self.target_epm_m is not None
         if self._state is None:
             self.arrival_mps = self.arrival_speed(epm_m[0:2] - rest_pos, self.target_lead_m)
         cruise = np.append(self.arrival_mps * self.direction, 0.0)
@@ -225,7 +235,7 @@ class StartPreload:
             self._state = (np.asarray(epm_m, dtype=float), np.asarray(u_prev, dtype=float), np.zeros(3))
         otg, inp, out = self._otg
         inp.current_position, inp.current_velocity, inp.current_acceleration = (list(x) for x in self._state)
-        inp.target_position = list(self._target_m)
+        inp.target_position = list(self.target_epm_m)
         inp.target_velocity = list(cruise)
         inp.target_acceleration = [0.0, 0.0, 0.0]
         result = otg.update(inp, out)
