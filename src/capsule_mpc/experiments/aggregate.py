@@ -52,25 +52,12 @@ def aggregate(
     metrics: Sequence[str] | None = None,
     quantiles: Mapping[str, float] | None = None,
 ) -> pd.DataFrame:
-    """Per group of ``by``: the statistics of every metric and flag (module docstring).
+    """Per group of ``by`` (in order of first appearance): the statistics of every metric and flag.
 
-    Parameters
-    ----------
-    table : pandas.DataFrame
-        A run table.
-    by : sequence of str
-        The grouping columns; groups in order of first appearance.
-    metrics : sequence of str, optional
-        Numeric columns to summarise (default every numeric column but the keys, flags and the
-        draw's ``plant.*`` and ``varied.*`` values); flags are always counted.
-    quantiles : mapping of str to float, optional
-        Further statistics of each metric: name to quantile in [0, 1] (e.g. ``{"p95": 0.95}``).
-
-    Returns
-    -------
-    pandas.DataFrame
-        Indexed by ``by``; columns ``(metric, stat)``, ``(flag, "count" | "n")``, ``("runs", "n")``
-        and ``("failed", "n")``. A group none of whose runs finished has NaN statistics.
+    ``metrics`` default to every numeric column but the keys, flags and the draw's ``plant.*`` and
+    ``varied.*`` values; flags are always counted; ``quantiles`` adds statistics by name (e.g.
+    ``{"p95": 0.95}``). The columns are ``(metric, stat)``, ``(flag, "count" | "n")``, ``("runs",
+    "n")`` and ``("failed", "n")``; a group none of whose runs finished has NaN statistics.
     """
     keys = list(by)
     ok = succeeded(table)
@@ -103,25 +90,11 @@ def paired(
     metrics: Sequence[str],
     by: Sequence[str] = ("variant", "controller"),
 ) -> pd.DataFrame:
-    """Per group, each metric's difference to the baseline's run on the same seed.
+    """Per group of ``by``, each metric's difference to the ``baseline``'s run on the same seed.
 
-    Parameters
-    ----------
-    table : pandas.DataFrame
-        A run table with a ``seed`` column.
-    baseline : mapping of column to value
-        The rows of the baseline, e.g. ``{"variant": "paper", "controller": "mpc"}``.
-    metrics : sequence of str
-        The metrics compared.
-    by : sequence of str
-        The grouping columns.
-
-    Returns
-    -------
-    pandas.DataFrame
-        Indexed by ``by`` (the baseline's own group included, its differences 0); columns
-        ``(metric, stat)`` for ``mean``, ``sd``, ``worst``, ``n``, ``better`` and ``relative``, over
-        the seeds where both finished.
+    ``baseline`` selects its rows (e.g. ``{"variant": "paper"}``); the baseline's own group is
+    included, its differences 0. Columns ``(metric, stat)`` for ``mean``, ``sd``, ``worst``, ``n``,
+    ``better`` and ``relative``, over the seeds where both finished.
     """
     ok = succeeded(table)
     mask = pd.Series(True, index=ok.index)

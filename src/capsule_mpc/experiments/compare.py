@@ -1,19 +1,14 @@
 """Compare controllers on the same plant, path and seeds (what ``capsule-mpc compare`` runs).
 
-Each run ``k`` of ``--runs N`` uses the seed ``seed + k``, which fixes the plant drawn around the
-nominal scenario, the start offset and the camera noise; every controller runs on it, and the runs
-of one seed are scored on a common window (t = 0 to the latest end among them). A comparison is a
-campaign on the sweep's runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep` with
-``command="compare"``), which writes one run folder per controller and seed (``OUT/NAME/`` for one
-run, ``OUT/runs/seed_<S>/NAME/`` for several), ``runs.csv``, ``summary.json`` (its ``controllers``:
-:func:`aggregate_runs`), ``summary.md`` and the first seed's figures.
-
-A controller that raises on a seed (e.g. ``plan`` when the planner's solve does not converge) has
-``{"error", "traceback"}`` instead of metrics there. Exit status: 0 when every controller ran on
-every seed, 1 when any failed (each named on stderr), 2 on bad input, 130 on Ctrl-C (nothing
-summarised; each run in progress keeps its log so far and a finalised ``run.mcap``). The runs are
-not paced to the wall clock, so they are deterministic; the solver's timings are measured all the
-same.
+A comparison is a campaign on the sweep's runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep`
+with ``command="compare"``): run ``k`` of ``--runs N`` uses the seed ``seed + k`` (the plant drawn,
+the start offset, the camera noise), every controller runs on it and the runs of one seed are
+scored on a common window. It writes one run folder per controller and seed (``OUT/NAME/`` for one
+run, ``OUT/runs/seed_<S>/NAME/`` for several), ``runs.csv``, ``summary.json``, ``summary.md`` and
+the first seed's figures. A controller that raises on a seed has ``{"error", "traceback"}`` instead
+of metrics there. Exit status: 0 when every controller ran on every seed, 1 when any failed (each
+named on stderr), 2 on bad input, 130 on Ctrl-C (each run in progress keeps its log so far and a
+finalised ``run.mcap``). The runs are not paced to the wall clock, so they are deterministic.
 """
 
 from __future__ import annotations
@@ -71,25 +66,13 @@ RUNS_FOLDER = "runs"
 
 
 def aggregate_runs(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Per-run statistics over the draws, as ``summary.json``'s ``controllers``.
+    """Per-run statistics over the draws (``per_seed``: ``summary.json``'s ``runs``), as its ``controllers``.
 
-    Parameters
-    ----------
-    per_seed : sequence of mapping
-        One entry per seed, as in ``summary.json``'s ``runs``: ``{"controllers": {name: the
-        run's metrics and flags, or {"error": text}}}``. A JSON null counts as NaN.
-
-    Returns
-    -------
-    dict of str to dict
-        For each run name (the controller; ``VARIANT:CONTROLLER`` in a variant), in order of
-        first appearance, from :func:`capsule_mpc.experiments.aggregate.aggregate` of the run
-        table: every metric's mean and every flag's count over the successful runs, ``spread``
-        ``{metric: {"sd", "min", "max", "n"}}``, ``n_runs`` (successful runs), ``n_failed`` (runs
-        whose controller raised), ``status`` (``"ok"``; ``"failed"`` when no run finished; else
-        ``"failed on k of N runs"``), ``errors`` (their messages, when any) and ``error`` (the
-        first message) when no run succeeded; no metrics then. Text entries (``failure``,
-        ``run_dir``, ...) are left out.
+    For each run label, from :func:`capsule_mpc.experiments.aggregate.aggregate` of the run table:
+    every metric's mean and every flag's count over the successful runs, ``spread`` ``{metric:
+    {"sd", "min", "max", "n"}}``, ``n_runs``, ``n_failed``, ``status`` (``"ok"``, ``"failed"`` or
+    ``"failed on k of N runs"``), ``errors`` when any and ``error`` (the first) when no run
+    succeeded, with no metrics then.
     """
     table = table_from_entries(per_seed)
     stats = aggregate(table)
@@ -143,17 +126,11 @@ def _cell(entry: Mapping[str, Any], key: str, fmt: str, runs: int) -> str:
 
 
 def summary_table(controllers: Mapping[str, Mapping[str, Any]], runs: int = 1) -> str:
-    """A markdown table of the per-controller metrics (``n/a`` for missing / non-finite values).
+    """A markdown table of ``summary.json``'s ``controllers`` (``n/a`` for missing or non-finite values).
 
-    Parameters
-    ----------
-    controllers : mapping of controller name to dict
-        ``summary.json``'s ``controllers`` (:func:`aggregate_runs`); a plain metrics dict per
-        controller also works for one run.
-    runs : int
-        Runs per controller. Above 1 a metric reads ``mean ± sd`` (with ``(n/N)`` when only
-        ``n`` of the ``N`` successful runs had a finite value, e.g. arrived), a flag reads
-        ``k/N`` (true in ``k`` of ``N`` runs), and a first column gives the successful runs.
+    With ``runs`` > 1 a metric reads ``mean ± sd`` (with ``(n/N)`` when only ``n`` of the ``N``
+    successful runs had a finite value, e.g. arrived), a flag ``k/N`` (true in ``k`` of ``N`` runs),
+    and a first column gives the successful runs.
     """
     several = runs > 1
     head = (
@@ -195,13 +172,7 @@ def summary_markdown(
 
 def check_controllers(controllers: Sequence[str] | None) -> list[str]:
     """The controllers a campaign runs: ``controllers``, or every registered one in
-    :data:`CONTROLLER_ORDER`, then the others.
-
-    Raises
-    ------
-    ConfigError
-        ``--controllers: unknown [...]; available: [...]`` or ``--controllers: 'x' is given more than once``.
-    """
+    :data:`CONTROLLER_ORDER`, then the others; a ConfigError for an unknown or repeated name."""
     known = available_controllers()
     if controllers is None:
         return [n for n in CONTROLLER_ORDER if n in known] + [n for n in known if n not in CONTROLLER_ORDER]

@@ -75,15 +75,9 @@ def flatten(value: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def entry_rows(entry: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """The rows of one draw's entry (a sweep's ``runs/seed_<S>.json``, a comparison's ``runs``).
-
-    Parameters
-    ----------
-    entry : mapping
-        ``{"seed", "window_end_s", "controllers": {label: the run's metrics, or {"error"}}}``, a
-        label being :func:`run_label`; the entry's other mappings (the draw's ``plant``, ``varied``,
-        ``learning``) are the draw's columns, ``KEY.FIELD``.
-    """
+    """The rows of one draw's entry (a sweep's ``runs/seed_<S>.json``, a comparison's ``runs``):
+    ``{"seed", "window_end_s", "controllers": {label: metrics, or {"error"}}}``; the entry's other
+    mappings (``plant``, ``varied``, ``learning``) are the draw's columns, ``KEY.FIELD``."""
     draw = flatten({"seed": entry.get("seed"), "window_end_s": entry.get("window_end_s")})
     draw.update(flatten({k: v for k, v in entry.items() if isinstance(v, Mapping) and k != "controllers"}))
     draw.pop("plant.seed", None)

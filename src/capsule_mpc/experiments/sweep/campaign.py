@@ -63,50 +63,17 @@ def sweep(
 ) -> dict[str, Any]:
     """Run a campaign into ``out`` (resuming the one there), write its runs, table, summary and figures.
 
-    Parameters
-    ----------
-    scenario, path
-        As for :func:`capsule_mpc.sim.simulate` (with the ``--plant`` preset applied).
-    out : str or Path
-        Output folder (created).
-    seed, runs : int
-        Seed of the first run (run ``k`` uses ``seed + k``) and the number of runs, >= 1.
-    controllers : sequence of str, optional
-        The controllers run on each draw (default every registered one,
-        :func:`~capsule_mpc.experiments.compare.check_controllers`).
-    vary : sequence of VaryRange
-        Plant fields drawn from these ranges instead of the preset's (:mod:`.vary`).
-    variants : sequence of Variant
-        The study's variants (default the scenario as given), each run by ``controllers``.
-    workers : int, optional
-        Worker processes of the ``LocalCluster`` started when ``client`` is None and a run is left
-        to do (default the CPU count, no more than the runs); a comparison with one worker runs its
-        draws in this process.
-    client : distributed.Client, optional
-        The Dask cluster to run on.
-    meta : dict, optional
-        Provenance (``config``, ``waypoints_file``) for the summary.
-    progress : bool
-        A progress bar over the runs.
-    task : callable
-        What runs one seed (:func:`run_seed`); must be importable by the workers.
-    measure : callable, optional
-        Entries added to a draw's runs from their results (:class:`~.tasks.SeedTask`).
-    command : str
-        ``"sweep"``, or ``"compare"``: each run's folder is written (under ``out`` for one run,
-        ``out/runs/seed_<S>/`` for several) with the first seed's figures, no resume.
-
-    Returns
-    -------
-    dict
-        The summary written to ``summary.json`` (:mod:`capsule_mpc.experiments.sweep`).
-
-    Raises
-    ------
-    ValueError
-        ``runs`` < 1.
-    ConfigError
-        An unknown controller, or ``out`` holds a sweep with other arguments.
+    ``scenario`` and ``path`` as for :func:`capsule_mpc.sim.simulate`; run ``k`` of ``runs`` (>= 1,
+    else ValueError) uses the seed ``seed + k``. The ``controllers`` (default every registered one,
+    :func:`~capsule_mpc.experiments.compare.check_controllers`) run on each draw in each of the
+    ``variants`` (default the scenario as given), the ``vary`` fields drawn from their ranges
+    (:mod:`.vary`). The draws run on ``client``, else on a ``LocalCluster`` of ``workers`` processes
+    (default the CPU count, no more than the runs); ``task`` runs one seed and must be importable by
+    the workers; ``measure`` adds entries to a draw's runs from their results; ``meta`` is the
+    provenance (``config``, ``waypoints_file``). ``command="compare"`` writes each run's folder (under
+    ``out`` for one run, ``out/runs/seed_<S>/`` for several) and the first seed's figures, runs a
+    single local worker's draws in this process, and does not resume. Returns the summary written to
+    ``summary.json``; a ConfigError for an unknown controller or a folder of other arguments.
     """
     if runs < 1:
         raise ValueError(f"runs: must be an integer >= 1, got {runs}")
@@ -197,8 +164,8 @@ def _run(
     task: Callable[[SeedTask], dict[str, Any]],
     in_process: bool = False,
 ) -> None:
-    """Run ``todo`` on ``client`` (default a ``LocalCluster`` of ``local`` workers; in this process
-    with ``in_process``), writing each draw's entry to ``runs/seed_<S>.json`` and into ``done``."""
+    """Run ``todo`` (on ``client``, a ``LocalCluster`` of ``local`` workers, or here), writing each
+    draw's entry to ``runs/seed_<S>.json`` and into ``done``."""
     with ExitStack() as stack:
         outcomes: Iterable[Outcome] = ()
         if todo and in_process:
@@ -220,14 +187,8 @@ def _run(
 
 def local_workers(runs: int, workers: int | None, scheduler: str | None) -> int | None:
     """The worker processes a sweep starts on this machine: ``--workers`` (default the CPU count),
-    no more than ``runs``; None with ``--scheduler`` (the cluster's workers are its own).
-
-    Raises
-    ------
-    ConfigError
-        ``--workers`` with ``--scheduler``, or more workers than half the memory available holds
-        (:func:`capsule_mpc.budget.check_processes`).
-    """
+    no more than ``runs``; None with ``--scheduler``. A ConfigError for both, or for more workers than
+    half the memory available holds (:func:`capsule_mpc.budget.check_processes`)."""
     if scheduler is not None:
         if workers is not None:
             raise ConfigError("--workers: not with --scheduler (the cluster's workers are its own)")
@@ -265,25 +226,9 @@ def run_sweep(
     scheduler: str | None = None,
     progress: bool = True,
 ) -> int:
-    """``capsule-mpc sweep``: check the input, then run :func:`sweep` into ``out`` (resuming the
-    one there) and print its table, its worst runs and what failed; the exit status.
-
-    The arguments are the command's options: ``config``, ``waypoints``, ``speed`` and ``plant`` as
-    for :func:`capsule_mpc.experiments.runs.prepare_run`, ``seed`` (default the config's
-    ``sim.seed``), ``workers`` and ``scheduler`` as for :func:`local_workers`.
-
-    Returns
-    -------
-    int
-        0, or 1 when a controller failed or a run crashed (each named on stderr).
-
-    Raises
-    ------
-    ConfigError
-        Bad input, before anything is written: ``--controllers``, ``--workers``, ``--scheduler``,
-        ``--vary``, the config or the path, or ``out`` holding the config or the waypoints, or a
-        sweep with other arguments.
-    """
+    """``capsule-mpc sweep`` (its options are the arguments): check the input (a ConfigError before
+    anything is written), run :func:`sweep` into ``out`` (resuming the one there), print its table,
+    its worst runs and what failed; the exit status, 0 or 1 (a controller failed or a run crashed)."""
     names = check_controllers(controllers)
     local = local_workers(runs, workers, scheduler)
     work = replace(run_figures(names, 1), processes=local) if local else Workload(runs=0)

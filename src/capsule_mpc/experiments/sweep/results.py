@@ -126,14 +126,8 @@ def spec_difference(held: Mapping[str, Any], now: Mapping[str, Any]) -> str | No
 
 
 def check_resume(out: str | Path, spec: Mapping[str, Any]) -> bool:
-    """Whether ``out`` holds this sweep (to resume); False if it holds none.
-
-    Raises
-    ------
-    ConfigError
-        ``out`` holds a sweep with other arguments (the message names the first difference), or
-        its ``sweep.json`` cannot be read.
-    """
+    """Whether ``out`` holds this sweep (to resume); False if it holds none. A ConfigError when it
+    holds a sweep with other arguments (naming the first difference) or an unreadable ``sweep.json``."""
     held_file = Path(out) / SPEC_FILE
     try:
         if not held_file.is_file():
@@ -176,16 +170,10 @@ def finished_runs(out: Path, seeds: Sequence[int]) -> dict[int, dict[str, Any]]:
 
 
 def worst_runs(per_seed: Sequence[Mapping[str, Any]], count: int = WORST_COUNT) -> dict[str, dict[str, Any]]:
-    """The worst runs per controller, ``summary.json``'s ``worst``.
-
-    Returns
-    -------
-    dict of str to dict
-        Per run label: ``metrics``, for each metric of the table, the ``count`` runs with the
-        largest finite values, ``[{"seed", "value"}]`` from the worst, ties by seed; ``flags``, for
-        ``decoupled``, ``dropped`` and ``stalled``, the seeds where it was raised; ``failed``, the
-        seeds whose run did not finish.
-    """
+    """The worst runs per run label, ``summary.json``'s ``worst``: ``metrics``, for each metric of
+    the table, the ``count`` runs with the largest finite values, ``[{"seed", "value"}]`` from the
+    worst, ties by seed; ``flags``, the seeds where each flag was raised; ``failed``, the seeds whose
+    run did not finish."""
     table = table_from_entries(per_seed)
     out: dict[str, dict[str, Any]] = {}
     for (variant, controller), runs in table.groupby(["variant", "controller"], sort=False):
@@ -226,7 +214,6 @@ def worst_table(worst: Mapping[str, Mapping[str, Any]]) -> str:
 def write_figures(out: Path, per_seed: Sequence[Mapping[str, Any]], distributions: bool = True) -> list[str]:
     """metrics.png and, with ``distributions``, one distribution_<metric>.png per metric of the
     table; the file names."""
-
     done: dict[str, list[Mapping[str, Any]]] = {}
     for seed in per_seed:
         for name, entry in seed["controllers"].items():

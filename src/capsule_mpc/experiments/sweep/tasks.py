@@ -139,13 +139,8 @@ def _resolve(value: Any, scenario: Scenario, truth: PlantTruth, path: ReferenceP
 def variant_scenario(
     scenario: Scenario, variant: Variant, truth: PlantTruth, path: ReferencePath
 ) -> Scenario:
-    """``scenario`` with ``variant``'s overrides (resolved for the draw ``truth``), validated.
-
-    Raises
-    ------
-    ConfigError
-        An override the scenario does not take, naming its key.
-    """
+    """``scenario`` with ``variant``'s overrides (resolved for the draw ``truth``), validated (a
+    ConfigError names an override the scenario does not take)."""
     if not variant.overrides:
         return scenario
     data = scenario_data(scenario)
@@ -165,16 +160,10 @@ def _arms(task: SeedTask) -> list[tuple[str, str, Variant]]:
 
 
 def run_seed(task: SeedTask) -> dict[str, Any]:
-    """Run a :class:`SeedTask`; the draw's entry (JSON-ready; ``runs/seed_<S>.json`` of a sweep).
-
-    Returns
-    -------
-    dict
-        ``{"seed", "window_end_s", "controllers": {label (:func:`~..table.run_label`): the run's
-        metrics, limit counts, ``failure`` and ``realtime_factor``; ``run_dir`` with ``runs_dir``), or
-        {"error", "traceback"}},
-        "plant": the drawn truth (:meth:`~capsule_mpc.sim.PlantTruth.summary`), "varied": {field:
-        value}}``; the runs are scored on their common window (:func:`rescore_on_common_window`).
+    """Run a :class:`SeedTask`; the draw's entry (JSON-ready; ``runs/seed_<S>.json`` of a sweep):
+    ``{"seed", "window_end_s", "controllers": {label: the run's metrics, limit counts, ``failure``,
+    ``realtime_factor`` (and ``run_dir``), or {"error", "traceback"}}, "plant": the drawn truth,
+    "varied": {field: value}}``, the runs scored on their common window (:func:`rescore_on_common_window`).
     """
     varied = draw_varied(task.vary, task.seed)
     plant_scenario = with_plant_values(task.scenario, varied) if varied else task.scenario
@@ -244,11 +233,9 @@ def rescore_on_common_window(
 ) -> float:
     """Re-score one draw's runs on a common window; returns its end, s (NaN without runs).
 
-    The window ends at the latest ``motion_end_s`` (the time a run ended at rest) among the
-    runs (the path's metrics stop at its nominal end at the latest, for every run alike); each
-    run's metrics are recomputed on it with :func:`capsule_mpc.metrics.run_metrics`
-    (arrival tolerance ``sim.completion_tol_m``, deadline one camera period) and written into
-    its ``metrics`` dict, which keeps the runner's other entries (flags, limit counts).
+    The window ends at the latest ``motion_end_s`` (the time a run ended at rest) among the runs;
+    each run's metrics are recomputed on it (:func:`capsule_mpc.metrics.run_metrics`, arrival
+    tolerance ``sim.completion_tol_m``, deadline one camera period) into its ``metrics`` dict.
     """
     ends = [float(r.metrics["motion_end_s"]) for r in results.values()]
     ends = [e for e in ends if math.isfinite(e)]
@@ -284,8 +271,8 @@ class RunLogs:
         self.partial: dict[str, PartialRun] = {}
 
     def observers(self, name: str) -> list[Observer]:
-        """The observers of run ``name``: its MCAP log and what a stopped run keeps (none without a
-        base folder), and in a closing worker the check that stops it."""
+        """Run ``name``'s MCAP log and what a stopped run keeps (with a base folder), and the check
+        that stops it in a closing worker."""
         watch: list[Observer] = [_StopWhenClosing()]
         if self.base is None:
             return watch
@@ -394,9 +381,8 @@ def dask_teardown(worker: Worker) -> None:
 def run_here(
     fn: Callable[[SeedTask], dict[str, Any]], tasks: Sequence[SeedTask]
 ) -> Generator[Outcome, None, None]:
-    """Run ``tasks`` one after the other in this process; yield each (task, result) as
-    :func:`run_on_dask` does (a task that raises is yielded as :func:`crashed_entry`; Ctrl-C stops
-    them all, its run keeping what it recorded, :class:`RunLogs`)."""
+    """Run ``tasks`` one after the other in this process, yielding as :func:`run_on_dask` does
+    (Ctrl-C stops them all, its run keeping what it recorded)."""
     for task in tasks:
         try:
             result = fn(task)
@@ -411,11 +397,10 @@ def run_on_dask(
 ) -> Generator[Outcome, None, None]:
     """Run ``tasks`` on a Dask cluster; yield each (task, result) as it finishes.
 
-    At most as many tasks are on the cluster as its workers have threads (counted again as each
-    task finishes; at least one), so that a worker that dies takes no task but the one it was
-    running. That task, once ``allowed-failures`` workers died running it, is yielded as
-    :func:`crashed_entry`; so is one that raised. The tasks still on the cluster are cancelled
-    when the generator is closed (Ctrl-C, or the caller stopped).
+    At most as many tasks are on the cluster as its workers have threads, so that a worker that
+    dies takes no task but the one it was running; that task (once ``allowed-failures`` workers
+    died running it), or one that raised, is yielded as :func:`crashed_entry`. The tasks still on
+    the cluster are cancelled when the generator is closed.
     """
     from distributed import KilledWorker, as_completed  # lazy: Dask only when it runs the sweep
 
@@ -452,19 +437,14 @@ def run_on_dask(
 
 @contextmanager
 def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Client]:
-    """A Dask client: of the scheduler at ``scheduler``, else of a new ``LocalCluster``, closed on
-    exit (its workers stopped) however the block ends.
+    """A Dask client of the scheduler at ``scheduler`` (a ConfigError when it cannot be reached
+    within :data:`SCHEDULER_TIMEOUT_S`), else of a new ``LocalCluster``, closed on exit.
 
-    The ``LocalCluster`` has ``workers`` worker processes (default the CPU count) of one thread
-    each, restarted by nannies when they die, ``allowed_failures`` :data:`LOCAL_ALLOWED_FAILURES`
-    and no memory limit (:mod:`capsule_mpc.budget` bounds the sweep before it starts); its
-    workers' preload (:func:`dask_setup`, :func:`dask_teardown`) leaves Ctrl-C to this process and
-    stops a closing worker's run at its next frame.
-
-    Raises
-    ------
-    ConfigError
-        The scheduler cannot be reached within :data:`SCHEDULER_TIMEOUT_S`.
+    The ``LocalCluster`` has ``workers`` one-thread worker processes (default the CPU count),
+    restarted by nannies when they die, ``allowed_failures`` :data:`LOCAL_ALLOWED_FAILURES` and no
+    memory limit (:mod:`capsule_mpc.budget` bounds the sweep before it starts); its workers' preload
+    (:func:`dask_setup`, :func:`dask_teardown`) leaves Ctrl-C to this process and stops a closing
+    worker's run at its next frame.
     """
     from distributed import Client, LocalCluster  # lazy: Dask only when it runs the sweep
 

@@ -56,16 +56,9 @@ def _field_range(name: str) -> tuple[str, Callable[[float], bool]]:
 
 
 def parse_vary(text: str) -> VaryRange:
-    """An argparse ``type`` for ``--vary plant.FIELD=LO:HI``.
-
-    ``FIELD`` is a drawable plant field (:data:`capsule_mpc.config.PLANT_FIXED`), ``LO <= HI``
-    finite numbers inside the field's allowed range.
-
-    Raises
-    ------
-    argparse.ArgumentTypeError
-        Naming what is wrong: the syntax, an unknown field, LO > HI or a value out of range.
-    """
+    """An argparse ``type`` for ``--vary plant.FIELD=LO:HI``: ``FIELD`` a drawable plant field
+    (:data:`capsule_mpc.config.PLANT_FIXED`), ``LO <= HI`` finite numbers inside its allowed range;
+    an ``ArgumentTypeError`` names what is wrong."""
     name, eq, bounds = text.partition("=")
     lo_text, colon, hi_text = bounds.partition(":")
     if not eq or not colon:
@@ -106,13 +99,8 @@ def with_plant_values(scenario: Scenario, values: Mapping[str, float]) -> Scenar
 
 
 def check_vary(scenario: Scenario, vary: Sequence[VaryRange]) -> None:
-    """Refuse ``--vary`` ranges the scenario cannot take (e.g. a delay past one camera period).
-
-    Raises
-    ------
-    ConfigError
-        Naming the ``--vary`` argument and the rule its LO or HI breaks.
-    """
+    """Refuse ``--vary`` ranges the scenario cannot take (e.g. a delay past one camera period): a
+    ConfigError naming the argument and the rule its LO or HI breaks."""
     fields = [v.field for v in vary]
     twice = sorted({f for f in fields if fields.count(f) > 1})
     if twice:
