@@ -114,16 +114,6 @@ def seeds(values: Sequence[int]) -> str:
     return ", ".join(map(str, s))
 
 
-def span(values: Sequence[float], spec: str) -> str:
-    """The range of ``values`` (least, a dash, greatest), each formatted with ``spec``."""
-    return f"{min(values):{spec}}\u2013{max(values):{spec}}"
-
-
-def load(values: Sequence[float] | None) -> str:
-    """A load average as ``1 / 5 / 15`` minutes."""
-    return "not recorded" if not values else " / ".join(f"{v:.2f}" for v in values)
-
-
 def paired_cell(metric: str, stats: pd.Series, diff: pd.Series | None, total: int) -> str:
     """:func:`cell`, then the paired difference to the baseline: mean (better on k draws)."""
     text = cell(stats, metric, total)
@@ -299,7 +289,7 @@ def tables(data_dir: Path) -> Any:
         undefined=jinja2.StrictUndefined,
         keep_trailing_newline=True,
     )
-    env.globals.update(fmt=fmt, cell=cell, count=count, seeds=seeds, span=span, load=load)
+    env.globals.update(fmt=fmt, cell=cell, count=count, seeds=seeds)
     env.filters.update(paired_cell=paired_cell, c_at=lambda key, values, spec=".4f": fmt(values[key], spec))
     return env.get_template(TABLES).module
 
@@ -311,7 +301,7 @@ def section_lines(renderer: str, data: dict[str, Any], data_dir: Path = DATA) ->
 
 
 def _provenance(entry: dict[str, Any], data: dict[str, Any], data_dir: Path) -> list[str]:
-    """The command, date, machine and load of a section's data.
+    """The command, date, machine and load of a section's data (the ``provenance`` macro).
 
     The command and date come from the ``manifest.json`` a ``capsule-mpc`` command left beside its
     output when ``entry`` names one (``manifest``), else from the data file when it records its
@@ -331,15 +321,7 @@ def _provenance(entry: dict[str, Any], data: dict[str, Any], data_dir: Path) -> 
         command = entry["command"]
     if not command or not date:
         raise ValueError(f"{entry['file']}: no command or no date recorded")
-    lines = [f"- command: `{command}`", f"- date: {date}", f"- machine: {entry['machine']}"]
-    if entry.get("load"):
-        lines.append(f"- load average (1, 5, 15 min): {entry['load']}")
-    if entry.get("note"):
-        lines.append(f"- note: {entry['note']}")
-    for label, key in (("data", "file"), ("manifest", "manifest")):
-        if entry.get(key):
-            lines.append(f"- {label}: [`docs/results/{entry[key]}`](results/{entry[key]})")
-    return lines
+    return str(tables(data_dir).provenance(entry, command, date)).strip("\n").split("\n")
 
 
 def read_template(data_dir: Path) -> tuple[str, list[tuple[str, str, str, str]]]:
