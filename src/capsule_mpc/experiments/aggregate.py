@@ -96,28 +96,17 @@ def paired(
     included, its differences 0. Columns ``(metric, stat)`` for ``mean``, ``sd``, ``worst``, ``n``,
     ``better`` and ``relative``, over the seeds where both finished.
     """
+    keys = list(by)
     ok = succeeded(table)
-    mask = pd.Series(True, index=ok.index)
-    for column, value in baseline.items():
-        mask &= ok[column] == value
-    base = ok.loc[mask, ["seed", *metrics]]
-    merged = ok[[*by, "seed", *metrics]].merge(base, on="seed", suffixes=("", "@base"))
+    base = ok.loc[(ok[list(baseline)] == pd.Series(baseline)).all(axis=1), ["seed", *metrics]]
+    merged = ok[[*keys, "seed", *metrics]].merge(base, on="seed", suffixes=("", "@base"))
+    diffs = merged[keys].assign(**{m: merged[m] - merged[m + "@base"] for m in metrics})
+    stats = aggregate(diffs, keys, metrics)
     out = {}
     for m in metrics:
-        merged[m + "@diff"] = merged[m] - merged[m + "@base"]
-        g = merged.groupby(list(by), sort=False)
-        diff = g[m + "@diff"]
-        sd = diff.std().where(diff.count() != 1, 0.0)
-        out.update(
-            {
-                (m, "mean"): diff.mean(),
-                (m, "sd"): sd,
-                (m, "worst"): diff.max(),
-                (m, "n"): diff.count(),
-                (m, "better"): g[m + "@diff"].agg(lambda d: int((d < 0).sum())),
-                (m, "relative"): diff.mean() / g[m + "@base"].mean(),
-            }
-        )
+        out.update({(m, stat): stats[(m, stat)] for stat in ("mean", "sd", "worst", "n")})
+        out[(m, "better")] = diffs.groupby(keys, sort=False)[m].agg(lambda d: int((d < 0).sum()))
+        out[(m, "relative")] = stats[(m, "mean")] / merged.groupby(keys, sort=False)[m + "@base"].mean()
     return pd.DataFrame(out)
 
 
