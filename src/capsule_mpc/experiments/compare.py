@@ -1,14 +1,12 @@
 """Compare controllers on the same plant, path and seeds (what ``capsule-mpc compare`` runs).
 
-A comparison is a campaign on the sweep's runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep`
-with ``command="compare"``): run ``k`` of ``--runs N`` uses the seed ``seed + k`` (the plant drawn,
-the start offset, the camera noise), every controller runs on it and the runs of one seed are
-scored on a common window. It writes one run folder per controller and seed (``OUT/NAME/`` for one
-run, ``OUT/runs/seed_<S>/NAME/`` for several), ``runs.csv``, ``summary.json``, ``summary.md`` and
-the first seed's figures. A controller that raises on a seed has ``{"error", "traceback"}`` instead
-of metrics there. Exit status: 0 when every controller ran on every seed, 1 when any failed (each
-named on stderr), 2 on bad input, 130 on Ctrl-C (each run in progress keeps its log so far and a
-finalised ``run.mcap``). The runs are not paced to the wall clock, so they are deterministic.
+A comparison is a campaign on the sweep's runner (:mod:`capsule_mpc.experiments.sweep`, with
+``command="compare"``) that also writes one run folder per controller and seed (``OUT/NAME/`` for
+one run, ``OUT/runs/seed_<S>/NAME/`` for several) and the first seed's figures, and does not resume.
+A controller that raises on a seed has ``{"error", "traceback"}`` instead of metrics there. Exit
+status: 0 when every controller ran on every seed, 1 when any failed (each named on stderr), 2 on
+bad input, 130 on Ctrl-C (each run in progress keeps its log so far and a finalised ``run.mcap``).
+The runs are not paced to the wall clock, so they are deterministic.
 """
 
 from __future__ import annotations
