@@ -55,7 +55,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from _args import exit_with
+from _args import exit_with, int_at_least
 
 from capsule_mpc.config import LearnedFrictionModel, Scenario, load_config
 from capsule_mpc.experiments.sweep.campaign import sweep
@@ -235,8 +235,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     add = parser.add_argument
     add("--config", type=Path, default=ROOT / "configs" / "rectangle.yaml")
     add("--plant", choices=("lab", "hard"), default="lab")
-    add("--first", type=int, default=0, help="first draw's seed (default 0)")
-    add("--draws", type=int, default=20, help="plant draws (default 20)")
+    add("--first", type=int_at_least(0), default=0, help="first draw's seed (default 0)")
+    add("--draws", type=int_at_least(1), default=20, help="plant draws (default 20)")
     add("--variants", nargs="+", choices=VARIANTS, default=list(BASE_VARIANTS))
     add("--preload", type=float, default=DEFAULT_PRELOAD,
         help=f"+preload: break_loose.preload, (0, 1] ({DEFAULT_PRELOAD})")  # fmt: skip
@@ -244,7 +244,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
         help="use a draw's model already learned in --work (default: learn anew)")  # fmt: skip
     add("--speeds", type=float, nargs="+", default=[0.005, 0.01, 0.02, 0.04],
         help="demonstration speeds, m/s")  # fmt: skip
-    add("--workers", type=int, default=2, help="worker processes of the LocalCluster (2)")
+    add("--workers", type=int_at_least(1), default=2, help="worker processes of the LocalCluster (2)")
     add("--scheduler", help="address of a running Dask scheduler to run on instead")
     add("--work", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation_work")
     add("--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json")
@@ -252,10 +252,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     add("--learn-only", action="store_true",
         help="learn on each draw and check its breakaway; run no controller")  # fmt: skip
     add("--pull-preload", type=float, default=None, help="demonstrate --pull-preload (default: its default)")
-    args = parser.parse_args(argv)
-    if args.draws < 1 or args.first < 0 or args.workers < 1:
-        parser.error("--draws and --workers must be >= 1, --first >= 0")
-    return args
+    return parser.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -277,15 +274,9 @@ def main(argv: list[str] | None = None) -> int:
         summary = {"runs": []}
         if variants and ok:  # the draws whose learning failed are left out
             summary = sweep(
-                base,
-                path_from_scenario(base),
-                args.out.with_suffix(""),
-                ok[0],
-                ok[-1] - ok[0] + 1,
-                variants=variants,
-                client=client,
-                meta={"config": str(args.config)},
-            )
+                base, path_from_scenario(base), args.out.with_suffix(""), ok[0], ok[-1] - ok[0] + 1,
+                variants=variants, client=client, meta={"config": str(args.config)},
+            )  # fmt: skip
     draws = (
         [d for d in draws_of(summary, learning) if d["seed"] in ok]
         if variants
