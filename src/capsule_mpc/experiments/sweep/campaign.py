@@ -115,16 +115,17 @@ def sweep(
         "waypoints_file": meta.get("waypoints_file"), "path_length_m": path.length_m,
         "runs_requested": runs, "seeds": seeds, "controllers": aggregate_runs(per_seed),
     }  # fmt: skip
-    if compare and runs == 1:  # one run: its text entries (run_dir, failure, traceback) beside its metrics
-        for name, entry in summary["controllers"].items():
-            single = per_seed[0]["controllers"][name]
-            entry.update({key: value for key, value in single.items() if key not in entry})
-    firsts = [n for n in ("trajectories.png", "errors.png") if compare and (out / n).exists()]
-    figures = firsts + write_figures(out, per_seed, distributions=not compare)
-    figures += [PREDICTION_FIGURE] if compare and (out / PREDICTION_FIGURE).exists() else []
-    if not compare:
-        summary.update(plant_preset=scenario.plant.preset, vary={v.field: [v.lo, v.hi] for v in vary})
-        summary["worst"] = worst_runs(per_seed)
+    if compare:
+        if runs == 1:  # one run: its text entries (run_dir, failure, traceback) beside its metrics
+            for name, entry in summary["controllers"].items():
+                entry.update({k: v for k, v in per_seed[0]["controllers"][name].items() if k not in entry})
+        figures = [n for n in ("trajectories.png", "errors.png") if (out / n).exists()]
+        figures += write_figures(out, per_seed, distributions=False)
+        figures += [PREDICTION_FIGURE] if (out / PREDICTION_FIGURE).exists() else []
+    else:
+        vary_ranges = {v.field: [v.lo, v.hi] for v in vary}
+        summary.update(plant_preset=scenario.plant.preset, vary=vary_ranges, worst=worst_runs(per_seed))
+        figures = write_figures(out, per_seed)
     summary.update(runs=per_seed, figures=figures)
     write_text_atomic(out / "summary.json", json.dumps(json_ready(summary), indent=2) + "\n")
     markdown = summary_markdown(command, scenario, path, summary)
