@@ -126,11 +126,10 @@ class StartPreload:
         self.scenario = scenario
         self.model = RigBelief(force, np.asarray(lead_eq_m, dtype=float), belief)
         self.rest = rest
-        velocity = np.asarray(path.velocity(np.array([0.0]))[0], dtype=float)
-        speed = float(np.linalg.norm(velocity))
-        self.direction = velocity / speed if speed > 0 else np.zeros(2)
-        self.speed_mps = speed
+        #: The path's first point (2,), m, and its velocity there (2,), m/s.
         self.start_m = np.asarray(path.start_m, dtype=float)[:2]
+        self.velocity_mps = np.asarray(path.velocity(np.array([0.0]))[0], dtype=float)
+        speed = self.speed_mps
         self.active = self.fraction is not None and speed > 0
         self.target_lead_m: np.ndarray | None = None
         self.arrival_mps = speed
@@ -138,6 +137,17 @@ class StartPreload:
         self._otg = epm_ruckig(scenario, dt_s)
         self._state: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.target_epm_m: np.ndarray | None = None  # the EPM's target position (3,), m
+
+    @property
+    def speed_mps(self) -> float:
+        """The path's speed at its start, m/s."""
+        return float(np.linalg.norm(self.velocity_mps))
+
+    @property
+    def direction(self) -> np.ndarray:
+        """û, the path's direction at its start (2,); zeros for a path at rest."""
+        speed = self.speed_mps
+        return self.velocity_mps / speed if speed > 0 else np.zeros(2)
 
     @property
     def fraction(self) -> float | None:
