@@ -47,8 +47,13 @@ def test_the_100hz_config_is_the_rectangle_at_100hz_with_a_0p4s_horizon():
     assert fast.camera.rate_hz == 100.0 and fast.camera.latency_frames == 1
     assert prediction_times_s(fast)[-1] >= 0.4  # the horizon, s
     assert prediction_steps_s(fast)[0] == pytest.approx(0.01)  # the first stage: one frame
-    assert fast.model_dump(exclude={"name", "camera", "mpc", "break_loose"}) == slow.model_dump(
-        exclude={"name", "camera", "mpc", "break_loose"}
+    assert fast.model_dump(exclude={"name", "camera", "mpc", "break_loose", "place"}) == slow.model_dump(
+        exclude={"name", "camera", "mpc", "break_loose", "place"}
+    )
+    # A placement move follows its trajectory's velocities alone at 100 Hz.
+    assert fast.place.track_gain_per_s == 0.0 < slow.place.track_gain_per_s
+    assert fast.place.model_dump(exclude={"track_gain_per_s"}) == slow.place.model_dump(
+        exclude={"track_gain_per_s"}
     )
     # The start differs only in the pre-load's pull across onto the path, which is off.
     assert fast.break_loose.toward_path == 0.0 < slow.break_loose.toward_path

@@ -187,6 +187,33 @@ def _place_on_plant(
     return placement, plant.position_m + bias - target, commands, epms
 
 
+@pytest.mark.parametrize("gain", [0.0, 4.0])
+def test_a_move_is_followed_by_its_velocities_plus_the_position_correction(
+    scenario: Scenario, gain: float
+) -> None:
+    """While the EPM follows a move, the command is the trajectory's velocity a frame ahead plus
+    ``place.track_gain_per_s`` times the EPM's position error (none with 0); once the trajectory
+    is over, the EPM is brought onto its end."""
+    settings_ = scenario.place.model_copy(update={"track_gain_per_s": gain})
+    placement = P.Placement(scenario, settings_, linear_geometry(30.0), _belief(scenario), np.zeros(2))
+    start = np.array([0.0, 0.0, scenario.plate.epm_height_m])
+    end = start + np.array([0.01, -0.004, 0.0])
+    move = P.Move((end,), (np.zeros(3),), (0.02,), end, np.zeros(2))
+    traj = P._Trajectory(scenario, start, move)
+    placement._traj = (0.0, traj)
+    frame = 1.0 / scenario.camera.rate_hz
+    lagging = np.array([-3e-4, 2e-4, 0.0])
+    for t in np.linspace(0.0, traj.duration_s - frame, 7):
+        planned, _ = traj.at(t)
+        _, ahead = traj.at(t + frame)
+        u = placement.command(t, None, planned + lagging)
+        np.testing.assert_allclose(u[:2], (ahead - gain * lagging)[:2], atol=1e-12)
+        assert u[2] == 0.0
+    # Past the trajectory's end, 1 mm short along x: the EPM is driven onto the end.
+    u = placement.command(traj.duration_s + 0.01, None, end - np.array([1e-3, 0.0, 0.0]))
+    assert u[0] == pytest.approx(P.POSITION_GAIN * 1e-3) and u[1] == 0.0
+
+
 def test_placement_from_rest_on_the_ideal_plant(scenario: Scenario) -> None:
     """From rest a millimetre off, within tolerance (as the camera sees it) in at most three moves,
     every command within the speed limit, the EPM within the workspace and the coupling limit."""

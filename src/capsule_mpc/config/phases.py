@@ -133,3 +133,13 @@ class PlaceConfig(StrictModel):
         le=0.1,
         description="EPM speed of a move's last millimetres onto the target, m/s, (0, 0.1].",
     )
+    track_gain_per_s: Number = Field(
+        4.0,
+        ge=0,
+        le=50,
+        description=(
+            "Gain of the correction of the EPM's position error added to a move's trajectory "
+            "velocities while the EPM follows it, 1/s, [0, 50]; 0: the trajectory's velocities "
+            "alone. Either way the EPM is brought onto the move's end once the trajectory is over."
+        ),
+    )

@@ -42,8 +42,11 @@ the force model plus the controller's estimated constant force vanishes. Nothing
 read: only camera frames (through the estimator) and the EPM position the arm reports.
 
 Each move is one jerk-limited Ruckig trajectory per segment, within ``limits.speed_mps``,
-``limits.accel_mps2`` and ``limits.jerk_mps3``; the commands follow it with a proportional
-correction of the EPM's position error and pass the controller's safety layer.
+``limits.accel_mps2`` and ``limits.jerk_mps3``; the commands follow it, with a proportional
+correction of the EPM's position error at ``place.track_gain_per_s``, and pass the controller's
+safety layer. With the camera at 100 Hz that correction, fed back through the arm's lag and the
+jerk-limited command stream, made the EPM ring millimetres about a move's end, so the 100 Hz
+scenario follows the trajectory's velocities alone and corrects only once it is over.
 """
 
 from __future__ import annotations
@@ -114,7 +117,7 @@ LONGEST_OBSERVE_S = 3.0
 #: The fewest frames an observation averages, and the longest it lasts unless ambiguous, s.
 MIN_FRAMES = 8
 MAX_OBSERVE_S = 1.5
-#: Gain of the EPM's position correction while it follows a move, 1/s.
+#: Gain of the EPM's position correction onto a move's end once its trajectory is over, 1/s.
 POSITION_GAIN = 4.0
 #: The EPM has reached a move's end when it is this close, m, or this long after the
 #: trajectory's end, s (the stop offset is learned from where it really stopped).
@@ -709,7 +712,7 @@ class Placement:
         dt = 1.0 / self.scenario.camera.rate_hz
         pos, _ = traj.at(tau)
         _, vel = traj.at(tau + dt)
-        u = vel + POSITION_GAIN * (pos - epm)
+        u = vel + self.settings.track_gain_per_s * (pos - epm)
         if tau >= traj.duration_s:
             err = traj.end_m - epm
             if float(np.max(np.abs(err[:2]))) <= EPM_TOL_M or tau >= traj.duration_s + EPM_WAIT_S:
