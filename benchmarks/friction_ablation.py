@@ -274,9 +274,15 @@ def main(argv: list[str] | None = None) -> int:
         summary = {"runs": []}
         if variants and ok:  # the draws whose learning failed are left out
             summary = sweep(
-                base, path_from_scenario(base), args.out.with_suffix(""), ok[0], ok[-1] - ok[0] + 1,
-                variants=variants, client=client, meta={"config": str(args.config)},
-            )  # fmt: skip
+                base,
+                path_from_scenario(base),
+                args.out.with_suffix(""),
+                ok[0],
+                ok[-1] - ok[0] + 1,
+                variants=variants,
+                client=client,
+                meta={"config": str(args.config)},
+            )
     draws = (
         [d for d in draws_of(summary, learning) if d["seed"] in ok]
         if variants
