@@ -15,6 +15,7 @@ from capsule_mpc import Scenario
 from capsule_mpc.config import LearnedFrictionModel
 from capsule_mpc.dynamics import normal_force_expr
 from capsule_mpc.friction import FrictionBelief
+from capsule_mpc.interfaces import servo_time_constant_s
 from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
 from capsule_mpc.mpc.contact import RestDetector
 from capsule_mpc.mpc.start import PRELOAD_MAX_S, StartPreload, fastest_arrival_mps
@@ -108,10 +109,10 @@ def test_every_preload_command_keeps_the_arms_limits(scenario, angle):
     on_limit = np.linalg.norm(start.target_lead_m - model_equilibrium_lead(sc)) >= lim.max_lead_m - 1e-9
     if on_limit and start.end_reason == "coupling limit":
         return  # a target on the coupling limit (the force does not get there): the EPM reaches it
-    # It got to the pre-load lead, arriving along the path at the speed it planned: at least the
-    # path's, and no faster than the limits reach from rest over the way it went.
+    # It got to the pre-load lead still moving along the path, no faster than the limits reach
+    # from rest over the way it went.
     assert start.end_reason == "pre-loaded"
-    np.testing.assert_allclose(v[-1][0:2], start.arrival_mps * start.direction, atol=1e-9)
+    assert v[-1][0:2] @ start.direction > 0.0
     assert v[-1][2] == 0.0
     assert start.arrival_mps >= sc.path.speed_mps
     step = np.abs(start.target_lead_m - make(sc, angle)[2][0:2])
@@ -120,13 +121,54 @@ def test_every_preload_command_keeps_the_arms_limits(scenario, angle):
         assert abs(v[-1][axis]) <= max(reach, sc.path.speed_mps) + 1e-9
 
 
+def _through_servo(sc: Scenario, angle: float, lead: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The pre-load's setpoints (its commands integrated) and where a first-order servo of the
+    arm's nominal bandwidth puts the EPM, per frame (n, 2), m; ``lead``: the controller knows the
+    servo's bandwidth (else it believes the servo reaches its setpoints at once)."""
+    tau = servo_time_constant_s(sc.arm.servo_bandwidth_hz)
+    assert tau is not None
+    if not lead:
+        sc = sc.model_copy(update={"arm": sc.arm.model_copy(update={"servo_bandwidth_hz": None})})
+    start, _, epm = make(sc, angle)
+    assert start.lead_s == (tau if lead else 0.0)
+    sub = 1e-3
+    setpoint, servo, u_prev, t = epm.copy(), epm.copy(), np.zeros(3), 0.0
+    setpoints, servos = [setpoint[0:2]], [servo[0:2]]
+    while t < PRELOAD_MAX_S:
+        u = start.command(t, servo, u_prev, np.zeros(2))
+        if u is None:
+            break
+        for _ in range(round(FRAME_S / sub)):
+            setpoint = setpoint + sub * u
+            servo = servo + (setpoint - servo) * (1.0 - np.exp(-sub / tau))
+        setpoints.append(setpoint[0:2])
+        servos.append(servo[0:2])
+        u_prev, t = u, t + FRAME_S
+    return np.array(setpoints), np.array(servos)
+
+
+@settings(max_examples=10, deadline=None)
+@given(angle=st.floats(0.0, 2 * np.pi))
+@example(angle=0.0)
+def test_leading_the_profile_by_the_servo_lag_keeps_the_epm_closer_to_it(scenario, angle):
+    """The arm's servos lag their setpoints; commanding the profile a servo time constant ahead
+    (within the limits) brings the EPM closer to the jerk-limited profile than its setpoints alone."""
+    sc = preload_scenario(scenario)
+    profile, lagging = _through_servo(sc, angle, lead=False)
+    _, leading = _through_servo(sc, angle, lead=True)
+    n = min(len(profile), len(leading))
+    gap_lagging = np.linalg.norm(lagging[:n] - profile[:n], axis=1)
+    gap_leading = np.linalg.norm(leading[:n] - profile[:n], axis=1)
+    assert np.sqrt(np.mean(gap_leading**2)) < 0.5 * np.sqrt(np.mean(gap_lagging**2))
+
+
 @settings(max_examples=15, deadline=None)
 @given(beside=st.floats(-6e-3, 6e-3), toward=st.floats(0.0, 1.0), angle=st.floats(0.0, 2 * np.pi))
 @example(beside=4e-3, toward=0.4, angle=0.0)  # a lab capsule held beside the rectangle's first leg
 def test_the_preload_draws_a_capsule_held_beside_the_path_onto_it(scenario, beside, toward, angle):
     """The EPM's target lies the pre-load lead ahead of the rest and ``toward_path`` times the
     capsule's offset on the far side of the path's line; the EPM gets there within the arm's
-    limits and moves along the path alone when it arrives."""
+    limits."""
     sc = preload_scenario(scenario)
     sc = sc.model_copy(update={"break_loose": sc.break_loose.model_copy(update={"toward_path": toward})})
     start, rest, epm = make(sc, angle, beside)
@@ -150,8 +192,6 @@ def test_the_preload_draws_a_capsule_held_beside_the_path_onto_it(scenario, besi
     assert np.abs(v).max() <= lim.speed_mps + 1e-9
     assert np.abs(a).max() <= lim.accel_mps2 + 1e-6
     assert np.abs(np.diff(a, axis=0) / FRAME_S).max() <= lim.jerk_mps3 * (1 + 1e-6) + 1e-6
-    if start.end_reason == "pre-loaded":
-        assert abs(float(v[-1][0:2] @ normal)) < 1e-9
 
 
 def test_the_preload_draws_the_capsule_onto_the_path_sooner_in_closed_loop(lab_start_leg):
@@ -249,7 +289,7 @@ def test_the_arrival_leaves_room_to_stop_before_the_coupling_limit(scenario):
         return fastest_arrival_mps(distance, lim.jerk_mps3, lim.accel_mps2, lim.speed_mps)
 
     far = start.arrival_speed(lead_eq, lead_eq + np.array([0.005, 0.0]))  # 20 mm of room left
-    assert far == pytest.approx(0.9 * fastest(0.005))
+    assert far == pytest.approx(sc.break_loose.arrival * fastest(0.005))
     near = start.arrival_speed(lead_eq, lead_eq + np.array([limit - 0.003, 0.0]))  # 3 mm of room
     assert near == pytest.approx(fastest(0.003))
     assert near < far

@@ -71,7 +71,7 @@ class BreakLooseConfig(StrictModel):
         ),
     )
     arrival: Number = Field(
-        0.9,
+        0.75,
         ge=0,
         le=1,
         description=(

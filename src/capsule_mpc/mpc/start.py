@@ -28,8 +28,12 @@ The phase ends there (pre-loaded), or earlier when the camera sees the capsule l
 position (:class:`~capsule_mpc.mpc.contact.RestDetector`), when the lead would leave the coupling
 limit (``limits.max_lead_m`` around the model's equilibrium lead), or after :data:`PRELOAD_MAX_S`;
 the MPC, which has solved every frame meanwhile, then takes over. The target lead is fixed at the
-phase's start and Ruckig runs open loop on its own state, so every command lies on one
-jerk-limited profile. A breakaway the belief puts too low stops the pre-load short, one it puts
+phase's start and Ruckig runs open loop on its own state: the EPM's motion is one jerk-limited
+profile. The arm's servos lag their setpoints by about ``1 / (2 pi arm.servo_bandwidth_hz)``, the
+lag the MPC predicts too, so the phase commands the profile's velocity that far ahead, passed
+through the limits the controller's safety layer applies to every command (from rest the lead is
+a step they do not allow): the EPM then follows the profile instead of trailing it, and the capsule
+breaks loose sooner. A breakaway the belief puts too low stops the pre-load short, one it puts
 too high makes the capsule break loose during the pre-load and lurch further: the phase is as
 good as the believed breakaway.
 """
@@ -46,7 +50,9 @@ from scipy.optimize import brentq
 from ..config import Scenario
 from ..dynamics import normal_force_expr
 from ..friction import FrictionBelief
+from ..interfaces import servo_time_constant_s
 from ..paths import ReferencePath
+from ..safety import SafetyFilter
 from .belief import RigBelief
 from .contact import RestDetector
 
@@ -126,17 +132,32 @@ class StartPreload:
         self.scenario = scenario
         self.model = RigBelief(force, np.asarray(lead_eq_m, dtype=float), belief)
         self.rest = rest
-        #: The path's first point (2,), m, and its velocity there (2,), m/s.
-        self.start_m = np.asarray(path.start_m, dtype=float)[:2]
-        self.velocity_mps = np.asarray(path.velocity(np.array([0.0]))[0], dtype=float)
+        self.path = path
         speed = self.speed_mps
         self.active = self.fraction is not None and speed > 0
         self.target_lead_m: np.ndarray | None = None
         self.arrival_mps = speed
         self.end_reason = ""
         self._otg = epm_ruckig(scenario, dt_s)
+        self._limit = SafetyFilter(scenario, dt_s)
         self._state: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.target_epm_m: np.ndarray | None = None  # the EPM's target position (3,), m
+
+    @property
+    def start_m(self) -> np.ndarray:
+        """The path's first point (2,), m."""
+        return np.asarray(self.path.start_m, dtype=float)[:2]
+
+    @property
+    def velocity_mps(self) -> np.ndarray:
+        """The path's velocity at its start (2,), m/s."""
+        return np.asarray(self.path.velocity(np.array([0.0]))[0], dtype=float)
+
+    @property
+    def lead_s(self) -> float:
+        """How far ahead of its profile the phase commands, s: the arm's servo lag as the MPC
+        predicts it (0 without a servo bandwidth)."""
+        return servo_time_constant_s(self.scenario.arm.servo_bandwidth_hz) or 0.0
 
     @property
     def speed_mps(self) -> float:
@@ -257,7 +278,10 @@ class StartPreload:
         self._state = tuple(
             np.asarray(x, dtype=float) for x in (out.new_position, out.new_velocity, out.new_acceleration)
         )  # type: ignore[assignment]
-        return np.asarray(out.new_velocity, dtype=float)
+        # The profile's velocity a servo lag ahead, within the limits (see the module docstring).
+        _, ahead, _ = out.trajectory.at_time(out.time + self.lead_s)
+        u, _ = self._limit.apply(np.asarray(ahead, dtype=float), epm_m)
+        return u
 
     def _over(self, t_s: float, epm_m: np.ndarray) -> str:
         """Why the phase ends at this frame ('' if it goes on)."""
