@@ -108,10 +108,8 @@ RUN_UP_M = 16e-3
 SETTLE_S = 0.3
 #: An observation ends once the mean's standard error is below this fraction of the tolerance.
 SE_FRACTION = 0.3
-#: Before the first move, a rest this many standard errors beyond the tolerance is off the target:
-#: that observation only decides whether a move is needed (the move is planned from the target);
-#: a capsule resting on the target is called off on about 2 % of them, at the cost of one move.
-OFF_SE = 2.0
+#: Before the first move, a rest this many standard errors beyond the tolerance is off the target.
+OFF_SE = 3.0
 #: An observation whose mean lies within this many standard errors of the tolerance is ambiguous
 #: and goes on past :data:`MAX_OBSERVE_S`, up to :data:`LONGEST_OBSERVE_S`, s.
 AMBIGUOUS_SE = 2.0
