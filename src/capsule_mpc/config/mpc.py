@@ -96,7 +96,7 @@ class MPCConfig(StrictModel):
         ),
     )
     input_jerk_tol_mps2: Number | None = Field(
-        0.04,
+        0.02,
         ge=MIN_TOLERANCE,
         description=(
             "Tolerance of the change of the EPM acceleration from one step to the next, m/s^2, >= 1e-9: a "
