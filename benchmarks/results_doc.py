@@ -9,7 +9,9 @@ renderer. A campaign's data (a sweep's ``summary.json``, a friction ablation's o
 report) is read as a run table (:mod:`capsule_mpc.experiments.table`) and summarised by
 :func:`capsule_mpc.experiments.aggregate.aggregate` (mean ± sd (worst): the sample standard
 deviation, ddof 1, and the largest value) and :func:`~capsule_mpc.experiments.aggregate.paired`
-before its macro formats it. The output depends on the files only.
+before its macro formats it. The prose is a Jinja template too: its paired figures
+(``{{ paired(base, new, metric) }}``) come from the sweeps' run tables by the same
+:func:`~capsule_mpc.experiments.aggregate.paired`. The output depends on the files only.
 
     python benchmarks/results_doc.py            # write docs/results.md
     python benchmarks/results_doc.py --check    # exit 1 if docs/results.md is not up to date
@@ -120,6 +122,35 @@ def paired_cell(metric: str, stats: pd.Series, diff: pd.Series | None, total: in
     if diff is None:
         return text
     return f"{text}; {diff[(metric, 'mean')]:+.2f} ({int(diff[(metric, 'better')])})"
+
+
+# --------------------------------------------------------------------- the prose's paired figures
+@functools.cache
+def _runs(path: Path) -> pd.DataFrame:
+    """The run table of a sweep's ``summary.json`` (``path``, or the one in the folder ``path``)."""
+    path = path / "summary.json" if path.is_dir() else path
+    return table_from_entries(json.loads(path.read_text(encoding="utf-8"))["runs"])
+
+
+def pairing(data_dir: Path) -> Callable[..., str]:
+    """The prose's ``paired(base, new, metric, digits=2, part="diff")``: a metric's difference from
+    the runs of ``base`` to those of ``new`` (sweeps in ``data_dir``) on the same seeds, by the one
+    aggregation (:func:`~capsule_mpc.experiments.aggregate.paired`). ``part`` is ``diff`` (mean ±
+    standard error, signed), ``lower`` (draws where ``new`` is lower) or ``n`` (draws paired)."""
+
+    def figure(base: str, new: str, metric: str, digits: int = 2, part: str = "diff") -> str:
+        table = pd.concat(
+            [_runs(data_dir / base).assign(variant="base"), _runs(data_dir / new).assign(variant="new")]
+        )
+        row = paired(table, {"variant": "base"}, [metric], by=["variant"]).loc["new", metric]
+        if part == "lower":
+            return str(int(row["better"]))
+        if part == "n":
+            return str(int(row["n"]))
+        se = row["sd"] / math.sqrt(row["n"])
+        return f"{row['mean']:+.{digits}f} ± {se:.{digits}f}".replace("-", "\u2212")
+
+    return figure
 
 
 # ------------------------------------------------------------------------- campaigns' aggregation
@@ -355,13 +386,17 @@ def render(data_dir: Path) -> str:
         opening,
         "",
     ]
+    # The prose may quote paired figures of run tables: {{ paired(base, new, metric, ...) }}.
+    prose_env = jinja2.Environment(undefined=jinja2.StrictUndefined, keep_trailing_newline=False)
+    prose_env.globals["paired"] = pairing(data_dir)
     present = [s for s in sections if s[0] in sources]
     out += [f"- [{title}](#{_anchor(title)})" for _, _, title, _ in present]
     for key, renderer, title, what in present:
         entry = sources[key]
         data = json.loads((data_dir / entry["file"]).read_text(encoding="utf-8"))
         rendered = section_lines(renderer, data, data_dir)
-        out += ["", f"## {title}", "", what, "", *rendered, "", *_provenance(entry, data, data_dir)]
+        prose = prose_env.from_string(what).render()
+        out += ["", f"## {title}", "", prose, "", *rendered, "", *_provenance(entry, data, data_dir)]
     return "\n".join(out) + "\n"
 
 

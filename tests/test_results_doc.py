@@ -198,3 +198,21 @@ def test_placement_time_by_moves_from_synthetic_json(results_doc):
     )
     row = next(line for line in lines if line.startswith("| `mpc`"))
     assert "| 4.5 / 10.0 (11.0) |" in row  # median (3 and 6), p95 (linear between 7 and 11), worst
+
+
+def test_the_proses_paired_figures_against_a_hand_computation(results_doc, tmp_path):
+    """``paired(base, new, metric)`` in the prose: the mean difference on the seeds both ran, its
+    standard error, the draws where the new run is lower and how many were paired."""
+    base = {0: 1.0, 1: 2.0, 2: 3.0, 3: 4.0}
+    new = {1: 1.5, 2: 3.5, 3: 3.0, 4: 9.0}  # seed 0 and seed 4 have no partner
+    for name, values in (("base", base), ("new", new)):
+        runs = [{"seed": s, "controllers": {"mpc": {"tracking_rms_mm": v}}} for s, v in values.items()]
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.json").write_text(json.dumps({"runs": runs}))
+    paired = results_doc.pairing(tmp_path)
+    diffs = [-0.5, 0.5, -1.0]  # seeds 1, 2, 3
+    mean = sum(diffs) / 3
+    sd = (sum((d - mean) ** 2 for d in diffs) / 2) ** 0.5
+    assert paired("base", "new", "tracking_rms_mm", 3) == f"\u2212{-mean:.3f} ± {sd / 3**0.5:.3f}"
+    assert paired("base", "new/summary.json", "tracking_rms_mm", part="lower") == "2"
+    assert paired("base", "new", "tracking_rms_mm", part="n") == "3"
