@@ -14,8 +14,15 @@ from capsule_mpc.friction import FrictionBelief
 from capsule_mpc.interfaces import Measurement
 from capsule_mpc.mpc import MPCController, SolveResult, build_mpc_stack, safe_command
 from capsule_mpc.mpc.controller import model_scenario
-from capsule_mpc.mpc.reference import SlideReference
-from capsule_mpc.paths import ReferencePath
+from capsule_mpc.mpc.problem import N_REF
+from capsule_mpc.mpc.reference import (
+    TURN_AFTER_S,
+    TURN_BEFORE_S,
+    TURN_JERK_FACTOR,
+    SlideReference,
+    turn_times_s,
+)
+from capsule_mpc.paths import ReferencePath, rectangle
 from capsule_mpc.sim import simulate
 
 PATH = ReferencePath(np.array([[0.0, 0.0], [0.03, 0.0], [0.03, 0.015]]), closed=False, speed_mps=0.02)
@@ -268,6 +275,28 @@ def test_the_start_reference_joins_the_path_smoothly(fast, offset, blend, t0):
     bound = 2.5 * 1e-6 * max(abs(offset[0]), abs(offset[1])) / blend**2
     rounding = 4 * np.finfo(float).eps * np.abs(jpos[:, 1:3]).max() / 1e-6
     assert np.allclose(slope, (jvel - vel)[:, 1], rtol=0, atol=bound + rounding)
+
+
+def test_the_jerk_cost_is_relaxed_around_the_paths_turns_only(fast):
+    """The rectangle (100 x 60 mm at 20 mm/s from its lower-left corner) turns at 5, 8 and 13 s;
+    a waypoint on a straight line or a slight bend is no turn. The window's last row is the jerk
+    cost's factor: TURN_JERK_FACTOR from TURN_BEFORE_S before a turn to TURN_AFTER_S after, else 1."""
+    ocp = build_mpc_stack(fast).ocp
+    belief = FrictionBelief.from_scenario(fast)
+    rect = rectangle((0.1, 0.06), (0.0, 0.0), 0.02)
+    np.testing.assert_allclose(turn_times_s(rect), [5.0, 8.0, 13.0])
+    straight = ReferencePath(np.array([[0.0, 0.0], [0.01, 0.0], [0.02, 0.0], [0.03, 0.001]]), False, 0.02)
+    assert turn_times_s(straight).size == 0  # collinear, then a bend of under 6 degrees
+    reference = SlideReference(rect, ocp, 0.0, belief)
+    times = np.array([4.0, 5.0 - TURN_BEFORE_S - 1e-3, 4.9, 5.0, 5.0 + TURN_AFTER_S, 6.5, 7.8])
+    np.testing.assert_array_equal(
+        reference.jerk_factor(times),
+        [1.0, 1.0, TURN_JERK_FACTOR, TURN_JERK_FACTOR, TURN_JERK_FACTOR, 1.0, TURN_JERK_FACTOR],
+    )
+    window = reference.window(4.8)
+    assert window.shape == (N_REF, ocp.horizon)
+    np.testing.assert_array_equal(window[6], reference.jerk_factor(4.8 + ocp.node_times_s[1:]))
+    assert np.all(reference.window(-0.5)[6] == 1.0)  # before the start: the plain cost
 
 
 @pytest.mark.parametrize(

@@ -78,8 +78,9 @@ __all__ = [
     "n_slacks",
 ]
 
-#: Reference rows per stage: capsule position (2), capsule velocity (2), EPM velocity feed-forward (2).
-N_REF = 6
+#: Reference rows per stage: capsule position (2), capsule velocity (2), EPM velocity feed-forward (2),
+#: the factor of the jerk cost's weight (1).
+N_REF = 7
 #: Disturbance parameters: constant force (x, y) and extra friction magnitude, N.
 N_DIST = 3
 #: Model state (p, v, e, h) and EPM velocity sizes (see :mod:`capsule_mpc.dynamics`).
@@ -411,7 +412,7 @@ def _stage_residuals(
         np.sqrt(cfg.slack_weight) * sj / JERK_SLACK_SCALE,
     ]
     if cfg.input_jerk_tol_mps2 is not None:
-        residuals.append(jerk * J_SCALE / cfg.input_jerk_tol_mps2)
+        residuals.append(ref_k[6] * jerk * J_SCALE / cfg.input_jerk_tol_mps2)
     return residuals
 
 

@@ -5,6 +5,13 @@ At the start the offset of the rest position from the path's start fades out ove
 onto it while it slides, instead of being dragged sideways out of the static-friction dead zone
 first (a breakaway across the path lurches millimetres on the soft axis). The run is still scored
 against the path itself. Before t = 0 (the rig holds the EPM) the reference stays at the start.
+
+At a turn of the path the coupling's lead must change by many millimetres (sliding along the soft
+axis needs a far larger lead than along the stiff one), and the MPC's jerk cost, which smooths the
+commands on the straight legs, makes the EPM build it slowly: much of the tracking error comes in
+the second after a corner. So the window also carries a factor of
+the jerk cost's weight per stage, :data:`TURN_JERK_FACTOR` from :data:`TURN_BEFORE_S` before a turn
+to :data:`TURN_AFTER_S` after it and 1 elsewhere.
 """
 
 from __future__ import annotations
@@ -15,7 +22,15 @@ from ..friction import FrictionBelief
 from ..paths import ReferencePath
 from .problem import OCP
 
-__all__ = ["SlideReference"]
+__all__ = ["TURN_AFTER_S", "TURN_BEFORE_S", "TURN_JERK_FACTOR", "SlideReference"]
+
+#: The jerk cost's weight factor around a turn, and the window it holds over, s (tuned on `lab`
+#: draws 0-99 and `hard` draws 0-49 of the rectangle).
+TURN_JERK_FACTOR = 0.5
+TURN_BEFORE_S = 0.3
+TURN_AFTER_S = 1.0
+#: Directions whose unit vectors' dot product is below this make a turn (about 25 degrees).
+TURN_COS = 0.9
 
 
 class SlideReference:
@@ -40,6 +55,7 @@ class SlideReference:
         self.belief = belief
         self.start_offset_m: np.ndarray | None = None
         self._started = False
+        self.turns_s = turn_times_s(path)
 
     def start(self, position_m: np.ndarray) -> None:
         """At the first frame with t >= 0: join the path from ``position_m`` (once)."""
@@ -55,11 +71,18 @@ class SlideReference:
         n = self.ocp.horizon
         times = t_s + self.ocp.node_times_s[1:]
         if t_s < 0:  # the rig holds the EPM: plan to stay at the start
-            return np.vstack([self.path.position(np.zeros(n)).T, np.zeros((4, n))])
+            return np.vstack([self.path.position(np.zeros(n)).T, np.zeros((4, n)), np.ones((1, n))])
         pos, vel = self.path.position(times).T, self.path.velocity(times).T
         if self.start_offset_m is not None and times[0] < self.blend_s:  # after the blend: the path
             pos, vel = self.join(times, pos, vel)
-        return np.vstack([pos, vel, vel])
+        return np.vstack([pos, vel, vel, self.jerk_factor(times)[None, :]])
+
+    def jerk_factor(self, times_s: np.ndarray) -> np.ndarray:
+        """The jerk cost's weight factor at ``times_s``: :data:`TURN_JERK_FACTOR` around a turn."""
+        factor = np.ones(len(times_s))
+        for turn in self.turns_s:
+            factor[(times_s >= turn - TURN_BEFORE_S) & (times_s <= turn + TURN_AFTER_S)] = TURN_JERK_FACTOR
+        return factor
 
     def join(self, times: np.ndarray, pos: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The path's positions and velocities at ``times`` (2 x n) with the start offset faded out
@@ -82,3 +105,15 @@ class SlideReference:
     def drag_growth_n(self, t_s: float) -> float:
         """The believed tether drag's growth at ``t_s`` over its value at the start, N."""
         return float(self.belief.drag_growth_n(self.progress_m(t_s)))
+
+
+def turn_times_s(path: ReferencePath) -> np.ndarray:
+    """When the reference passes the path's turns (its inner vertices where the direction changes by
+    more than about 25 degrees), s after its start."""
+    if path.speed_mps <= 0:
+        return np.zeros(0)
+    seg = np.diff(path.vertices_m, axis=0)
+    length = np.linalg.norm(seg, axis=1)
+    unit = seg / np.maximum(length, 1e-12)[:, None]
+    turning = np.einsum("ij,ij->i", unit[:-1], unit[1:]) < TURN_COS
+    return np.cumsum(length)[:-1][turning] / path.speed_mps
