@@ -102,7 +102,7 @@ def test_plan_satisfies_the_model_dynamics(fast):
     lead_eq = ocp.lead_eq_m
     x0 = np.array([0.0, 0.0, 0.0, 0.0, lead_eq[0], lead_eq[1], fast.plate.epm_height_m])
     times = ocp.dt_s * np.arange(1, n + 1)
-    ref = np.vstack([PATH.position(times).T, PATH.velocity(times).T, PATH.velocity(times).T])
+    ref = np.vstack([PATH.position(times).T, PATH.velocity(times).T, PATH.velocity(times).T, np.ones((1, n))])
     p = ocp.pack_parameters(x0, ref, np.zeros(3), np.zeros(3))
     guess = ocp.pack_variables(np.tile(x0[:, None], (1, n)), np.zeros((3, n)), np.zeros((2, n)))
     res = stack.solver.solve_converged(p, guess)

@@ -154,7 +154,7 @@ def test_dynamics_residual_matches_the_models_implicit_euler(fast, eps_mps):
     xs_a = np.array(xs).T
     assert np.abs(xs_a[2:4]).max() > 0.005  # the capsule really moves (friction active)
     w = ocp.pack_variables(xs_a, us, np.zeros((2, n)), x0, u_prev)
-    p = ocp.pack_parameters(x0, np.zeros((6, n)), u_prev, np.zeros(3))
+    p = ocp.pack_parameters(x0, np.vstack([np.zeros((6, n)), np.ones((1, n))]), u_prev, np.zeros(3))
     _, merit = nlp_functions(ocp)
     gap, vel = _stage_rows(ocp, np.asarray(merit(w, p)[1]).ravel())
     assert np.abs(gap).max() < 1e-9  # exact: p, e, h and the command follow explicitly

@@ -105,7 +105,7 @@ def test_dynamics_rows_are_the_models_implicit_euler_on_each_stages_step(coarse)
     u_prev = np.array([0.01, 0.0, 0.0])
     t = np.arange(N)
     us = np.vstack([0.01 + 0.0005 * t, 0.004 * np.sin(t / 3), np.zeros(N)])
-    p = ocp.pack_parameters(x0, np.zeros((6, N)), u_prev, np.zeros(3))
+    p = ocp.pack_parameters(x0, np.vstack([np.zeros((6, N)), np.ones((1, N))]), u_prev, np.zeros(3))
     _, merit = nlp_functions(ocp)
 
     epm_v = ocp.epm_velocities(us, u_prev)  # the EPM as the arm moves it (the model's input)

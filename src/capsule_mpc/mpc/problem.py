@@ -244,9 +244,11 @@ class OCP:
         disturbance_n: np.ndarray,
         slope_prev: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Parameter vector from the current state (7), reference (6 x N), command (3), d (3) and
+        """Parameter vector from the current state (7), reference (7 x N), command (3), d (3) and
         the slope of the command being applied (3, m/s^2: its change from the one before, per
         frame; default 0)."""
+        if np.shape(ref) != (N_REF, self.horizon):
+            raise ValueError(f"reference window: must be {N_REF} x {self.horizon}, got {np.shape(ref)}")
         slope = np.zeros(_NU_MODEL) if slope_prev is None else np.ravel(slope_prev)
         return np.concatenate(
             [np.ravel(x0), np.ravel(ref, order="F"), np.ravel(u_prev), slope, np.ravel(disturbance_n)]

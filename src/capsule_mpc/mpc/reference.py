@@ -67,7 +67,7 @@ class SlideReference:
 
     def window(self, t_s: float) -> np.ndarray:
         """Capsule position and velocity at stages 1..N and the EPM feed-forward (the path's
-        velocity) of inputs 0..N-1 (6 x N)."""
+        velocity) of inputs 0..N-1 and the jerk cost's factor of stages 1..N (7 x N)."""
         n = self.ocp.horizon
         times = t_s + self.ocp.node_times_s[1:]
         if t_s < 0:  # the rig holds the EPM: plan to stay at the start

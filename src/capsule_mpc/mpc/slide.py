@@ -87,7 +87,7 @@ def solve_step(
         The built solver and its problem.
     x0 : numpy.ndarray (7,)
         The estimated state: capsule position and velocity, EPM position (m, m/s).
-    ref : numpy.ndarray (6 x N)
+    ref : numpy.ndarray (7 x N)
         The reference window (:meth:`SlideReference.window`).
     params : tuple of numpy.ndarray
         The command being applied (3, m/s), its slope (3, m/s^2) and the disturbance (3, N).
