@@ -9,9 +9,9 @@ against the path itself. Before t = 0 (the rig holds the EPM) the reference stay
 At a turn of the path the coupling's lead must change by many millimetres (sliding along the soft
 axis needs a far larger lead than along the stiff one), and the MPC's jerk cost, which smooths the
 commands on the straight legs, makes the EPM build it slowly: much of the tracking error comes in
-the second after a corner. So the window also carries a factor of
-the jerk cost's weight per stage, :data:`TURN_JERK_FACTOR` from :data:`TURN_BEFORE_S` before a turn
-to :data:`TURN_AFTER_S` after it and 1 elsewhere.
+the second after a corner. So the window also carries a factor of the jerk cost's weight per
+stage, :data:`TURN_JERK_FACTOR` from :data:`TURN_BEFORE_S` before a turn to :data:`TURN_AFTER_S`
+after it and 1 elsewhere.
 """
 
 from __future__ import annotations
@@ -79,10 +79,9 @@ class SlideReference:
 
     def jerk_factor(self, times_s: np.ndarray) -> np.ndarray:
         """The jerk cost's weight factor at ``times_s``: :data:`TURN_JERK_FACTOR` around a turn."""
-        factor = np.ones(len(times_s))
-        for turn in self.turns_s:
-            factor[(times_s >= turn - TURN_BEFORE_S) & (times_s <= turn + TURN_AFTER_S)] = TURN_JERK_FACTOR
-        return factor
+        since = np.asarray(times_s, dtype=float)[:, None] - self.turns_s[None, :]
+        near = ((since >= -TURN_BEFORE_S) & (since <= TURN_AFTER_S)).any(axis=1)
+        return np.where(near, TURN_JERK_FACTOR, 1.0)
 
     def join(self, times: np.ndarray, pos: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The path's positions and velocities at ``times`` (2 x n) with the start offset faded out
