@@ -17,6 +17,10 @@ sliding, as an operator does with a sticky slide:
 * **settle, observe**: the EPM holds; after the capsule has stopped, the camera's frames are
   averaged until their standard error is small (or a time cap); the capsule must not have moved
   between the first and second half of the frames;
+* **release**: a capsule found within tolerance at its first rest, before any move, is still
+  pulled by the lead that dragged it along the path's last leg, and under that pull it may creep
+  on for seconds (rate-and-state creep) after the camera saw it stop; so the EPM first moves to
+  the believed zero-force lead over it (``rest + lead_eq``) and the camera watches it again;
 * **correct**: within ``place.tolerance_m`` of the target it is placed; else the stop offset
   ``s`` is replaced by the one just observed (``e_f - lead_eq - rest``, what the rig did: slope 1
   in ``e_f``), and the next move starts, up to ``place.max_moves``.
@@ -133,6 +137,8 @@ RUN_UP_MPS = 0.04
 #: the sliding friction and the capsule stops at once instead of creeping on for seconds under
 #: the force it was dragged with (rate-and-state creep, a > b); 1 mm let it creep on some draws.
 RELEASE_M = 2e-3
+#: A release (the module docstring) shorter than this is skipped, m.
+RELEASE_MIN_M = 5e-4
 #: Rest assumed for the forward breakaway after the short stop at the back-off, s.
 STAGE_REST_S = 0.3
 #: The placement starts once the estimator has seen the capsule at rest this long after the path,
@@ -552,6 +558,7 @@ class _Memory:
     points: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
     planned: Move | None = None
     last_rest: np.ndarray | None = None
+    released: bool = False  # the pull of the slide was released (before any move)
     moved_m: float = 0.0  # how far the camera saw the capsule from its last rest during a move
 
     def residual(self, axis: np.ndarray, stiffness_n_per_m: float, progress_m: float) -> np.ndarray:
@@ -671,6 +678,8 @@ class Placement:
         mem.learn(rest_m, self.geometry.lead_eq_m)  # also from the last move: what it showed is on record
         error = self.target_m - rest_m
         if float(np.linalg.norm(error)) <= cfg.tolerance_m:
+            if self.moves == 0 and not mem.released and self._release(t_s, rest_m, epm):
+                return
             self.outcome = PlaceOutcome.PLACED
             return
         if self.moves >= cfg.max_moves:
@@ -703,6 +712,17 @@ class Placement:
         mem.last_rest, mem.moved_m, mem.planned = rest_m, 0.0, move
         mem.progress_m += move.length_m
         self.moves += 1
+
+    def _release(self, t_s: float, rest_m: np.ndarray, epm: np.ndarray) -> bool:
+        """Move the EPM to the believed zero-force lead over ``rest_m``, then watch again (the module
+        docstring); False when it is there already."""
+        self.memory.released = True
+        goal = np.array([*(rest_m + self.geometry.lead_eq_m), epm[2]])
+        if float(np.linalg.norm(goal[:2] - epm[:2])) < RELEASE_MIN_M:
+            return False
+        move = Move((goal,), (np.zeros(3),), (math.inf,), goal, np.zeros(2))
+        self._traj = (t_s, _Trajectory(self.scenario, epm, move))
+        return True
 
     def _follow(self, t_s: float, epm: np.ndarray) -> np.ndarray:
         """Follow the move's trajectory; at its end start settling and observing."""
