@@ -350,6 +350,26 @@ def test_a_first_rest_on_the_target_is_placed_only_after_the_pull_is_released(
     assert placed_at is not None and placed_at >= P.SETTLE_S + P.MIN_FRAMES * frame
 
 
+@pytest.mark.parametrize(("second_m", "placed"), [(1.7e-4, True), (1.0e-3, False)])
+def test_the_rest_watched_again_after_a_release_counts_with_the_first_unless_it_moved(
+    scenario: Scenario, second_m: float, placed: bool
+) -> None:
+    """First rest 0.12 mm off (within the 0.15 mm tolerance) and released; watched again at 0.17 mm,
+    within three standard errors of the first: the two means together say placed. Watched again
+    1 mm off: the capsule moved, and the new rest alone decides (a move)."""
+    geometry = linear_geometry(30.0)
+    target = np.array([0.0, -0.03])
+    placement = P.Placement(scenario, scenario.place, geometry, _belief(scenario), target, 0.3)
+    placement.start(0.0, -1.0)
+    epm = np.array([*(target + geometry.lead_eq_m + np.array([0.0, 0.01])), scenario.plate.epm_height_m])
+    placement._decide(1.0, target + np.array([1.2e-4, 0.0]), 3e-5, epm)
+    assert placement.outcome is P.PlaceOutcome.ACTIVE and placement._traj is not None  # the release
+    placement._traj = None
+    placement._decide(3.0, target + np.array([second_m, 0.0]), 3e-5, epm - np.array([0.0, 0.01, 0.0]))
+    assert (placement.outcome is P.PlaceOutcome.PLACED) is placed
+    assert placement.moves == (0 if placed else 1)
+
+
 def _slide(
     leads: P.SlideLeads, t0: float, start: np.ndarray, velocity: np.ndarray, lead: np.ndarray, seconds: float
 ) -> tuple[float, np.ndarray]:

@@ -20,7 +20,8 @@ sliding, as an operator does with a sticky slide:
 * **release**: a capsule found within tolerance at its first rest, before any move, is still
   pulled by the lead that dragged it along the path's last leg, and under that pull it may creep
   on for seconds (rate-and-state creep) after the camera saw it stop; so the EPM first moves to
-  the believed zero-force lead over it (``rest + lead_eq``) and the camera watches it again;
+  the believed zero-force lead over it (``rest + lead_eq``) and the camera watches it again (a
+  capsule that did not move is judged on both rests' frames, :data:`RELEASE_MOVED_SE`);
 * **correct**: within ``place.tolerance_m`` of the target it is placed; else the stop offset
   ``s`` is replaced by the one just observed (``e_f - lead_eq - rest``, what the rig did: slope 1
   in ``e_f``), and the next move starts, up to ``place.max_moves``.
@@ -139,6 +140,10 @@ RUN_UP_MPS = 0.04
 RELEASE_M = 2e-3
 #: A release (the module docstring) shorter than this is skipped, m.
 RELEASE_MIN_M = 5e-4
+#: The rest watched again after a release counts together with the first (their means weighted by
+#: their standard errors) unless the means differ by more than this many standard errors of their
+#: difference (then the capsule moved, and the new rest decides alone).
+RELEASE_MOVED_SE = 3.0
 #: Rest assumed for the forward breakaway after the short stop at the back-off, s.
 STAGE_REST_S = 0.3
 #: The placement starts once the estimator has seen the capsule at rest this long after the path,
@@ -473,6 +478,11 @@ class _Observation:
     def add(self, position_m: np.ndarray) -> None:
         self.frames.append(np.asarray(position_m, dtype=float))
 
+    @property
+    def se_m(self) -> float:
+        """The standard error of the mean (the larger of the two axes'), m."""
+        return float(np.max(np.std(self.frames, axis=0, ddof=1))) / math.sqrt(len(self.frames))
+
     def result(self, t_s: float, tolerance_m: float) -> tuple[np.ndarray | None, bool]:
         """(mean position, or None while the observation goes on; whether the capsule kept still).
 
@@ -488,7 +498,7 @@ class _Observation:
             return None, True
         pos = np.array(self.frames)
         mean = pos.mean(axis=0)
-        se = float(np.max(pos.std(axis=0, ddof=1))) / math.sqrt(n)
+        se = self.se_m
         off = float(np.linalg.norm(mean - self.target_m))
         elapsed = t_s - self.start_s
         done = (
@@ -559,6 +569,7 @@ class _Memory:
     planned: Move | None = None
     last_rest: np.ndarray | None = None
     released: bool = False  # the pull of the slide was released (before any move)
+    rest_se_m: float = 0.0  # the standard error of the first rest's mean, m (kept at the release)
     moved_m: float = 0.0  # how far the camera saw the capsule from its last rest during a move
 
     def residual(self, axis: np.ndarray, stiffness_n_per_m: float, progress_m: float) -> np.ndarray:
@@ -663,22 +674,28 @@ class Placement:
             self._obs = self._observation(t_s)
             return np.zeros(3)
         try:
-            self._decide(t_s, mean, epm)
+            self._decide(t_s, mean, self._obs.se_m, epm)
         except (ValueError, ArithmeticError) as exc:  # a move that cannot be planned: hold, say why
             self._traj = None
             self.outcome = PlaceOutcome.GAVE_UP
             self.reason = f"could not plan placement move {self.moves + 1}: {exc}"
         return np.zeros(3)
 
-    def _decide(self, t_s: float, rest_m: np.ndarray, epm: np.ndarray) -> None:
-        """At rest at ``rest_m``: placed, gave up, or the next move."""
+    def _decide(self, t_s: float, rest_m: np.ndarray, se_m: float, epm: np.ndarray) -> None:
+        """At rest at ``rest_m`` (the mean's standard error ``se_m``): placed, gave up, or the next
+        move."""
         cfg = self.settings
         self._obs = None
         mem = self.memory
         mem.learn(rest_m, self.geometry.lead_eq_m)  # also from the last move: what it showed is on record
+        if self.moves == 0 and mem.last_rest is not None:  # watched again after the release
+            se_first = mem.rest_se_m
+            if float(np.linalg.norm(rest_m - mem.last_rest)) <= RELEASE_MOVED_SE * math.hypot(se_m, se_first):
+                w = se_first**2 / (se_first**2 + se_m**2)
+                rest_m = w * rest_m + (1.0 - w) * mem.last_rest
         error = self.target_m - rest_m
         if float(np.linalg.norm(error)) <= cfg.tolerance_m:
-            if self.moves == 0 and not mem.released and self._release(t_s, rest_m, epm):
+            if self.moves == 0 and not mem.released and self._release(t_s, rest_m, se_m, epm):
                 return
             self.outcome = PlaceOutcome.PLACED
             return
@@ -713,10 +730,11 @@ class Placement:
         mem.progress_m += move.length_m
         self.moves += 1
 
-    def _release(self, t_s: float, rest_m: np.ndarray, epm: np.ndarray) -> bool:
+    def _release(self, t_s: float, rest_m: np.ndarray, se_m: float, epm: np.ndarray) -> bool:
         """Move the EPM to the believed zero-force lead over ``rest_m``, then watch again (the module
         docstring); False when it is there already."""
         self.memory.released = True
+        self.memory.last_rest, self.memory.rest_se_m = rest_m, se_m
         goal = np.array([*(rest_m + self.geometry.lead_eq_m), epm[2]])
         if float(np.linalg.norm(goal[:2] - epm[:2])) < RELEASE_MIN_M:
             return False
