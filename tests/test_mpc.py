@@ -18,9 +18,9 @@ from capsule_mpc.mpc.problem import N_REF
 from capsule_mpc.mpc.reference import (
     TURN_AFTER_S,
     TURN_BEFORE_S,
+    TURN_COS,
     TURN_JERK_FACTOR,
     SlideReference,
-    turn_times_s,
 )
 from capsule_mpc.paths import ReferencePath, rectangle
 from capsule_mpc.sim import simulate
@@ -284,9 +284,9 @@ def test_the_jerk_cost_is_relaxed_around_the_paths_turns_only(fast):
     ocp = build_mpc_stack(fast).ocp
     belief = FrictionBelief.from_scenario(fast)
     rect = rectangle((0.1, 0.06), (0.0, 0.0), 0.02)
-    np.testing.assert_allclose(turn_times_s(rect), [5.0, 8.0, 13.0])
+    np.testing.assert_allclose(rect.turn_times_s(TURN_COS), [5.0, 8.0, 13.0])
     straight = ReferencePath(np.array([[0.0, 0.0], [0.01, 0.0], [0.02, 0.0], [0.03, 0.001]]), False, 0.02)
-    assert turn_times_s(straight).size == 0  # collinear, then a bend of under 6 degrees
+    assert straight.turn_times_s(TURN_COS).size == 0  # collinear, then a bend of under 6 degrees
     reference = SlideReference(rect, ocp, 0.0, belief)
     times = np.array([4.0, 5.0 - TURN_BEFORE_S - 1e-3, 4.9, 5.0, 5.0 + TURN_AFTER_S, 6.5, 7.8])
     np.testing.assert_array_equal(

@@ -134,6 +134,13 @@ class ReferencePath:
         """The same path at another nominal speed, m/s."""
         return ReferencePath(self.waypoints_m, self.closed, float(speed_mps))
 
+    def turn_times_s(self, max_cos: float) -> np.ndarray:
+        """When the reference passes the inner vertices where its direction turns (the dot product
+        of the unit directions before and after them below ``max_cos``), s after its start."""
+        d = self._directions
+        turning = np.einsum("ij,ij->i", d[:-1], d[1:]) < max_cos
+        return self._arc_m[1:-1][turning] / self.speed_mps
+
     def point_at_arc(self, s_m: Any) -> np.ndarray:
         """Point(s) at arc length ``s_m`` (clipped to [0, length]), m; (2,) or (N, 2)."""
         s = np.clip(np.asarray(s_m, dtype=float), 0.0, self.length_m)

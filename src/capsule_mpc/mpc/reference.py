@@ -55,7 +55,7 @@ class SlideReference:
         self.belief = belief
         self.start_offset_m: np.ndarray | None = None
         self._started = False
-        self.turns_s = turn_times_s(path)
+        self.turns_s = path.turn_times_s(TURN_COS)
 
     def start(self, position_m: np.ndarray) -> None:
         """At the first frame with t >= 0: join the path from ``position_m`` (once)."""
@@ -105,14 +105,3 @@ class SlideReference:
         """The believed tether drag's growth at ``t_s`` over its value at the start, N."""
         return float(self.belief.drag_growth_n(self.progress_m(t_s)))
 
-
-def turn_times_s(path: ReferencePath) -> np.ndarray:
-    """When the reference passes the path's turns (its inner vertices where the direction changes by
-    more than about 25 degrees), s after its start."""
-    if path.speed_mps <= 0:
-        return np.zeros(0)
-    seg = np.diff(path.vertices_m, axis=0)
-    length = np.linalg.norm(seg, axis=1)
-    unit = seg / np.maximum(length, 1e-12)[:, None]
-    turning = np.einsum("ij,ij->i", unit[:-1], unit[1:]) < TURN_COS
-    return np.cumsum(length)[:-1][turning] / path.speed_mps
