@@ -568,7 +568,6 @@ class _Memory:
     points: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
     planned: Move | None = None
     last_rest: np.ndarray | None = None
-    released: bool = False  # the pull of the slide was released (before any move)
     rest_se_m: float = 0.0  # the standard error of the first rest's mean, m (kept at the release)
     moved_m: float = 0.0  # how far the camera saw the capsule from its last rest during a move
 
@@ -695,7 +694,7 @@ class Placement:
                 rest_m = w * rest_m + (1.0 - w) * mem.last_rest
         error = self.target_m - rest_m
         if float(np.linalg.norm(error)) <= cfg.tolerance_m:
-            if self.moves == 0 and not mem.released and self._release(t_s, rest_m, se_m, epm):
+            if self.moves == 0 and mem.last_rest is None and self._release(t_s, rest_m, se_m, epm):
                 return
             self.outcome = PlaceOutcome.PLACED
             return
@@ -733,8 +732,7 @@ class Placement:
     def _release(self, t_s: float, rest_m: np.ndarray, se_m: float, epm: np.ndarray) -> bool:
         """Move the EPM to the believed zero-force lead over ``rest_m``, then watch again (the module
         docstring); False when it is there already."""
-        self.memory.released = True
-        self.memory.last_rest, self.memory.rest_se_m = rest_m, se_m
+        self.memory.last_rest, self.memory.rest_se_m = rest_m, se_m  # before any move: the release's mark
         goal = np.array([*(rest_m + self.geometry.lead_eq_m), epm[2]])
         if float(np.linalg.norm(goal[:2] - epm[:2])) < RELEASE_MIN_M:
             return False
