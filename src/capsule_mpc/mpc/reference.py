@@ -104,4 +104,3 @@ class SlideReference:
     def drag_growth_n(self, t_s: float) -> float:
         """The believed tether drag's growth at ``t_s`` over its value at the start, N."""
         return float(self.belief.drag_growth_n(self.progress_m(t_s)))
-
