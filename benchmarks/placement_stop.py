@@ -33,6 +33,8 @@ from capsule_mpc.sim.plant import CapsulePlant
 from capsule_mpc.sim.truth import draw_plant_truth
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The target, m.
+TARGET_M = (0.0, -0.03)
 #: Where the capsule starts, relative to the target, m (along x, across y).
 STARTS_M = ((0.5e-3, 0.2e-3), (-1e-3, -0.6e-3), (0.2e-3, 0.9e-3))
 #: Approach speeds tried, m/s, and run-ups, m.
@@ -42,12 +44,12 @@ RUN_UPS_M = (1.5e-3, 16e-3)
 WATCH_S = 1.0
 
 
-def one_move(scenario, truth, start, speed, run_up) -> tuple[np.ndarray, float]:
-    """Rest position relative to the target (m) and the creep after the move (m)."""
+def one_move(scenario, truth, start, speed, run_up, target=TARGET_M) -> tuple[np.ndarray, float]:
+    """Rest position relative to ``target`` (m) and the creep after the move (m)."""
     plant = CapsulePlant(scenario, truth=truth)
     arm = _make_actuator(scenario, truth)
     height = scenario.plate.epm_height_m
-    target = np.array([0.0, -0.03])
+    target = np.asarray(target, dtype=float)
     rest = target + np.asarray(start)
     plant.reset(rest, theta_s=3.0)
     epm0 = np.array([*(rest + plant.equilibrium_lead_m), height])
