@@ -44,6 +44,18 @@ RUN_UPS_M = (1.5e-3, 16e-3)
 WATCH_S = 1.0
 
 
+def nominal_geometry(scenario) -> P.PlaceGeometry:
+    """The placement's coupling at the EPM's nominal height, from the force model alone (no
+    disturbance estimate, no legs of a slide)."""
+    return P.place_geometry(
+        capsule_force_function(scenario),
+        model_equilibrium_lead(scenario),
+        scenario.plate.epm_height_m,
+        np.zeros(2),
+        lambda f: float(normal_force_expr(scenario, f)),
+    )
+
+
 def one_move(scenario, truth, start, speed, run_up, target=TARGET_M) -> tuple[np.ndarray, float]:
     """Rest position relative to ``target`` (m) and the creep after the move (m)."""
     plant = CapsulePlant(scenario, truth=truth)
@@ -54,13 +66,7 @@ def one_move(scenario, truth, start, speed, run_up, target=TARGET_M) -> tuple[np
     plant.reset(rest, theta_s=3.0)
     epm0 = np.array([*(rest + plant.equilibrium_lead_m), height])
     arm.reset(epm0)
-    geo = P.place_geometry(
-        capsule_force_function(scenario),
-        model_equilibrium_lead(scenario),
-        height,
-        np.zeros(2),
-        lambda f: float(normal_force_expr(scenario, f)),
-    )
+    geo = nominal_geometry(scenario)
     saved, P.RUN_UP_M = P.RUN_UP_M, run_up
     try:
         move = P.plan_move(

@@ -26,11 +26,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from placement_stop import STARTS_M, one_move
+from placement_stop import STARTS_M, nominal_geometry, one_move
 
 from capsule_mpc import load_config
-from capsule_mpc.dynamics import normal_force_expr
-from capsule_mpc.magnetics import capsule_force_function, model_equilibrium_lead
 from capsule_mpc.mpc import place as P
 from capsule_mpc.sim.truth import draw_plant_truth
 
@@ -49,14 +47,7 @@ def main() -> None:
     args = parser.parse_args()
     base = load_config(args.config)
     scenario = base.model_copy(update={"plant": base.plant.model_copy(update={"preset": args.plant})})
-    height = scenario.plate.epm_height_m
-    geometry = P.place_geometry(
-        capsule_force_function(scenario),
-        model_equilibrium_lead(scenario),
-        height,
-        np.zeros(2),
-        lambda f: float(normal_force_expr(scenario, f)),
-    )
+    geometry = nominal_geometry(scenario)
     speed = scenario.place.approach_speed_mps
     rows = []
     print("seed  stop along the stiff axis at each place (mm)   spread (mm)")
