@@ -126,6 +126,101 @@ def test_the_residual_moves_the_end_one_for_one(scenario: Scenario) -> None:
     np.testing.assert_allclose(b.final_m[:2] - a.final_m[:2], [1e-3, -2e-4], atol=1e-12)
 
 
+def _memory_with(points: list[tuple[float, float, float]]) -> P._Memory:
+    """A placement memory holding stops (tether paid out m, residual along x m, across m)."""
+    mem = P._Memory(progress_m=0.0)
+    mem.points = [(p, np.array([along, across]), np.zeros(2)) for p, along, across in points]
+    return mem
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    offset=st.floats(-2e-3, 2e-3),
+    progress=st.lists(st.floats(0.0, 2.0), min_size=1, max_size=6, unique=True),
+    ahead=st.floats(0.0, 3.0),
+    k=st.floats(5.0, 100.0),
+)
+def test_stops_that_agree_predict_the_same_stop_at_any_tether(
+    offset: float, progress: list[float], ahead: float, k: float
+) -> None:
+    """Stops with the same residual show no drift: the next one is predicted at that residual,
+    however much tether is paid out by then."""
+    mem = _memory_with([(p, offset, 0.0) for p in progress])
+    predicted = mem.residual(np.array([1.0, 0.0]), k, max(progress) + ahead)
+    np.testing.assert_allclose(predicted, [offset, 0.0], atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    along=st.lists(st.floats(-2e-3, 2e-3), min_size=2, max_size=6),
+    step=st.floats(0.01, 0.5),
+    k=st.floats(5.0, 100.0),
+    ahead=st.floats(0.0, 1.0),
+)
+def test_the_drift_is_the_ridge_fit_of_the_stops_against_the_tether(
+    along: list[float], step: float, k: float, ahead: float
+) -> None:
+    """Along the axis the stops are fitted as c + s (P - mean P) with a Gaussian prior on s of scale
+    DRIFT_PRIOR_N_PER_M / k against a stop's scatter STOP_SCATTER_M: the same as least squares on the
+    stops with one more row for the prior, solved by numpy."""
+    progress = [i * step for i in range(len(along))]
+    mem = _memory_with([(p, a, 0.0) for p, a in zip(progress, along)])
+    dp = np.array(progress) - np.mean(progress)
+    y = np.array(along)
+    ratio = P.STOP_SCATTER_M * k / P.DRIFT_PRIOR_N_PER_M
+    rows = np.vstack([np.column_stack([np.ones_like(dp), dp]), [0.0, ratio]])
+    (c, slope), *_ = np.linalg.lstsq(rows, np.append(y, 0.0), rcond=None)
+    at = progress[-1] + ahead
+    expected = c + slope * (at - np.mean(progress))
+    assert mem.residual(np.array([1.0, 0.0]), k, at)[0] == pytest.approx(expected, abs=1e-12)
+
+
+def test_a_steady_drift_is_followed_once_the_stops_span_enough_tether() -> None:
+    """Stops drifting by 0.1 mm per 10 mm of tether: over 1 m of tether the fitted drift is the trend
+    (within 1 %); over 30 mm, a few stops' scatter could make such a trend, so the prior holds most of
+    it back (less than a fifth is followed)."""
+    k, trend = 46.8, 1e-2  # N/m; m of stop per m of tether
+    axis = np.array([1.0, 0.0])
+
+    def followed(progress: np.ndarray) -> float:
+        mem = _memory_with([(p, trend * p, 0.0) for p in progress])
+        ahead = progress[-1] + 0.01
+        return (mem.residual(axis, k, ahead)[0] - trend * np.mean(progress)) / (
+            trend * (ahead - np.mean(progress))
+        )
+
+    assert followed(np.linspace(0.0, 1.0, 5)) == pytest.approx(1.0, abs=0.01)
+    assert 0.0 < followed(np.linspace(0.0, 0.03, 3)) < 0.2
+
+
+def test_across_the_axis_each_stop_moves_the_residual_part_of_the_way() -> None:
+    """Across the approach the residual follows the stops by ADAPT_GAIN of each new one's difference;
+    along it, the stops' mean (no drift)."""
+    mem = _memory_with([(0.0, 1e-4, 2e-4), (0.0, 3e-4, -4e-4), (0.0, 2e-4, 1e-4)])
+    lateral = 2e-4
+    for r in (-4e-4, 1e-4):
+        lateral += P.ADAPT_GAIN * (r - lateral)
+    np.testing.assert_allclose(mem.residual(np.array([1.0, 0.0]), 30.0, 0.0), [2e-4, lateral], atol=1e-15)
+
+
+def test_a_move_that_never_broke_loose_backs_off_farther_and_teaches_no_stop() -> None:
+    """learn(): a move the camera never saw take the capsule BROKE_LOOSE_M from its rest adds no stop
+    and lengthens the next back-off by GROWTH; one that did records the stop it showed (the EPM's end
+    minus the equilibrium lead minus the rest) beside the offset it was planned with."""
+    end = np.array([0.01, 0.002, 0.095])
+    move = P.Move((end,), (np.zeros(3),), (0.02,), end, np.array([3e-3, 0.0]))
+    lead_eq, rest = np.array([-0.017, 0.0]), np.array([0.024, 0.0025])
+    mem = P._Memory(progress_m=0.4, planned=move, moved_m=0.5 * P.BROKE_LOOSE_M)
+    mem.learn(rest, lead_eq)
+    assert mem.points == [] and mem.backoff_scale == pytest.approx(P.GROWTH)
+    mem.moved_m = 10 * P.BROKE_LOOSE_M
+    mem.learn(rest, lead_eq)
+    ((progress, seen, planned),) = mem.points
+    assert progress == 0.4 and mem.backoff_scale == pytest.approx(P.GROWTH)
+    np.testing.assert_allclose(seen, end[:2] - lead_eq - rest, atol=1e-15)
+    np.testing.assert_allclose(planned, [3e-3, 0.0])
+
+
 def test_observation_waits_for_enough_frames_and_flags_a_drift() -> None:
     rng = np.random.default_rng(0)
     obs = P._Observation(0.0, np.zeros(2))
