@@ -56,8 +56,9 @@ def nominal_geometry(scenario) -> P.PlaceGeometry:
     )
 
 
-def one_move(scenario, truth, start, speed, run_up, target=TARGET_M) -> tuple[np.ndarray, float]:
-    """Rest position relative to ``target`` (m) and the creep after the move (m)."""
+def one_move(scenario, truth, start, speed, run_up, geo, target=TARGET_M) -> tuple[np.ndarray, float]:
+    """Rest position relative to ``target`` (m) and the creep after the move (m), the move planned on
+    the coupling ``geo`` (:func:`nominal_geometry`, built once per scenario by the caller)."""
     plant = CapsulePlant(scenario, truth=truth)
     arm = _make_actuator(scenario, truth)
     height = scenario.plate.epm_height_m
@@ -66,7 +67,6 @@ def one_move(scenario, truth, start, speed, run_up, target=TARGET_M) -> tuple[np
     plant.reset(rest, theta_s=3.0)
     epm0 = np.array([*(rest + plant.equilibrium_lead_m), height])
     arm.reset(epm0)
-    geo = nominal_geometry(scenario)
     saved, P.RUN_UP_M = P.RUN_UP_M, run_up
     try:
         move = P.plan_move(
@@ -101,13 +101,14 @@ def main() -> None:
     args = parser.parse_args()
     base = load_config(args.config)
     scenario = base.model_copy(update={"plant": base.plant.model_copy(update={"preset": args.plant})})
+    geo = nominal_geometry(scenario)
     rows = []
     print("seed speed(mm/s) run-up(mm)  rest x / y (mm) per start     spread x / y (mm)  creep (mm)")
     for seed in args.seeds:
         truth = draw_plant_truth(scenario, seed)
         for speed in SPEEDS_MPS:
             for run_up in RUN_UPS_M:
-                ends = [one_move(scenario, truth, s, speed, run_up) for s in STARTS_M]
+                ends = [one_move(scenario, truth, s, speed, run_up, geo) for s in STARTS_M]
                 rest = np.array([e[0] for e in ends]) * 1e3
                 spread = rest.max(axis=0) - rest.min(axis=0)
                 creep = max(e[1] for e in ends) * 1e3

@@ -53,7 +53,10 @@ def main() -> None:
     print("seed  stop along the stiff axis at each place (mm)   spread (mm)")
     for seed in args.seeds:
         truth = draw_plant_truth(scenario, seed)
-        rests = [one_move(scenario, truth, STARTS_M[0], speed, P.RUN_UP_M, place)[0] for place in PLACES_M]
+        rests = [
+            one_move(scenario, truth, STARTS_M[0], speed, P.RUN_UP_M, geometry, place)[0]
+            for place in PLACES_M
+        ]
         along = [1e3 * float(r @ geometry.axis) for r in rests]
         spread = max(along) - min(along)
         print(f"{seed:4d}  " + " ".join(f"{a:+.3f}" for a in along) + f"   {spread:.3f}")
