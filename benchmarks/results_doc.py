@@ -45,10 +45,13 @@ SOURCES = "sources.json"
 TEMPLATE, TABLES = "sections.md", "tables.md.j2"
 COMMAND = "python benchmarks/results_doc.py"
 README = ROOT / "README.md"
-#: The README's rendered table: between these markers, from the placement campaigns' summaries.
+#: The README's rendered tables, each between its opening marker and :data:`README_CLOSE`: the
+#: placement campaigns' summaries, and the controllers on the rectangle's held-out draws.
 README_OPEN = "<!-- placement table: rendered by benchmarks/results_doc.py -->"
 README_CLOSE = "<!-- end of the rendered table -->"
 README_DATA = ("placement_lab/summary.json", "placement_hard/summary.json")
+README_CONTROLLERS_OPEN = "<!-- controllers table: rendered by benchmarks/results_doc.py -->"
+README_CONTROLLERS_DATA = ("sweep_rectangle_lab/summary.json",)
 
 #: Friction-model variants of the ablation, in table order, with their labels.
 ABLATION_VARIANTS = {
@@ -401,16 +404,21 @@ def render(data_dir: Path) -> str:
 
 
 def render_readme(text: str, data_dir: Path) -> str:
-    """``text`` (the README) with its placement table rendered from :data:`README_DATA`."""
-    head, found, rest = text.partition(README_OPEN)
-    _, closed, tail = rest.partition(README_CLOSE)
-    if not (found and closed):
-        raise ValueError(f"README.md: no {README_OPEN!r} ... {README_CLOSE!r} block")
-    contexts = [
-        placement_context(json.loads((data_dir / f).read_text(encoding="utf-8"))) for f in README_DATA
-    ]
-    table = str(tables(data_dir).readme_placement(contexts)).strip("\n")
-    return f"{head}{README_OPEN}\n{table}\n{README_CLOSE}{tail}"
+    """``text`` (the README) with its placement table rendered from :data:`README_DATA` and its
+    controllers table from :data:`README_CONTROLLERS_DATA`."""
+    blocks = (
+        (README_OPEN, "readme_placement", placement_context, README_DATA),
+        (README_CONTROLLERS_OPEN, "readme_controllers", sweep_context, README_CONTROLLERS_DATA),
+    )
+    for opening, macro, context, files in blocks:
+        head, found, rest = text.partition(opening)
+        _, closed, tail = rest.partition(README_CLOSE)
+        if not (found and closed):
+            raise ValueError(f"README.md: no {opening!r} ... {README_CLOSE!r} block")
+        contexts = [context(json.loads((data_dir / f).read_text(encoding="utf-8"))) for f in files]
+        table = str(getattr(tables(data_dir), macro)(contexts)).strip("\n")
+        text = f"{head}{opening}\n{table}\n{README_CLOSE}{tail}"
+    return text
 
 
 def _anchor(title: str) -> str:

@@ -34,20 +34,35 @@ def test_committed_results_doc_is_current(results_doc, tmp_path):
     )
 
 
-def test_the_readme_table_is_the_placement_campaigns(results_doc):
-    """The README's table has a row per rig, with the numbers of the placement campaign's table."""
+def test_the_readme_tables_are_the_campaigns(results_doc):
+    """The README's placement table has a row per rig with the placement campaigns' numbers, its
+    controllers table a row per controller with the rectangle sweep's; a README without either
+    block is refused."""
     data = REPO / "docs" / "results"
-    text = f"intro\n{results_doc.README_OPEN}\nold\n{results_doc.README_CLOSE}\nafter\n"
-    out = results_doc.render_readme(text, data).splitlines()
-    assert out[0] == "intro" and out[-1] == "after" and "old" not in out
-    rows = [line for line in out if line.startswith("| `")]
-    assert [r.split("|")[1].strip() for r in rows] == ["`lab`", "`hard`"]
-    for row, name in zip(rows, results_doc.README_DATA):
+    close = results_doc.README_CLOSE
+    placement, controllers = results_doc.README_OPEN, results_doc.README_CONTROLLERS_OPEN
+    blocks = f"{placement}\nold\n{close}\nmiddle\n{controllers}\nold\n{close}"
+    out = results_doc.render_readme(f"intro\n{blocks}\nafter\n", data).splitlines()
+    assert out[0] == "intro" and out[-1] == "after" and "middle" in out and "old" not in out
+    split = out.index("middle")
+    rigs = [line for line in out[:split] if line.startswith("| `")]
+    assert [r.split("|")[1].strip() for r in rigs] == ["`lab`", "`hard`"]
+    for row, name in zip(rigs, results_doc.README_DATA):
         summary = json.loads((data / name).read_text())
         seen = [r["controllers"]["mpc"]["final_error_seen_mm"] for r in summary["runs"]]
         assert f"{sum(seen) / len(seen):.3f} ± " in row
-    with pytest.raises(ValueError, match=r"README\.md"):
-        results_doc.render_readme("no markers here\n", data)
+    rows = [line for line in out[split:] if line.startswith("| `")]
+    (sweep,) = results_doc.README_CONTROLLERS_DATA
+    runs = json.loads((data / sweep).read_text())["runs"]
+    names = list(runs[0]["controllers"])
+    assert sorted(r.split("|")[1].strip(" `") for r in rows) == sorted(names)
+    for row in rows:
+        name = row.split("|")[1].strip(" `")
+        rms = [r["controllers"][name]["tracking_rms_mm"] for r in runs]
+        assert row.split("|")[2].strip().startswith(f"{sum(rms) / len(rms):.2f} ± ")
+    for text in ("no markers here\n", f"{results_doc.README_OPEN}\n{close}\n"):
+        with pytest.raises(ValueError, match=r"README\.md"):
+            results_doc.render_readme(text, data)
 
 
 def test_generator_is_deterministic(results_doc):
