@@ -80,8 +80,8 @@ def render_table(record: dict[str, Any]) -> str:
         lines.append(f"| `{task}` | `{preset}` | " + " | ".join(cells) + " |")
     cpu = {name: sum(r["cpu_s"] for r in record["runs"] if r["entrant"] == name) for name in names}
     spent = ", ".join(f"{title} {cpu[name]:.0f} s" for (_, name, title) in ENTRANTS)
-    lines += ["", f"CPU time of the whole suite per entrant: {spent}. A rig drawn for the first time"]
-    lines += ["on a machine adds its force table (tens of seconds, then cached) to the first entrant."]
+    lines += ["", f"CPU time of the whole suite per entrant: {spent}. The first run on a machine also"]
+    lines += ["builds the plant's shared magnet table and the MPC's compiled solver (then cached)."]
     return "\n".join(lines) + "\n"
 
 
