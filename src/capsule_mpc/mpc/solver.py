@@ -74,18 +74,12 @@ MAX_IPOPT_ITER = 200
 _IPOPT_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded"}
 #: QP solvers the SQP schemes can use on the stage-wise layout.
 QP_SOLVERS = ("hpipm", "piqp")
-#: HPIPM settings (127 recorded QPs at N = 20): with HPIPM's default absolute
-#: tolerances 24-41 of them hit the iteration cap; 'speed' mode with these residual tolerances
-#: (scaled units) and a cap of 8-15 iterations gave no failure and unchanged commands. Measured
-#: again on 380 frames of the rectangle (N = 20) against piqp solved to 1e-10: first command
-#: within 0.05 mm/s with a cap of 10, 15 or 25 (0.06 with 8, 0.4 with 6); 'speed_abs' is off by
-#: 6 mm/s, 'balance' 0.002 mm/s but 40 % slower. The initial barrier parameter ``mu0`` is 3
-#: instead of the mode's 10 (the QP is scaled to unit order): on 5,976 recorded QPs (the rectangle
-#: and the pipe at three speeds, N = 20 and 40, and the 100 Hz rectangle; seed 0) 4.1-5.0
-#: interior-point iterations per QP instead of 5.2-6.4, 126 QPs not solved (mostly at the cap)
-#: instead of 587, and the first command within 0.033 mm/s of a tightly solved HPIPM (0.42 with
-#: mu0 10). mu0 2: 94 not solved but one command 0.89 mm/s off; mu0 5: 226 not solved.
-#: Measured by ``benchmarks/hpipm_mu0.py``.
+#: HPIPM settings: 'speed' mode with residual tolerances in the QP's scaled units and a cap of 10
+#: interior-point iterations (against piqp solved to 1e-10 the first command stays within a fraction
+#: of a mm/s; 'speed_abs' is far off, 'balance' slower), and an initial barrier parameter ``mu0`` of
+#: 3 instead of the mode's 10, as the QP is scaled to unit order: fewer iterations per QP and fewer
+#: QPs left at the cap on recorded closed-loop QPs (``benchmarks/hpipm_mu0.py``; docs/results.md,
+#: "HPIPM's initial barrier parameter").
 HPIPM_OPTIONS = {
     "mode": "speed",
     "mu0": 3.0,
