@@ -87,11 +87,12 @@ __all__ = [
     "plan_move",
 ]
 
-#: The back-off pulls the lead this far beyond the belief's breakaway force (a ratio): the
-#: learned breakaway was within 10 % of the plant's on every lab draw, so 25 % clears it.
+#: The back-off pulls the lead this far beyond the belief's breakaway force (a ratio): wide enough
+#: to clear the learned breakaway's error against the plant's (docs/results.md, "The learned
+#: breakaway against the plant's").
 BREAKAWAY_MARGIN = 1.25
 #: Scatter of one stop's rest position along the approach, m (the camera's averaged noise and the
-#: plate's variation; 0.02-0.1 mm in benchmarks/placement_stop.py).
+#: plate's variation; measured by benchmarks/placement_stop.py, docs/results/placement_stop_lab.json).
 STOP_SCATTER_M = 1e-4
 #: Prior scale of the tether drag's growth the belief may miss, N/m (the drag grows with the
 #: tether paid out; rigs drawn here grow by up to 0.15 N/m).
@@ -106,8 +107,9 @@ ADAPT_GAIN = 0.7
 GROWTH = 1.5
 #: Run-up beyond the breakaway distance, m: the capsule slides at least this far before it is
 #: brought to rest on the target. Sliding along the stiff axis relaxes its lateral offset from the
-#: EPM over a distance of about mu F_N / k_lateral (~16 mm here); with a 1.5 mm run-up a quarter
-#: of the lateral offset it started with was left where it stopped, with 16 mm a twentieth.
+#: EPM over a distance of about mu F_N / k_lateral, about this long on the default rig
+#: (benchmarks/placement_stop.py compares run-ups); a shorter run-up also leaves less room for an
+#: EPM that lags its trajectory (docs/friction.md lists what shorter ones did).
 RUN_UP_M = 16e-3
 #: After the EPM's last move the capsule is left this long to stop before frames count, s.
 SETTLE_S = 0.3
@@ -128,15 +130,16 @@ POSITION_GAIN = 4.0
 #: trajectory's end, s (the stop offset is learned from where it really stopped).
 EPM_TOL_M = 5e-5
 EPM_WAIT_S = 0.3
-#: The last part of the approach runs at ``place.approach_speed_mps``, m: where the capsule comes
-#: to rest repeated within 0.02 mm from any start at 10 mm/s, within 0.06-0.14 mm at 40 mm/s.
+#: The last part of the approach runs at ``place.approach_speed_mps``, m: the slower the capsule
+#: arrives, the better its rest repeats (benchmarks/placement_stop.py compares approach speeds).
 SLOW_M = 4e-3
-#: Speed cap of the run-up before the slow part, m/s: where the capsule stopped repeated within
-#: 0.06-0.14 mm at 40 mm/s on lab draws (a faster run-up throws it about more).
+#: Speed cap of the run-up before the slow part, m/s: a faster run-up throws the capsule about more
+#: (benchmarks/placement_stop.py).
 RUN_UP_MPS = 0.04
 #: At the end of a move the EPM steps back this far along the approach, m: the force drops below
 #: the sliding friction and the capsule stops at once instead of creeping on for seconds under
-#: the force it was dragged with (rate-and-state creep, a > b); 1 mm let it creep on some draws.
+#: the force it was dragged with (rate-and-state creep, a > b); a shorter step back left it
+#: creeping on some draws.
 RELEASE_M = 2e-3
 #: A release (the module docstring) shorter than this is skipped, m.
 RELEASE_MIN_M = 5e-4
