@@ -39,7 +39,7 @@ TARGET_M = (0.0, -0.03)
 STARTS_M = ((0.5e-3, 0.2e-3), (-1e-3, -0.6e-3), (0.2e-3, 0.9e-3))
 #: Approach speeds tried, m/s, and run-ups, m.
 SPEEDS_MPS = (0.01, 0.04)
-RUN_UPS_M = (1.5e-3, 16e-3)
+RUN_UPS_M = (1.5e-3, 12e-3, 16e-3)
 #: Time watched after the move, s; creep is what moves after half of it.
 WATCH_S = 1.0
 
@@ -67,14 +67,10 @@ def one_move(scenario, truth, start, speed, run_up, geo, target=TARGET_M) -> tup
     plant.reset(rest, theta_s=3.0)
     epm0 = np.array([*(rest + plant.equilibrium_lead_m), height])
     arm.reset(epm0)
-    saved, P.RUN_UP_M = P.RUN_UP_M, run_up
-    try:
-        move = P.plan_move(
-            geo, FrictionBelief.from_scenario(scenario), rest, target, 1.0, np.zeros(2), 3.0, 0.0, 1.0,
-            height, scenario.limits.max_lead_m, speed,
-        )  # fmt: skip
-    finally:
-        P.RUN_UP_M = saved
+    move = P.plan_move(
+        geo, FrictionBelief.from_scenario(scenario), rest, target, 1.0, np.zeros(2), 3.0, 0.0, 1.0,
+        height, scenario.limits.max_lead_m, speed, run_up,
+    )  # fmt: skip
     traj = P._Trajectory(scenario, epm0, move)
     frame_s = 1.0 / scenario.camera.rate_hz
     steps = round(frame_s * scenario.sim.plant_rate_hz)

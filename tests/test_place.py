@@ -309,6 +309,21 @@ def test_a_move_is_followed_by_its_velocities_plus_the_position_correction(
     assert u[0] == pytest.approx(P.POSITION_GAIN * 1e-3) and u[1] == 0.0
 
 
+@settings(max_examples=20, deadline=None)
+@given(extra=st.floats(0.0, 0.02), direction=st.sampled_from([-1.0, 1.0]))
+def test_a_longer_run_up_backs_off_farther_by_as_much(
+    scenario: Scenario, extra: float, direction: float
+) -> None:
+    """The run-up adds one for one to the back-off; the EPM's end, where the capsule should stop,
+    does not depend on it (the belief's drag here does not grow with the tether)."""
+    geo, belief = linear_geometry(30.0), _belief(scenario)
+    rest = np.array([-1e-3 * direction, 2e-4])
+    args = (geo, belief, rest, np.zeros(2), direction, np.zeros(2), 1.0, 0.3, 1.0, 0.095, 0.025, 0.02)
+    short, long = (np.array(P.plan_move(*args, P.RUN_UP_M + e).waypoints_m) for e in (0.0, extra))
+    np.testing.assert_allclose(short[0] - long[0], [direction * extra, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(short[1:], long[1:], atol=1e-12)
+
+
 def test_placement_from_rest_on_the_ideal_plant(scenario: Scenario) -> None:
     """From rest a millimetre off, within tolerance (as the camera sees it) in at most three moves,
     every command within the speed limit, the EPM within the workspace and the coupling limit."""

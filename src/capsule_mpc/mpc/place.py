@@ -107,9 +107,9 @@ ADAPT_GAIN = 0.7
 GROWTH = 1.5
 #: Run-up beyond the breakaway distance, m: the capsule slides at least this far before it is
 #: brought to rest on the target. Sliding along the stiff axis relaxes its lateral offset from the
-#: EPM over a distance of about mu F_N / k_lateral, about this long on the default rig
-#: (benchmarks/placement_stop.py compares run-ups); a shorter run-up also leaves less room for an
-#: EPM that lags its trajectory (docs/friction.md lists what shorter ones did).
+#: EPM; the longer the run-up, the less of it is left where the capsule stops
+#: (benchmarks/placement_stop.py compares run-ups), but each millimetre is travelled twice per move
+#: (docs/friction.md lists what shorter run-ups did in closed loop).
 RUN_UP_M = 16e-3
 #: After the EPM's last move the capsule is left this long to stop before frames count, s.
 SETTLE_S = 0.3
@@ -404,6 +404,7 @@ def plan_move(
     height_m: float,
     max_lead_m: float,
     approach_speed_mps: float,
+    run_up_m: float = RUN_UP_M,
 ) -> Move:
     """The EPM's waypoints of the next move (see the module docstring).
 
@@ -412,7 +413,8 @@ def plan_move(
     the first); ``rest_s`` how long the capsule has rested (its friction has healed);
     ``progress_m`` the tether paid out so far (the belief's drag grows with it);
     ``backoff_scale`` (>= 1) lengthens the back-off after a move that did not break loose;
-    the last :data:`SLOW_M` of the approach run at ``approach_speed_mps``.
+    the last :data:`SLOW_M` of the approach run at ``approach_speed_mps``, after a run-up of
+    ``run_up_m`` beyond the breakaway.
     """
     d = direction * geometry.axis
     fn = geometry.normal_n
@@ -424,8 +426,8 @@ def plan_move(
     )
     lead_now = geometry.lead_eq_m
     ahead = float((np.asarray(target_m) - np.asarray(rest_m)) @ d)
-    single = ahead >= backoff_scale * fwd_break + RUN_UP_M  # far enough ahead: it breaks loose on the way
-    back_len = 0.0 if single else backoff_scale * max(ahead + back_break, fwd_break) + RUN_UP_M
+    single = ahead >= backoff_scale * fwd_break + run_up_m  # far enough ahead: it breaks loose on the way
+    back_len = 0.0 if single else backoff_scale * max(ahead + back_break, fwd_break) + run_up_m
     # Where the capsule comes to rest the force along d has fallen to the drag (paid out by the
     # way there, out and back) and the part of the static friction that still holds it.
     drag = belief.drag_n(progress_m + (ahead if single else 2.0 * back_len))
