@@ -324,6 +324,25 @@ def test_a_longer_run_up_backs_off_farther_by_as_much(
     np.testing.assert_allclose(short[1:], long[1:], atol=1e-12)
 
 
+def test_a_move_that_follows_its_velocities_alone_runs_up_farther(scenario: Scenario) -> None:
+    """With the position correction a move runs up :data:`RUN_UP_M` beyond the breakaway; one whose
+    EPM follows the trajectory's velocities alone (``place.track_gain_per_s: 0``) backs off
+    :data:`LAGGING_RUN_UP_M` instead, and stops the EPM at the same place."""
+    epm = np.array([-0.017, 0.0, scenario.plate.epm_height_m])
+    rest = np.array([-1e-3, 2e-4])
+    moves = {}
+    for gain in (0.0, 4.0):
+        settings_ = scenario.place.model_copy(update={"track_gain_per_s": gain})
+        placement = P.Placement(scenario, settings_, linear_geometry(30.0), _belief(scenario), np.zeros(2))
+        placement._decide(0.0, rest, 1e-5, epm)
+        moves[gain] = placement.memory.planned
+    assert P.LAGGING_RUN_UP_M > P.RUN_UP_M
+    lagging, tracked = (np.array(moves[g].waypoints_m) for g in (0.0, 4.0))
+    farther = P.LAGGING_RUN_UP_M - P.RUN_UP_M
+    np.testing.assert_allclose(tracked[0] - lagging[0], [farther, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(lagging[1:], tracked[1:], atol=1e-12)
+
+
 def test_placement_from_rest_on_the_ideal_plant(scenario: Scenario) -> None:
     """From rest a millimetre off, within tolerance (as the camera sees it) in at most three moves,
     every command within the speed limit, the EPM within the workspace and the coupling limit."""

@@ -109,8 +109,12 @@ GROWTH = 1.5
 #: brought to rest on the target. Sliding along the stiff axis relaxes its lateral offset from the
 #: EPM; the longer the run-up, the less of it is left where the capsule stops
 #: (benchmarks/placement_stop.py compares run-ups), but each millimetre is travelled twice per move
-#: (docs/friction.md lists what shorter run-ups did in closed loop).
-RUN_UP_M = 16e-3
+#: (docs/friction.md, placement, gives what run-ups of 8, 12 and 16 mm did in closed loop). A move
+#: whose EPM follows its trajectory's velocities alone (``place.track_gain_per_s: 0``) runs tens of
+#: milliseconds behind it; after a short run-up the stops of such moves scattered by millimetres,
+#: so they keep :data:`LAGGING_RUN_UP_M`.
+RUN_UP_M = 12e-3
+LAGGING_RUN_UP_M = 16e-3
 #: After the EPM's last move the capsule is left this long to stop before frames count, s.
 SETTLE_S = 0.3
 #: An observation ends once the mean's standard error is below this fraction of the tolerance.
@@ -728,6 +732,7 @@ class Placement:
             float(epm[2]),
             self.scenario.limits.max_lead_m,
             cfg.approach_speed_mps,
+            RUN_UP_M if cfg.track_gain_per_s > 0 else LAGGING_RUN_UP_M,
         )
         self._traj = (t_s, _Trajectory(self.scenario, epm, move))
         mem.last_rest, mem.moved_m, mem.planned = rest_m, 0.0, move
