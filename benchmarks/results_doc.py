@@ -410,13 +410,14 @@ def render_readme(text: str, data_dir: Path) -> str:
         (README_OPEN, "readme_placement", placement_context, README_DATA),
         (README_CONTROLLERS_OPEN, "readme_controllers", sweep_context, README_CONTROLLERS_DATA),
     )
+    macros = tables(data_dir)
     for opening, macro, context, files in blocks:
         head, found, rest = text.partition(opening)
         _, closed, tail = rest.partition(README_CLOSE)
         if not (found and closed):
             raise ValueError(f"README.md: no {opening!r} ... {README_CLOSE!r} block")
         contexts = [context(json.loads((data_dir / f).read_text(encoding="utf-8"))) for f in files]
-        table = str(getattr(tables(data_dir), macro)(contexts)).strip("\n")
+        table = str(getattr(macros, macro)(contexts)).strip("\n")
         text = f"{head}{opening}\n{table}\n{README_CLOSE}{tail}"
     return text
 
