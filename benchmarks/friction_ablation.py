@@ -1,41 +1,23 @@
-"""Friction ablation: what the controller's friction model is worth in closed loop, draw by draw.
+"""Friction ablation: what the controller's friction belief is worth in closed loop, draw by draw.
 
 For each plant draw (``--plant``, seeds ``--first`` .. ``--first + --draws - 1``) the MPC runs the
-same path on the same plant, with the robot arm in the loop (Ruckig + UR5 IK, ``sim.actuator:
-robot``), once per friction model it is given:
+same path on the same plant, with the robot arm in the loop (Ruckig + UR5 IK), once per variant:
+a set of scenario overrides from ``--variants-file`` (default benchmarks/configs/friction_ablation.yaml,
+which describes each; ``--variants`` picks some). ``@learned`` there is the model learned on the
+draw: ``capsule-mpc demonstrate`` on it (the ``follow`` runs at ``--speeds`` on straight paths
+along x and y, and the breakaway experiments), then ``capsule-mpc learn-friction`` on those logs
+(the config's force model); each draw's model is learned first, on the same cluster, and kept in
+``--work`` (``--reuse``: a model already there is used).
 
-``none``
-    no friction and no tether drag in the model (mu = 0, f_s = 0);
-``paper``
-    the paper's c(v) with the config's mu0 and f_s (the default controller);
-``learned``
-    learned on this draw: ``capsule-mpc demonstrate`` on the draw (the ``follow`` runs at
-    ``--speeds`` on straight paths along x and y, and the breakaway experiments), then
-    ``capsule-mpc learn-friction`` on those logs (the config's force model);
-``oracle``
-    the plant's own friction: its steady rate-and-state law as c(v) with its mu0, its tether drag
-    and drag growth, its breakaway after rest -- what no real rig gives a controller, the bound.
-``<variant>+preload``
-    the variant with ``break_loose.preload: --preload`` (the start pre-loads the capsule to that
-    fraction of the believed breakaway, arriving there fast, :mod:`capsule_mpc.mpc.start`; the
-    paper's c(v) believes the breakaway is mu0 F_N + f_s);
-``<variant>+sharp``
-    the variant with the MPC's friction smoothed over a narrower speed, ``mpc.friction_smoothing_eps_mps:``
-    :data:`SHARP_EPS_MPS` (its friction force then holds up closer to rest);
-suffixes combine in that order (``+preload+sharp``).
-
-Each variant is a set of scenario overrides (:func:`variant`), run with ``paper_0.8v`` beside
-``paper`` by the sweep's runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep`, on a
+The variants run on the sweep's runner (:func:`capsule_mpc.experiments.sweep.campaign.sweep`, on a
 ``LocalCluster`` of ``--workers`` processes or the cluster at ``--scheduler``) into ``--out``'s
-folder (``--out`` without ``.json``, resumable). Each draw's demonstrations and learning run first,
-on the same cluster; its model is kept in ``--work`` (``--reuse``: a model already there is used).
-``--merge A.json B.json --out C.json`` writes one report from the reports of a campaign run in
-parts (same config and plant; each seed once; the variants every draw ran).
-
-The report (``--out``: each draw's numbers, its learning and the command) is rendered into
-docs/results.md by ``benchmarks/results_doc.py``; it also holds the learned breakaway after 2 s at
-rest, and after the rest the draw's capsule had before its run, against the plant's at the path's
-start (``--learn-only``: only this).
+folder (``--out`` without ``.json``, resumable). The report ``--out`` holds the draws' entries as a
+sweep's ``summary.json`` does (``runs``: each run labelled ``VARIANT:CONTROLLER``), each with its
+``learning``: the learned breakaway after 2 s at rest, and after the rest the draw's capsule had
+before its run, against the plant's at the path's start (``--learn-only``: only this). ``--merge
+A.json B.json --out C.json`` writes one report from the reports of a campaign run in parts (same
+config and plant; each seed once; the variants every part ran). ``benchmarks/results_doc.py``
+renders the reports into docs/results.md.
 
     .venv/bin/python benchmarks/friction_ablation.py --plant lab --draws 20 \\
         --out results/benchmarks/friction_ablation_lab.json
@@ -44,7 +26,6 @@ start (``--learn-only``: only this).
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import os
 import platform
@@ -59,64 +40,41 @@ from _args import exit_with, int_at_least
 
 from capsule_mpc.config import LearnedFrictionModel, Scenario, load_config
 from capsule_mpc.experiments.sweep.campaign import sweep
-from capsule_mpc.experiments.sweep.tasks import ORACLE, Variant, dask_client
-from capsule_mpc.experiments.table import split_label
+from capsule_mpc.experiments.sweep.tasks import Variant, dask_client
 from capsule_mpc.friction import FrictionBelief
 from capsule_mpc.paths import path_from_scenario
 from capsule_mpc.sim import draw_plant_truth
 from capsule_mpc.sim.oracle import oracle_friction_model
 
-BASE_VARIANTS = ("none", "paper", "learned", "oracle")
-#: What a variant's suffixes switch on (``+preload``, ``+sharp``, in this order).
-MODIFIERS = ("preload", "sharp")
-VARIANTS = tuple(
-    base + "".join("+" + m for m in mods)
-    for base in BASE_VARIANTS
-    for k in range(len(MODIFIERS) + 1)
-    for mods in itertools.combinations(MODIFIERS, k)
-)
-#: ``mpc.friction_smoothing_eps_mps`` of the ``+sharp`` variants, m/s (the default is 0.005).
-SHARP_EPS_MPS = 0.002
-#: ``break_loose.preload`` of the ``+preload`` variants unless ``--preload`` says otherwise.
-DEFAULT_PRELOAD = 1.0
-#: The metrics of a draw's runs kept in the report (runs.csv keeps every metric of run.json).
-METRICS = (
-    "tracking_rms_mm",
-    "cross_track_rms_mm",
-    "start_tracking_rms_mm",
-    "final_error_mm",
-    "final_error_seen_mm",
-    "camera_bias_mm",
-    "time_to_place_s",
-    "placement_moves",
-)
+ROOT = Path(__file__).resolve().parent.parent
+VARIANTS_FILE = ROOT / "benchmarks" / "configs" / "friction_ablation.yaml"
+#: The variants run unless ``--variants`` says otherwise.
+DEFAULT_VARIANTS = ("none", "paper", "learned", "oracle")
+#: Override values of the variants file resolved here: the draw's learned model, no friction.
+LEARNED, NO_FRICTION = "@learned", "@none"
 #: Rest time at which the learned breakaway is checked against the plant's, s.
 CHECK_REST_S = 2.0
-ROOT = Path(__file__).resolve().parent.parent
 
 
-def variant(name: str, base: Scenario, learned_file: str, args: argparse.Namespace) -> Variant:
-    """The overrides of variant ``name`` (module docstring); ``learned_file`` the draws' learned
-    models, ``{seed}`` in place of the seed."""
-    base_name, *mods = name.split("+")
-    over: dict[str, Any] = {}
-    if base_name == "none":
-        none = LearnedFrictionModel(
-            coefficients=[0.0],
-            validity_mps=base.friction.paper_c.validity_mps,
-            mu0=0.0,
-            tether_drag_n=0.0,
-            force_model=base.force_model,
-        )
-        over["friction.learned"] = none.model_dump(mode="json", exclude_none=True)
-    elif base_name in ("learned", "oracle"):
-        over["friction.learned"] = ORACLE if base_name == "oracle" else learned_file
-    if mods:
-        over["break_loose.preload"] = args.preload if "preload" in mods else None
-    if "sharp" in mods:
-        over["mpc.friction_smoothing_eps_mps"] = SHARP_EPS_MPS
-    controllers = ("paper_0.8v", "mpc") if name == "paper" else ("mpc",)
-    return Variant(name, over, controllers)
+def read_variants(path: Path) -> dict[str, dict[str, Any]]:
+    """The variants of ``path`` (module docstring): name to ``{label, overrides, controllers}``."""
+    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    return {name: {"overrides": {}, "controllers": ["mpc"], **v} for name, v in data["variants"].items()}
+
+
+def variant(name: str, spec: dict[str, Any], base: Scenario, learned_file: str) -> Variant:
+    """The :class:`Variant` of ``spec`` (from :func:`read_variants`), ``@learned`` and ``@none``
+    resolved: ``learned_file`` the draws' learned models (``{seed}`` in place of the seed)."""
+    none = LearnedFrictionModel(
+        coefficients=[0.0],
+        validity_mps=base.friction.paper_c.validity_mps,
+        mu0=0.0,
+        tether_drag_n=0.0,
+        force_model=base.force_model,
+    ).model_dump(mode="json", exclude_none=True)
+    values = {LEARNED: learned_file, NO_FRICTION: none}
+    over = {k: values.get(v, v) if isinstance(v, str) else v for k, v in spec["overrides"].items()}
+    return Variant(name, over, tuple(spec["controllers"]))
 
 
 def learn_commands(args: argparse.Namespace, work: Path, seed: int) -> list[list[str]]:
@@ -184,47 +142,26 @@ def with_friction(base: Scenario, learned: LearnedFrictionModel) -> Scenario:
     return base.model_copy(update={"friction": base.friction.model_copy(update={"learned": learned})})
 
 
-def draws_of(summary: dict[str, Any], learning: dict[int, Any]) -> list[dict[str, Any]]:
-    """The report's draws from the campaign's: per draw its runs by variant (``paper_0.8v`` by name)."""
-    draws = []
-    for entry in summary["runs"]:
-        runs = {}
-        for label, run in entry["controllers"].items():
-            v, controller = split_label(label)
-            key = controller if controller == "paper_0.8v" else v
-            runs[key] = (
-                run
-                if "error" in run
-                else {k: run.get(k) for k in (*METRICS, "stalled", "solver_failures", "arm_ok")}
-            )
-        draw = {"seed": entry["seed"], "window_end_s": entry["window_end_s"], "runs": runs}
-        draws.append({**draw, "learning": learning[entry["seed"]]} if entry["seed"] in learning else draw)
-    return draws
-
-
 def merge_reports(paths: list[Path]) -> dict[str, Any]:
-    """One report from the outputs of a campaign run in parts (see the module docstring)."""
+    """One report from the reports of a campaign run in parts (see the module docstring)."""
     reports = [json.loads(p.read_text()) for p in paths]
     for key in ("config", "plant"):
         values = sorted({str(r[key]) for r in reports})
         if len(values) > 1:
             raise SystemExit(f"--merge: the files differ in {key}: {values}")
     by_seed: dict[int, dict[str, Any]] = {}
-    for report in reports:
-        for draw in report["draws"]:
-            by_seed.setdefault(draw["seed"], draw)
-    draws = [by_seed[seed] for seed in sorted(by_seed)]
+    for entry in (e for r in reports for e in r["runs"]):
+        by_seed.setdefault(entry["seed"], entry)
+    shared = set.intersection(*(set(r["variants"]) for r in reports))
     return {
+        **reports[0],
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         "parts": [r["command"] for r in reports],
-        "config": reports[0]["config"],
-        "plant": reports[0]["plant"],
         "seeds": sorted({s for r in reports for s in r["seeds"]}),
-        "draws_done": len(draws),
         # A draw that failed in one part and ran in another counts as run.
         "draws_failed": [f for r in reports for f in r.get("draws_failed", []) if f["seed"] not in by_seed],
-        "variants": [v for v in VARIANTS if all(v in d["runs"] for d in draws)],
-        "draws": draws,
+        "variants": {v: label for v, label in reports[0]["variants"].items() if v in shared},
+        "runs": [by_seed[seed] for seed in sorted(by_seed)],
         "seconds": sum(r["seconds"] for r in reports),
         "machine": reports[-1]["machine"],
     }
@@ -237,9 +174,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     add("--plant", choices=("lab", "hard"), default="lab")
     add("--first", type=int_at_least(0), default=0, help="first draw's seed (default 0)")
     add("--draws", type=int_at_least(1), default=20, help="plant draws (default 20)")
-    add("--variants", nargs="+", choices=VARIANTS, default=list(BASE_VARIANTS))
-    add("--preload", type=float, default=DEFAULT_PRELOAD,
-        help=f"+preload: break_loose.preload, (0, 1] ({DEFAULT_PRELOAD})")  # fmt: skip
+    add("--variants-file", type=Path, default=VARIANTS_FILE, help="the variants (YAML)")
+    add("--variants", nargs="+", default=list(DEFAULT_VARIANTS), help="variants of --variants-file to run")
     add("--reuse", action="store_true",
         help="use a draw's model already learned in --work (default: learn anew)")  # fmt: skip
     add("--speeds", type=float, nargs="+", default=[0.005, 0.01, 0.02, 0.04],
@@ -252,7 +188,13 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     add("--learn-only", action="store_true",
         help="learn on each draw and check its breakaway; run no controller")  # fmt: skip
     add("--pull-preload", type=float, default=None, help="demonstrate --pull-preload (default: its default)")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    known = read_variants(args.variants_file)
+    unknown = [v for v in args.variants if v not in known]
+    if unknown:
+        parser.error(f"--variants: {unknown} not in {args.variants_file}; one of {list(known)}")
+    args.specs = {v: known[v] for v in args.variants}
+    return args
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -266,40 +208,29 @@ def main(argv: list[str] | None = None) -> int:
     base = load_config(args.config)
     base = base.model_copy(update={"plant": base.plant.model_copy(update={"preset": args.plant})})
     learned_file = str(Path(args.work).resolve() / f"{args.plant}_{{seed}}" / "model.yaml")
-    variants = [] if args.learn_only else [variant(v, base, learned_file, args) for v in args.variants]
-    learns = args.learn_only or any(v.split("+")[0] == "learned" for v in args.variants)
+    specs = {} if args.learn_only else args.specs
+    variants = [variant(name, spec, base, learned_file) for name, spec in specs.items()]
+    learns = args.learn_only or any(LEARNED in s["overrides"].values() for s in specs.values())
     with dask_client(args.scheduler, None if args.scheduler else args.workers) as client:
         learning = learn_and_check(args, client, base, seeds) if learns else {}
         ok = [s for s in seeds if not learns or s in learning]
-        summary = {"runs": []}
+        runs = [{"seed": s, "controllers": {}} for s in ok]
         if variants and ok:  # the draws whose learning failed are left out
-            summary = sweep(
-                base,
-                path_from_scenario(base),
-                args.out.with_suffix(""),
-                ok[0],
-                ok[-1] - ok[0] + 1,
-                variants=variants,
-                client=client,
-                meta={"config": str(args.config)},
-            )
-    draws = (
-        [d for d in draws_of(summary, learning) if d["seed"] in ok]
-        if variants
-        else [{"seed": s, "runs": {}, "learning": learning[s]} for s in sorted(learning)]
-    )
+            runs = sweep(
+                base, path_from_scenario(base), args.out.with_suffix(""), ok[0], ok[-1] - ok[0] + 1,
+                variants=variants, client=client, meta={"config": str(args.config)},
+            )["runs"]  # fmt: skip
     report = {
         "command": " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])]),
         "config": str(args.config),
         "plant": args.plant,
         "seeds": seeds,
-        "draws_done": len(draws),
         "draws_failed": [
             {"seed": s, "error": "learning failed"} for s in seeds if learns and s not in learning
         ],
-        "preload_fraction": args.preload,
         "demonstration_speeds_mps": args.speeds,
-        "draws": draws,
+        "variants": {name: spec["label"] for name, spec in specs.items()},
+        "runs": [{**r, "learning": learning.get(r["seed"])} for r in runs if r["seed"] in ok],
         "seconds": time.perf_counter() - t0,
         "machine": {
             "platform": platform.platform(),

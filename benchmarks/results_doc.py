@@ -34,7 +34,7 @@ import pandas as pd
 
 from capsule_mpc.experiments.aggregate import aggregate, mean_sd_worst, paired
 from capsule_mpc.experiments.compare import CONTROLLER_ORDER
-from capsule_mpc.experiments.table import run_label, table_from_entries
+from capsule_mpc.experiments.table import table_from_entries
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "docs" / "results"
@@ -53,24 +53,6 @@ README_DATA = ("placement_lab/summary.json", "placement_hard/summary.json")
 README_CONTROLLERS_OPEN = "<!-- controllers table: rendered by benchmarks/results_doc.py -->"
 README_CONTROLLERS_DATA = ("sweep_rectangle_lab/summary.json",)
 
-#: Friction-model variants of the ablation, in table order, with their labels.
-ABLATION_VARIANTS = {
-    "none": "none (μ = 0, no drag)",
-    "paper": "paper's c(v)",
-    "paper+preload": "paper's c(v), pre-load at the start",
-    "learned": "learned on the draw",
-    "online": "learned + online",
-    "oracle": "oracle (the plant's own)",
-    "learned+stick": "learned, static friction in the prediction",
-    "learned+preload": "learned, pre-load at the start",
-    "learned+sharp": "learned, friction smoothed over 2 mm/s",
-    "learned+preload+sharp": "learned, pre-load, friction smoothed over 2 mm/s",
-    "paper+endsharp": "paper's c(v), final stop with friction smoothed over 2 mm/s",
-    "learned+endsharp": "learned, final stop with friction smoothed over 2 mm/s",
-    "learned+preload+endsharp": "learned, pre-load, final stop with friction smoothed over 2 mm/s",
-    "oracle+preload": "oracle, pre-load at the start",
-    "oracle+preload+endsharp": "oracle, pre-load, final stop with friction smoothed over 2 mm/s",
-}
 #: The metrics of the ablation's table, in order.
 ABLATION_METRICS = ("tracking_rms_mm", "cross_track_rms_mm", "start_tracking_rms_mm", "final_error_mm")
 #: Final error counted as reached, mm (the benchmarks' default tolerance).
@@ -211,36 +193,28 @@ def placement_context(data: dict[str, Any]) -> dict[str, Any]:
 
 
 def _ablation_rows(data: dict[str, Any], metrics: Sequence[str]) -> dict[str, Any]:
-    """The MPC's runs of an ablation per variant (every draw ran): (label, statistics, paired
-    difference to the baseline or None); ``paper_0.8v``, not in :data:`ABLATION_VARIANTS`, is no row."""
-    table = table_from_entries(
-        {
-            **d,
-            "runs": None,
-            "controllers": {run_label(v, ABLATION_CONTROLLER): r for v, r in d["runs"].items()},
-        }
-        for d in data["draws"]
-    )
+    """The MPC's runs of an ablation per variant that every draw ran, in the report's order: (label,
+    statistics, paired difference to the baseline or None)."""
+    table = table_from_entries(data["runs"])
+    table = table[table["controller"] == ABLATION_CONTROLLER]
     table["final_within_tol"] = table["final_error_mm"] <= FINAL_TOL_MM
     if "time_to_place_s" in table:
         table["quick"] = table["time_to_place_s"] <= QUICK_PLACE_S
     n = int(table["seed"].nunique())
     stats = aggregate(table, by=["variant"])
-    variants = [v for v in ABLATION_VARIANTS if v in stats.index and stats.loc[v, ("runs", "n")] == n]
+    labels = data["variants"]
+    variants = [v for v in labels if v in stats.index and stats.loc[v, ("runs", "n")] == n]
     diffs = paired(table, {"variant": BASELINE}, list(metrics), by=["variant"])
     compared = BASELINE in variants
-    rows = [
-        (ABLATION_VARIANTS[v], stats.loc[v], diffs.loc[v] if compared and v != BASELINE else None)
-        for v in variants
-    ]
-    draws = data["draws"]
-    return {**data, **_breakaway(draws), "rows": rows, "n": n, "seeds": [d["seed"] for d in draws]}
+    rows = [(labels[v], stats.loc[v], diffs.loc[v] if compared and v != BASELINE else None) for v in variants]
+    runs = data["runs"]
+    return {**data, **_breakaway(runs), "rows": rows, "n": n, "seeds": [r["seed"] for r in runs]}
 
 
 def ablation_context(data: dict[str, Any]) -> dict[str, Any]:
     """The friction ablation per variant: mean ± sd (worst) and the paired difference to ``paper``."""
     out = _ablation_rows(data, ABLATION_METRICS)
-    partial = sum(bool(d.get("learning", {}).get("demonstrations_failed")) for d in data["draws"])
+    partial = sum(bool(d.get("learning", {}).get("demonstrations_failed")) for d in data["runs"])
     failed = [f["seed"] for f in data.get("draws_failed", [])]
     started = len(data.get("seeds", out["seeds"]))
     return {**out, "metrics": ABLATION_METRICS, "tol": FINAL_TOL_MM, "partial": partial, "failed": failed,
@@ -281,7 +255,7 @@ def _breakaway(draws: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
 def breakaway_context(data: dict[str, Any]) -> dict[str, Any]:
     """The learned breakaway on each draw (``friction_ablation.py --learn-only``)."""
-    draws = data["draws"]
+    draws = data["runs"]
     return {**data, **_breakaway(draws), "n": len(draws), "seeds": [d["seed"] for d in draws]}
 
 

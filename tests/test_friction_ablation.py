@@ -42,14 +42,17 @@ def _run(tracking: float, stalled: bool) -> dict:
 
 
 def _report(path: Path, seeds: list[int], variants: list[str], plant: str = "hard") -> Path:
-    draws = [
+    runs = [
         {
             "seed": s,
-            "runs": {v: _run(1.0 + s + (0.5 if v == "learned" else 0.0), s % 2 == 0) for v in variants},
+            "controllers": {
+                f"{v}:mpc": _run(1.0 + s + (0.5 if v == "learned" else 0.0), s % 2 == 0) for v in variants
+            },
         }
         for s in seeds
     ]
-    data = {"command": f"part {seeds[0]}", "config": "c.yaml", "plant": plant, "seeds": seeds, "draws": draws}
+    data = {"command": f"part {seeds[0]}", "config": "c.yaml", "plant": plant, "seeds": seeds, "runs": runs}
+    data["variants"] = {v: v.upper() for v in variants}
     data["draws_failed"] = [{"seed": 1, "error": "e"}, {"seed": 9, "error": "e"}] if 0 in seeds else []
     path.write_text(json.dumps({**data, "seconds": 10.0, "machine": {"cpus": 2}}))
     return path
@@ -59,8 +62,8 @@ def test_parts_merge_into_one_report(ablation, tmp_path):
     a = _report(tmp_path / "a.json", [0, 1], ["paper", "learned", "oracle"])
     b = _report(tmp_path / "b.json", [1, 2, 3], ["paper", "learned"])
     merged = ablation.merge_reports([a, b])
-    assert [d["seed"] for d in merged["draws"]] == [0, 1, 2, 3]  # seed 1 once
-    assert merged["variants"] == ["paper", "learned"]  # what every draw ran
+    assert [d["seed"] for d in merged["runs"]] == [0, 1, 2, 3]  # seed 1 once
+    assert merged["variants"] == {"paper": "PAPER", "learned": "LEARNED"}  # what every part ran
     assert merged["parts"] == ["part 0", "part 1"] and merged["seconds"] == 20.0
     assert [f["seed"] for f in merged["draws_failed"]] == [9]  # seed 1 ran in a part
 
@@ -81,17 +84,14 @@ def _learning(learned: float, plant: float, start_learned: float, start_plant: f
     }
 
 
-def _scenario(ablation, name, base, model_file, **options):
-    """The controller's scenario of variant ``name`` on draw 0 of ``base``."""
-    import argparse
-
+def _scenario(ablation, name, base, model_file):
+    """The controller's scenario of variant ``name`` (of the variants file) on draw 0 of ``base``."""
     from capsule_mpc.experiments.sweep.tasks import variant_scenario
     from capsule_mpc.paths import path_from_scenario
     from capsule_mpc.sim import draw_plant_truth
 
-    args = argparse.Namespace(preload=1.0)
-    vars(args).update(options)
-    v = ablation.variant(name, base, str(model_file), args)
+    spec = ablation.read_variants(ablation.VARIANTS_FILE)[name]
+    v = ablation.variant(name, spec, base, str(model_file))
     return variant_scenario(base, v, draw_plant_truth(base, 0), path_from_scenario(base))
 
 
@@ -113,28 +113,38 @@ def test_the_variants_leave_the_placement_alone_and_preload_sets_the_break_loose
     from capsule_mpc.config import load_config
 
     base = load_config(REPO / "configs" / "rectangle_lookup.yaml")
-    for variant in ("paper", "none", "learned", "oracle"):
+    for variant in ablation.read_variants(ablation.VARIANTS_FILE):
         scenario = _scenario(ablation, variant, base, learned[1])
         assert scenario.place == base.place, variant
     preload = _scenario(ablation, "learned+preload", base, learned[1])
-    assert preload.break_loose.preload is not None
+    assert preload.break_loose.preload == 1.0
     assert preload.friction.learned == learned[0]  # the draw's file, read for seed 0
 
 
-def test_variant_suffixes_combine(ablation, learned):
+def test_the_variants_resolve_their_beliefs_and_options(ablation, learned):
     from capsule_mpc.config import load_config
 
     base = load_config(REPO / "configs" / "rectangle_lookup.yaml")
     plain = _scenario(ablation, "learned", base, learned[1])
-    both = _scenario(ablation, "learned+preload+sharp", base, learned[1], preload=0.8)
+    both = _scenario(ablation, "learned+preload+sharp", base, learned[1])
+    sharp = _scenario(ablation, "learned+sharp", base, learned[1])
     assert plain.mpc.friction_smoothing_eps_mps == base.mpc.friction_smoothing_eps_mps
     assert plain.break_loose.preload == base.break_loose.preload  # the default's pre-load
-    assert both.mpc.friction_smoothing_eps_mps == ablation.SHARP_EPS_MPS
-    assert both.break_loose.preload == 0.8
+    assert both.mpc.friction_smoothing_eps_mps == sharp.mpc.friction_smoothing_eps_mps == 0.002
+    assert both.break_loose.preload == 1.0 and sharp.break_loose.preload is None
     assert both.friction.learned == learned[0]
-    assert "learned+preload+sharp" in ablation.VARIANTS and "learned+sharp+preload" not in ablation.VARIANTS
     none = _scenario(ablation, "none", base, learned[1])
     assert none.friction.learned.mu0 == 0.0 and none.friction.learned.tether_drag_n == 0.0
+    assert none.friction.learned.force_model == base.force_model  # loads without a warning
     oracle = _scenario(ablation, "oracle", base, learned[1])
     assert oracle.friction.learned.mu0 > 0  # the draw's own friction
-    assert ablation.variant("paper", base, "", None).controllers == ("paper_0.8v", "mpc")
+    paper = ablation.read_variants(ablation.VARIANTS_FILE)["paper"]
+    assert ablation.variant("paper", paper, base, "").controllers == ("paper_0.8v", "mpc")
+    assert _scenario(ablation, "paper", base, learned[1]) == base
+
+
+def test_an_unknown_variant_is_refused_naming_the_file(ablation, capsys):
+    with pytest.raises(SystemExit):
+        ablation.parse(["--variants", "paper", "learned+stick"])
+    err = capsys.readouterr().err
+    assert "learned+stick" in err and "friction_ablation.yaml" in err

@@ -89,14 +89,17 @@ def _draw(seed: int, paper: float, learned: float) -> dict:
             "arm_ok": True,
         }
 
-    return {"seed": seed, "window_end_s": 20.0, "runs": {"paper": run(paper), "learned": run(learned)}}
+    runs = {"paper:mpc": run(paper), "learned:mpc": run(learned), "paper:paper_0.8v": run(9.0)}
+    return {"seed": seed, "window_end_s": 20.0, "controllers": runs}
 
 
 def test_ablation_row_from_synthetic_json(results_doc, tmp_path):
     """A tiny ablation file rendered through sources.json: the row is mean ± sd (worst) over the
     draws, and the paired difference to the paper's law with the count of draws it is better on."""
     draws = [_draw(0, 1.0, 1.5), _draw(1, 2.0, 1.0), _draw(2, 3.0, 5.0)]
-    data = {"command": "friction_ablation.py --draws 3", "config": "c.yaml", "plant": "lab", "draws": draws}
+    variants = {"paper": "paper's c(v)", "learned": "learned on the draw"}
+    data = {"command": "friction_ablation.py --draws 3", "config": "c.yaml", "plant": "lab", "runs": draws}
+    data["variants"] = variants
     (tmp_path / "abl.json").write_text(json.dumps(data), encoding="utf-8")
     sources = {
         "sections": {
@@ -167,12 +170,12 @@ def test_breakaway_check_from_synthetic_json(results_doc):
             "breakaway_mu_learned_start": start_learned,
             "breakaway_mu_plant_start": start_plant,
         }
-        return {"seed": seed, "runs": {}, "learning": learning}
+        return {"seed": seed, "controllers": {}, "learning": learning}
 
     data = {
         "plant": "lab",
         "config": "c.yaml",
-        "draws": [draw(0, 0.2, 0.2, 0.3, 0.3), draw(1, 0.32, 0.3, 0.2, 0.25), draw(2, None, 0.3, None, 0.3)],
+        "runs": [draw(0, 0.2, 0.2, 0.3, 0.3), draw(1, 0.32, 0.3, 0.2, 0.25), draw(2, None, 0.3, None, 0.3)],
     }
     text = "\n".join(results_doc.section_lines("breakaway", data))
     assert "3 draws of `lab` (seeds 0\u20132)" in text
