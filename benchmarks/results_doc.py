@@ -139,15 +139,31 @@ def pairing(data_dir: Path) -> Callable[..., str]:
 
 
 # ------------------------------------------------------------------------- campaigns' aggregation
-def sweep_context(data: dict[str, Any]) -> dict[str, Any]:
-    """A sweep's ``summary.json`` per controller over its runs: ``rows`` (name, statistics, runs),
-    in :data:`~capsule_mpc.experiments.compare.CONTROLLER_ORDER`, others alphabetically."""
+def campaign_context(data: dict[str, Any]) -> dict[str, Any]:
+    """A sweep's ``summary.json`` per controller over its runs: ``rows`` (name, statistics, runs) in
+    :data:`~capsule_mpc.experiments.compare.CONTROLLER_ORDER`, others alphabetically, with the flags
+    of a run that ended placed (as seen and in truth), gave up or first moved promptly; ``moves``,
+    per controller the time to place by the moves a run took."""
     table = table_from_entries(data["runs"])
+    preset = data.get("plant_preset", "?")
+    seen_mm = PLACED_SEEN_MM.get(preset, 0.2)
     table["final_within_tol"] = table["final_error_mm"] <= FINAL_TOL_MM
-    stats = aggregate(table, by=["controller"])
+    if "final_error_seen_mm" in table:
+        table["seen_ok"] = table["final_error_seen_mm"] <= seen_mm
+        table["truth_ok"] = table["final_error_mm"] <= table["camera_bias_mm"] + PLACED_TRUTH_MARGIN_MM
+    if "end_phase" in table:
+        table["gave_up"] = table["end_phase"].astype(str) == "failed"
+    if "first_motion_ratio" in table:
+        ratio = table["first_motion_ratio"]
+        table["prompt"] = (ratio <= START_BOUND_FACTOR).astype("boolean").mask(ratio.isna())
+    stats = aggregate(table, by=["controller"], quantiles={"p95": 0.95})
     present = list(stats.index)
     names = [n for n in CONTROLLER_ORDER if n in present] + sorted(set(present) - set(CONTROLLER_ORDER))
     totals = stats[("runs", "n")] + stats[("failed", "n")]
+    moves = {}
+    if "placement_moves" in table:
+        by_moves = aggregate(table, by=["controller", "placement_moves"], metrics=["time_to_place_s"])
+        moves = {n: list(by_moves.sort_index().loc[n].iterrows()) for n in names}
     config = data.get("config")
     varied = "".join(
         f"; plant.{f} drawn from U({lo:g}, {hi:g})" for f, (lo, hi) in data.get("vary", {}).items()
@@ -155,41 +171,20 @@ def sweep_context(data: dict[str, Any]) -> dict[str, Any]:
     return {
         **data,
         "rows": [(n, stats.loc[n], int(totals[n])) for n in names],
-        "seeds": [r["seed"] for r in data["runs"]],
-        "preset": data.get("plant_preset", "?"),
-        "config": Path(config).name if isinstance(config, str) else "?",
-        "varied": varied,
-        "tol": FINAL_TOL_MM,
-    }
-
-
-def placement_context(data: dict[str, Any]) -> dict[str, Any]:
-    """A sweep's placement per controller: the flags of a placed capsule, then the statistics."""
-    table = table_from_entries(data["runs"])
-    preset = data.get("plant_preset", "lab")
-    seen_mm = PLACED_SEEN_MM.get(preset, 0.2)
-    table["seen_ok"] = table["final_error_seen_mm"] <= seen_mm
-    table["truth_ok"] = table["final_error_mm"] <= table["camera_bias_mm"] + PLACED_TRUTH_MARGIN_MM
-    if "end_phase" in table:
-        table["gave_up"] = table["end_phase"].astype(str) == "failed"
-    if "first_motion_ratio" in table:
-        ratio = table["first_motion_ratio"]
-        table["prompt"] = (ratio <= START_BOUND_FACTOR).astype("boolean").mask(ratio.isna())
-    stats = aggregate(table, by=["controller"], quantiles={"p95": 0.95}).sort_index()
-    rows = [(name, st, int(st[("runs", "n")])) for name, st in stats.iterrows()]
-    by_moves = aggregate(
-        table, by=["controller", "placement_moves"], metrics=["time_to_place_s"]
-    ).sort_index()
-    moves = {name: list(by_moves.loc[name].iterrows()) for name, _, _ in rows}
-    seen = {"seen_mm": seen_mm, "margin_mm": PLACED_TRUTH_MARGIN_MM, "bound": START_BOUND_FACTOR}
-    return {
-        **data,
-        **seen,
-        "rows": rows,
         "moves": moves,
         "seeds": [r["seed"] for r in data["runs"]],
         "preset": preset,
+        "config": Path(config).name if isinstance(config, str) else "?",
+        "varied": varied,
+        "tol": FINAL_TOL_MM,
+        "seen_mm": seen_mm,
+        "margin_mm": PLACED_TRUTH_MARGIN_MM,
+        "bound": START_BOUND_FACTOR,
     }
+
+
+#: A sweep's table and its placement's are rendered from one aggregation.
+sweep_context = placement_context = campaign_context
 
 
 def _ablation_rows(data: dict[str, Any], metrics: Sequence[str]) -> dict[str, Any]:
@@ -381,16 +376,16 @@ def render_readme(text: str, data_dir: Path) -> str:
     """``text`` (the README) with its placement table rendered from :data:`README_DATA` and its
     controllers table from :data:`README_CONTROLLERS_DATA`."""
     blocks = (
-        (README_OPEN, "readme_placement", placement_context, README_DATA),
-        (README_CONTROLLERS_OPEN, "readme_controllers", sweep_context, README_CONTROLLERS_DATA),
+        (README_OPEN, "readme_placement", README_DATA),
+        (README_CONTROLLERS_OPEN, "readme_controllers", README_CONTROLLERS_DATA),
     )
     macros = tables(data_dir)
-    for opening, macro, context, files in blocks:
+    for opening, macro, files in blocks:
         head, found, rest = text.partition(opening)
         _, closed, tail = rest.partition(README_CLOSE)
         if not (found and closed):
             raise ValueError(f"README.md: no {opening!r} ... {README_CLOSE!r} block")
-        contexts = [context(json.loads((data_dir / f).read_text(encoding="utf-8"))) for f in files]
+        contexts = [campaign_context(json.loads((data_dir / f).read_text(encoding="utf-8"))) for f in files]
         table = str(getattr(macros, macro)(contexts)).strip("\n")
         text = f"{head}{opening}\n{table}\n{README_CLOSE}{tail}"
     return text
