@@ -98,3 +98,23 @@ def test_a_new_draw_needs_no_magpylib_force(lab_scenario, monkeypatch):
     monkeypatch.setattr(magpy, "getFT", no_force)
     forces = TrueForces(lab_scenario, draw_plant_truth(lab_scenario, 912_345))
     assert forces.force(-0.017, 0.0, 0.095) is not None
+
+
+def test_building_the_shared_table_says_so_once(scenario, tmp_path, monkeypatch, capsys):
+    """The table takes minutes of magpylib on a new machine: its build is announced on stderr, a
+    cached table is read silently."""
+    from capsule_mpc.sim import magnet_table
+
+    def small(scenario, lead, heights, key, progress):
+        return magnet_table.PlantMagnetTable(
+            lead, heights, np.zeros((5, lead.size, lead.size, heights.size, 3)), key
+        )
+
+    monkeypatch.setattr(magnet_table, "_compute", small)
+    here = scenario.model_copy(
+        update={"force_map": scenario.force_map.model_copy(update={"cache_dir": tmp_path})}
+    )
+    plant_magnet_table(here)
+    assert "computing the plant's magnet table" in capsys.readouterr().err
+    plant_magnet_table(here)
+    assert capsys.readouterr().err == ""

@@ -34,6 +34,7 @@ import hashlib
 import json
 import math
 import os
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import current_process, get_context
@@ -256,9 +257,17 @@ def plant_magnet_table(scenario: Scenario, *, progress: bool = False) -> PlantMa
             raise ValueError(f"it holds the table of key {table.key!r}")
         return table
 
-    table, _cached = load_or_build(
-        path, lambda out: _compute(scenario, lead, heights, key, progress).save(out), load
-    )
+    def build(out: Path) -> None:
+        # Minutes of magpylib with no other output: say what the wait is for, and that it is once.
+        print(
+            "capsule-mpc: computing the plant's magnet table with magpylib, once for every draw "
+            f"(minutes; then cached in {path.parent})",
+            file=sys.stderr,
+            flush=True,
+        )
+        _compute(scenario, lead, heights, key, progress).save(out)
+
+    table, _cached = load_or_build(path, build, load)
     return table
 
 
