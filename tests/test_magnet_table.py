@@ -101,9 +101,13 @@ def test_a_new_draw_needs_no_magpylib_force(lab_scenario, monkeypatch):
 
 
 def test_building_the_shared_table_says_so_once(scenario, tmp_path, monkeypatch, capsys):
-    """The table takes minutes of magpylib on a new machine: its build is announced on stderr, a
-    cached table is read silently."""
+    """The table takes minutes of magpylib on a new machine: its build is announced on a terminal's
+    stderr, a cached table is read silently."""
+    import sys
+
     from capsule_mpc.sim import magnet_table
+
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
 
     def small(scenario, lead, heights, key, progress):
         return magnet_table.PlantMagnetTable(

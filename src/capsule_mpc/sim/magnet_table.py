@@ -258,13 +258,15 @@ def plant_magnet_table(scenario: Scenario, *, progress: bool = False) -> PlantMa
         return table
 
     def build(out: Path) -> None:
-        # Minutes of magpylib with no other output: say what the wait is for, and that it is once.
-        print(
-            "capsule-mpc: computing the plant's magnet table with magpylib, once for every draw "
-            f"(minutes; then cached in {path.parent})",
-            file=sys.stderr,
-            flush=True,
-        )
+        # Minutes of magpylib with no other output: a user at a terminal is told what the wait is
+        # for, and that it is once (as a progress bar would; a log or a sweep's worker is not).
+        if sys.stderr.isatty():
+            print(
+                "capsule-mpc: computing the plant's magnet table with magpylib, once for every draw "
+                f"(minutes; then cached in {path.parent})",
+                file=sys.stderr,
+                flush=True,
+            )
         _compute(scenario, lead, heights, key, progress).save(out)
 
     table, _cached = load_or_build(path, build, load)
