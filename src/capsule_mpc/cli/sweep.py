@@ -1,7 +1,8 @@
 """``capsule-mpc sweep``: a campaign, controllers on many seeded plant draws, in parallel on Dask.
 
-What it runs, writes and resumes, and its exit status: :mod:`capsule_mpc.experiments.sweep`; this
-command parses the options and calls :func:`capsule_mpc.experiments.sweep.campaign.run_sweep`."""
+What it runs, writes and resumes, and its exit status: docs/usage.md, "Campaigns" (the code:
+:mod:`capsule_mpc.experiments.sweep`); this command parses the options and calls
+:func:`capsule_mpc.experiments.sweep.campaign.run_sweep`."""
 
 from __future__ import annotations
 
