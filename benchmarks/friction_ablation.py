@@ -59,7 +59,19 @@ CHECK_REST_S = 2.0
 def read_variants(path: Path) -> dict[str, dict[str, Any]]:
     """The variants of ``path`` (module docstring): name to ``{label, overrides, controllers}``."""
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    return {name: {"overrides": {}, "controllers": ["mpc"], **v} for name, v in data["variants"].items()}
+    variants = data.get("variants") if isinstance(data, dict) else None
+    if not isinstance(variants, dict) or not variants:
+        raise SystemExit(f"{path}: no 'variants' mapping")
+    for name, v in variants.items():
+        if not (
+            isinstance(v, dict)
+            and isinstance(v.get("label"), str)
+            and isinstance(v.get("overrides", {}), dict)
+        ):
+            raise SystemExit(
+                f"{path}: variants.{name}: needs a text 'label' and, if any, a mapping 'overrides'"
+            )
+    return {name: {"overrides": {}, "controllers": ["mpc"], **v} for name, v in variants.items()}
 
 
 def variant(name: str, spec: dict[str, Any], base: Scenario, learned_file: str) -> Variant:

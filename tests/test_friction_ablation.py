@@ -148,3 +148,10 @@ def test_an_unknown_variant_is_refused_naming_the_file(ablation, capsys):
         ablation.parse(["--variants", "paper", "learned+stick"])
     err = capsys.readouterr().err
     assert "learned+stick" in err and "friction_ablation.yaml" in err
+
+
+def test_a_variant_without_a_label_is_refused_naming_it(ablation, tmp_path):
+    bad = tmp_path / "variants.yaml"
+    bad.write_text("variants:\n  mine:\n    overrides: {mpc.horizon: 10}\n")
+    with pytest.raises(SystemExit, match=r"variants\.mine: needs a text 'label'"):
+        ablation.read_variants(bad)
