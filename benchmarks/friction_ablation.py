@@ -40,7 +40,7 @@ from _args import exit_with, int_at_least
 
 from capsule_mpc.config import LearnedFrictionModel, Scenario, load_config
 from capsule_mpc.experiments.sweep.campaign import sweep
-from capsule_mpc.experiments.sweep.tasks import Variant, dask_client
+from capsule_mpc.experiments.sweep.tasks import Variant, dask_client, variant_scenario
 from capsule_mpc.friction import FrictionBelief
 from capsule_mpc.paths import path_from_scenario
 from capsule_mpc.sim import draw_plant_truth
@@ -74,17 +74,21 @@ def read_variants(path: Path) -> dict[str, dict[str, Any]]:
     return {name: {"overrides": {}, "controllers": ["mpc"], **v} for name, v in variants.items()}
 
 
-def variant(name: str, spec: dict[str, Any], base: Scenario, learned_file: str) -> Variant:
-    """The :class:`Variant` of ``spec`` (from :func:`read_variants`), ``@learned`` and ``@none``
-    resolved: ``learned_file`` the draws' learned models (``{seed}`` in place of the seed)."""
-    none = LearnedFrictionModel(
+def no_friction(base: Scenario) -> dict[str, Any]:
+    """``@none``: a belief of no friction and no tether drag (mu = 0, f_s = 0), as a model."""
+    return LearnedFrictionModel(
         coefficients=[0.0],
         validity_mps=base.friction.paper_c.validity_mps,
         mu0=0.0,
         tether_drag_n=0.0,
         force_model=base.force_model,
     ).model_dump(mode="json", exclude_none=True)
-    values = {LEARNED: learned_file, NO_FRICTION: none}
+
+
+def variant(name: str, spec: dict[str, Any], base: Scenario, learned_file: str) -> Variant:
+    """The :class:`Variant` of ``spec`` (from :func:`read_variants`), ``@learned`` and ``@none``
+    resolved: ``learned_file`` the draws' learned models (``{seed}`` in place of the seed)."""
+    values = {LEARNED: learned_file, NO_FRICTION: no_friction(base)}
     over = {k: values.get(v, v) if isinstance(v, str) else v for k, v in spec["overrides"].items()}
     return Variant(name, over, tuple(spec["controllers"]))
 
@@ -223,13 +227,17 @@ def main(argv: list[str] | None = None) -> int:
     specs = {} if args.learn_only else args.specs
     variants = [variant(name, spec, base, learned_file) for name, spec in specs.items()]
     learns = args.learn_only or any(LEARNED in s["overrides"].values() for s in specs.values())
+    truth, path = draw_plant_truth(base, seeds[0]), path_from_scenario(base)
+    for v in variants:  # an override the scenario does not take is refused now, not after the learning
+        probe = {k: no_friction(base) if x == learned_file else x for k, x in v.overrides.items()}
+        variant_scenario(base, Variant(v.name, probe), truth, path)
     with dask_client(args.scheduler, None if args.scheduler else args.workers) as client:
         learning = learn_and_check(args, client, base, seeds) if learns else {}
         ok = [s for s in seeds if not learns or s in learning]
         runs = [{"seed": s, "controllers": {}} for s in ok]
         if variants and ok:  # the draws whose learning failed are left out
             runs = sweep(
-                base, path_from_scenario(base), args.out.with_suffix(""), ok[0], ok[-1] - ok[0] + 1,
+                base, path, args.out.with_suffix(""), ok[0], ok[-1] - ok[0] + 1,
                 variants=variants, client=client, meta={"config": str(args.config)},
             )["runs"]  # fmt: skip
     report = {

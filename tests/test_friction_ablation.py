@@ -155,3 +155,16 @@ def test_a_variant_without_a_label_is_refused_naming_it(ablation, tmp_path):
     bad.write_text("variants:\n  mine:\n    overrides: {mpc.horizon: 10}\n")
     with pytest.raises(SystemExit, match=r"variants\.mine: needs a text 'label'"):
         ablation.read_variants(bad)
+
+
+def test_an_override_the_scenario_does_not_take_is_refused_before_any_run(ablation, tmp_path):
+    from capsule_mpc.errors import ConfigError
+
+    bad = tmp_path / "variants.yaml"
+    bad.write_text(
+        "variants:\n  typo:\n    label: typo\n    overrides: {mpc.horizn: 10, friction.learned: '@learned'}\n"
+    )
+    argv = ["--variants-file", str(bad), "--variants", "typo", "--work", str(tmp_path / "w")]
+    with pytest.raises(ConfigError, match="horizn"):
+        ablation.main([*argv, "--out", str(tmp_path / "out.json")])
+    assert not (tmp_path / "w").exists() and not (tmp_path / "out.json").exists()
