@@ -67,9 +67,11 @@ def read_variants(path: Path) -> dict[str, dict[str, Any]]:
             isinstance(v, dict)
             and isinstance(v.get("label"), str)
             and isinstance(v.get("overrides", {}), dict)
+            and isinstance(v.get("controllers", []), list)
         ):
             raise SystemExit(
-                f"{path}: variants.{name}: needs a text 'label' and, if any, a mapping 'overrides'"
+                f"{path}: variants.{name}: needs a text 'label' and, if any, a mapping 'overrides' "
+                "and a list of 'controllers'"
             )
     return {name: {"overrides": {}, "controllers": ["mpc"], **v} for name, v in variants.items()}
 

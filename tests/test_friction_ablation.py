@@ -155,6 +155,9 @@ def test_a_variant_without_a_label_is_refused_naming_it(ablation, tmp_path):
     bad.write_text("variants:\n  mine:\n    overrides: {mpc.horizon: 10}\n")
     with pytest.raises(SystemExit, match=r"variants\.mine: needs a text 'label'"):
         ablation.read_variants(bad)
+    bad.write_text("variants:\n  mine:\n    label: mine\n    controllers: mpc\n")
+    with pytest.raises(SystemExit, match="a list of 'controllers'"):
+        ablation.read_variants(bad)
 
 
 def test_an_override_the_scenario_does_not_take_is_refused_before_any_run(ablation, tmp_path):
