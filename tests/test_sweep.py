@@ -382,24 +382,12 @@ def own_cluster(tmp_path):
             proc.wait(timeout=30)
 
 
-def test_a_scheduler_of_ones_own_and_the_local_cluster_give_the_same_table(
-    tmp_path, own_cluster, no_figures, monkeypatch
-):
-    """The same table; the plant's shared magnet table is made ready in this process before a
-    LocalCluster's workers start (they would compute it alone), never for a cluster of one's own
-    (its workers have their own cache)."""
-    import capsule_mpc.experiments.sweep.campaign as campaign
-
-    built = []
-    real = campaign.plant_magnet_table
-    monkeypatch.setattr(campaign, "plant_magnet_table", lambda scenario: built.append(real(scenario)))
+def test_a_scheduler_of_ones_own_and_the_local_cluster_give_the_same_table(tmp_path, own_cluster, no_figures):
     (tmp_path / "wp.csv").write_text(SHORT_CSV)
     args = ["sweep", "--config", str(QUICK), "--waypoints", str(tmp_path / "wp.csv"), "--plant", "ideal"]
     args += ["--controllers", "follow", "--runs", "2", "--seed", "0", "--no-progress"]
     assert main([*args, "--out", str(tmp_path / "local"), "--workers", "1"]) == 0
-    assert len(built) == 1
     assert main([*args, "--out", str(tmp_path / "own"), "--scheduler", own_cluster]) == 0
-    assert len(built) == 1
     local, own = (read_table(tmp_path / name / TABLE_FILE) for name in ("local", "own"))
     assert len(local) == 2 and "tracking_rms_mm" in local
     wall_clock = [c for c in local.columns if c in WALL_CLOCK_KEYS]

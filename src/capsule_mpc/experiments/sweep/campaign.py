@@ -22,7 +22,6 @@ from ...config import ConfigError, Scenario
 from ...outputs import output_folder
 from ...paths import ReferencePath
 from ...sim import RunResult
-from ...sim.magnet_table import plant_magnet_table
 from ..compare import (
     RUNS_FOLDER,
     aggregate_runs,
@@ -104,10 +103,6 @@ def sweep(
     local = min(workers or os.cpu_count() or 1, len(todo))
     # a comparison on one local worker runs here: a cluster would only add its start-up
     here = compare and client is None and local == 1
-    if todo and (client is None or client.cluster is not None):
-        # The plant's shared magnet table, built here on a new machine (one process per core); a
-        # worker, which may not start processes, would compute it alone and take twice as long.
-        plant_magnet_table(scenario)
     try:
         _run(todo, out, done, runs, local, client, progress, task, here)
     finally:  # also when stopped: the workers' runs then keep what they recorded (RunLogs)
