@@ -163,7 +163,8 @@ def campaign_context(data: dict[str, Any]) -> dict[str, Any]:
     moves = {}
     if "placement_moves" in table:
         by_moves = aggregate(table, by=["controller", "placement_moves"], metrics=["time_to_place_s"])
-        moves = {n: list(by_moves.sort_index().loc[n].iterrows()) for n in names}
+        placed = set(by_moves.index.get_level_values(0))  # a controller without moves has no rows
+        moves = {n: list(by_moves.sort_index().loc[n].iterrows()) for n in names if n in placed}
     config = data.get("config")
     varied = "".join(
         f"; plant.{f} drawn from U({lo:g}, {hi:g})" for f, (lo, hi) in data.get("vary", {}).items()
