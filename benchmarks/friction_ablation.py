@@ -252,7 +252,9 @@ def main(argv: list[str] | None = None) -> int:
         ],
         "demonstration_speeds_mps": args.speeds,
         "variants": {name: spec["label"] for name, spec in specs.items()},
-        "runs": [{**r, "learning": learning.get(r["seed"])} for r in runs if r["seed"] in ok],
+        "runs": [
+            {**r, **({"learning": learning[r["seed"]]} if learns else {})} for r in runs if r["seed"] in ok
+        ],
         "seconds": time.perf_counter() - t0,
         "machine": {
             "platform": platform.platform(),

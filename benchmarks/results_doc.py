@@ -192,7 +192,7 @@ def _ablation_rows(data: dict[str, Any], metrics: Sequence[str]) -> dict[str, An
     """The MPC's runs of an ablation per variant that every draw ran, in the report's order: (label,
     statistics, paired difference to the baseline or None)."""
     table = table_from_entries(data["runs"])
-    table = table[table["controller"] == ABLATION_CONTROLLER]
+    table = table[table["controller"] == ABLATION_CONTROLLER].copy()
     table["final_within_tol"] = table["final_error_mm"] <= FINAL_TOL_MM
     if "time_to_place_s" in table:
         table["quick"] = table["time_to_place_s"] <= QUICK_PLACE_S

@@ -171,3 +171,28 @@ def test_an_override_the_scenario_does_not_take_is_refused_before_any_run(ablati
     with pytest.raises(ConfigError, match="horizn"):
         ablation.main([*argv, "--out", str(tmp_path / "out.json")])
     assert not (tmp_path / "w").exists() and not (tmp_path / "out.json").exists()
+
+
+def test_a_report_without_learning_renders_its_ablation_table(ablation, tmp_path, monkeypatch):
+    """Variants that learn nothing leave no ``learning`` in the draws' entries, and the report
+    renders (its runs faked: the campaign's runner is tested elsewhere)."""
+    import contextlib
+
+    def fake_sweep(base, path, out, first, runs, **kw):
+        labels = [f"{v.name}:{c}" for v in kw["variants"] for c in v.controllers]
+        run = _run(1.0, False)
+        return {"runs": [{"seed": first + k, "controllers": dict.fromkeys(labels, run)} for k in range(runs)]}
+
+    monkeypatch.setattr(ablation, "sweep", fake_sweep)
+    monkeypatch.setattr(ablation, "dask_client", lambda *a: contextlib.nullcontext())
+    out = tmp_path / "report.json"
+    assert ablation.main(["--variants", "none", "paper", "--draws", "2", "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert [r["seed"] for r in report["runs"]] == [0, 1] and all("learning" not in r for r in report["runs"])
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        import results_doc
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    text = "\n".join(results_doc.section_lines("ablation", report))
+    assert "| paper's c(v) | 1.00 ± 0.00 (1.00)" in text and "| none (μ = 0, no drag) |" in text
