@@ -15,7 +15,7 @@ from typing import NoReturn
 
 from capsule_mpc.errors import ConfigError
 
-__all__ = ["exit_with", "int_at_least"]
+__all__ = ["campaign_report", "exit_with", "int_at_least"]
 
 
 def exit_with(main: Callable[[], int]) -> NoReturn:
@@ -43,3 +43,14 @@ def int_at_least(minimum: int, maximum: int | None = None) -> Callable[[str], in
         return value
 
     return parse
+
+
+def campaign_report(text: str) -> Path:
+    """An argparse ``type`` for the report of a script that runs a campaign: a ``.json`` file, whose
+    name without ``.json`` is the campaign's folder (else the two would be one path)."""
+    path = Path(text)
+    if path.suffix != ".json":
+        raise argparse.ArgumentTypeError(
+            f"must name a .json file (the campaign's folder is that name without .json), got {text!r}"
+        )
+    return path

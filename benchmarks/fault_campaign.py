@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from _args import exit_with, int_at_least
+from _args import campaign_report, exit_with, int_at_least
 
 from capsule_mpc.atomic import json_ready
 from capsule_mpc.config import packaged_config_path
@@ -171,14 +171,19 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     add("--probability", type=_probability, default=0.1, help="per-frame probability of each solver fault")
     add("--workers", type=int_at_least(1), help="worker processes of the LocalCluster (default: CPU count)")
     add("--scheduler", help="address of a running Dask scheduler to run on instead")
-    add("--out", default="results/benchmarks/fault_campaign.json", help="JSON report file")
+    add(
+        "--out",
+        type=campaign_report,
+        default="results/benchmarks/fault_campaign.json",
+        help="JSON report file",
+    )
     return parser.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the campaign and write the report (module docstring: the exit status)."""
     args = parse(argv)
-    out = Path(args.out)
+    out = args.out
     problem = output_file_problem(out, "fault_campaign.json")
     if problem is not None:
         print(f"fault_campaign: --out: {problem}", file=sys.stderr)

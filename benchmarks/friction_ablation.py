@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from _args import exit_with, int_at_least
+from _args import campaign_report, exit_with, int_at_least
 
 from capsule_mpc.config import LearnedFrictionModel, Scenario, load_config
 from capsule_mpc.experiments.sweep.campaign import sweep
@@ -201,7 +201,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     add("--workers", type=int_at_least(1), default=2, help="worker processes of the LocalCluster (2)")
     add("--scheduler", help="address of a running Dask scheduler to run on instead")
     add("--work", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation_work")
-    add("--out", type=Path, default=ROOT / "results" / "benchmarks" / "friction_ablation.json")
+    add("--out", type=campaign_report, default=ROOT / "results" / "benchmarks" / "friction_ablation.json")
     add("--merge", type=Path, nargs="+", help="reports to merge into --out (runs nothing)")
     add("--learn-only", action="store_true",
         help="learn on each draw and check its breakaway; run no controller")  # fmt: skip

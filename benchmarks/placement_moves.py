@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _args import exit_with, int_at_least
+from _args import campaign_report, exit_with, int_at_least
 
 from capsule_mpc.atomic import json_ready
 from capsule_mpc.experiments.runs import prepare_run
@@ -101,7 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first", type=int_at_least(0), default=1000, help="first draw's seed (1000)")
     ap.add_argument("--draws", type=int_at_least(1), default=200, help="plant draws (200)")
     ap.add_argument("--workers", type=int_at_least(1), help="worker processes (default: CPU count)")
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "benchmarks" / "placement_moves_lab.json")
+    ap.add_argument(
+        "--out", type=campaign_report, default=ROOT / "results" / "benchmarks" / "placement_moves_lab.json"
+    )
     args = ap.parse_args(argv)
     scenario, path, meta = prepare_run(args.config, None, None, args.plant)
     folder = args.out.with_suffix("")

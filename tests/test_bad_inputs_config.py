@@ -468,3 +468,16 @@ def test_sim_speed_benchmark_refuses_a_bad_out_before_running(
     assert re.search(message, capsys.readouterr().err)
     assert not any(folder.iterdir())
     assert (tmp_path / "a_file.txt").read_text() == "not a folder\n"
+
+
+@pytest.mark.parametrize("script", ["fault_campaign", "friction_ablation", "placement_moves"])
+def test_a_campaign_script_refuses_a_report_that_is_not_json_before_running(tmp_path, script):
+    # the campaign's folder is the report's name without .json: a report without it would be that folder
+    out = tmp_path / "report"
+    done = subprocess.run(
+        [sys.executable, str(REPO / "benchmarks" / f"{script}.py"), "--out", str(out)],
+        capture_output=True, text=True, timeout=CHILD_TIMEOUT_S,
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert re.search(r"--out: must name a \.json file .*report'", done.stderr), done.stderr
+    assert not any(tmp_path.iterdir())
