@@ -171,12 +171,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     add("--probability", type=_probability, default=0.1, help="per-frame probability of each solver fault")
     add("--workers", type=int_at_least(1), help="worker processes of the LocalCluster (default: CPU count)")
     add("--scheduler", help="address of a running Dask scheduler to run on instead")
-    add(
-        "--out",
-        type=campaign_report,
-        default="results/benchmarks/fault_campaign.json",
-        help="JSON report file",
-    )
+    add("--out", type=campaign_report, default="results/benchmarks/fault_campaign.json", help="report")
     return parser.parse_args(argv)
 
 
