@@ -361,7 +361,8 @@ def test_cli_failed_solve_exits_1(tmp_path, monkeypatch, capsys):
 def test_plan_uses_the_controllers_friction_law(scenario, path, fixed):
     # A learned law with more friction than the paper's (c = 0.03, the plant's a - b) makes the
     # model's capsule trail further behind the magnet: the plan needs a longer lead.
-    learned = _with(scenario, friction={"learned": {"coefficients": [0.03], "validity_mps": [0.005, 0.04]}})
+    law = {"coefficients": [0.03], "validity_mps": [0.005, 0.04], "force_model": scenario.force_model}
+    learned = _with(scenario, friction={"learned": law})
     plan = cached_plan(learned, path, "fixed")
     assert plan.success, plan.status
     lead_paper = constraint_report(scenario, fixed, path)["max_coupling_m"]
