@@ -7,7 +7,6 @@ Every case goes through ``capsule_mpc.cli.main`` as a user would; argparse error
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
 import resource
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmark_scripts import load
 from capsule_mpc.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -440,11 +440,7 @@ def test_the_demo_reads_its_learned_model_with_the_same_loader(tmp_path):
 
 def _sim_speed_main(monkeypatch):
     monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # as ``python benchmarks/sim_speed.py`` has it
-    spec = importlib.util.spec_from_file_location("sim_speed", REPO / "benchmarks" / "sim_speed.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.main
+    return load("sim_speed").main
 
 
 @pytest.mark.parametrize(

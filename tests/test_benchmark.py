@@ -8,6 +8,7 @@ import math
 import pandas as pd
 import pytest
 
+from benchmark_scripts import load
 from capsule_mpc.cli import main
 from capsule_mpc.envs import load_policy
 from capsule_mpc.errors import ConfigError
@@ -100,21 +101,10 @@ def test_bad_policies_and_options_are_refused(capsys, tmp_path):
 
 
 def test_the_reference_scores_in_the_docs_are_rendered_from_their_json():
-    import importlib.util
-    import sys
     from pathlib import Path
 
     repo = Path(__file__).resolve().parents[1]
-    sys.path.insert(0, str(repo / "benchmarks"))
-    try:
-        spec = importlib.util.spec_from_file_location(
-            "benchmark_doc", repo / "benchmarks" / "benchmark_doc.py"
-        )
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(repo / "benchmarks"))
+    module = load("benchmark_doc")
     record = json.loads(
         (repo / "docs" / "results" / "benchmark" / "leaderboard.json").read_text(encoding="utf-8")
     )

@@ -3,30 +3,20 @@ scenario overrides resolved per draw."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
+
+from benchmark_scripts import load
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def ablation():
-    spec = importlib.util.spec_from_file_location(
-        "friction_ablation", REPO / "benchmarks" / "friction_ablation.py"
-    )
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(REPO / "benchmarks"))  # as ``python benchmarks/friction_ablation.py`` has it
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
-    return module
+    return load("friction_ablation")
 
 
 def _run(tracking: float, stalled: bool) -> dict:
@@ -189,10 +179,5 @@ def test_a_report_without_learning_renders_its_ablation_table(ablation, tmp_path
     assert ablation.main(["--variants", "none", "paper", "--draws", "2", "--out", str(out)]) == 0
     report = json.loads(out.read_text())
     assert [r["seed"] for r in report["runs"]] == [0, 1] and all("learning" not in r for r in report["runs"])
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        import results_doc
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
-    text = "\n".join(results_doc.section_lines("ablation", report))
+    text = "\n".join(load("results_doc").section_lines("ablation", report))
     assert "| paper's c(v) | 1.00 ± 0.00 (1.00)" in text and "| none (μ = 0, no drag) |" in text

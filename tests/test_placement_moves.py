@@ -3,31 +3,18 @@ report per move number, against hand computations."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from benchmark_scripts import load
 from capsule_mpc.interfaces import StepStats
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def bench():
-    file = REPO / "benchmarks" / "placement_moves.py"
-    spec = importlib.util.spec_from_file_location("placement_moves", file)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(REPO / "benchmarks"))  # as ``python benchmarks/placement_moves.py`` has it
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
-    return module
+    return load("placement_moves")
 
 
 def _run(moves: list[float], x_m: list[float], bias_m=(1e-4, -2e-4)) -> SimpleNamespace:

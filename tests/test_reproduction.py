@@ -3,15 +3,14 @@ sensitivity, and the committed reproduction page against its JSON."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from benchmark_scripts import load
 from capsule_mpc.errors import ConfigError
 from capsule_mpc.experiments.reproduction import (
     lead_by_heading_mm,
@@ -93,17 +92,7 @@ def test_scenario_variants_change_one_field_and_refuse_bad_values():
 
 
 def _renderer():
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        spec = importlib.util.spec_from_file_location(
-            "reproduction_doc", REPO / "benchmarks" / "reproduction_doc.py"
-        )
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
-    return module
+    return load("reproduction_doc")
 
 
 def test_the_committed_reproduction_page_is_rendered_from_its_json():

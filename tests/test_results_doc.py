@@ -2,22 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
+
+from benchmark_scripts import load
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def results_doc():
-    spec = importlib.util.spec_from_file_location("results_doc", REPO / "benchmarks" / "results_doc.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load("results_doc")
 
 
 def test_committed_results_doc_is_current(results_doc, tmp_path):
