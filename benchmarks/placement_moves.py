@@ -15,7 +15,7 @@ a further move and its observation. The first move is planned from the belief an
 later ones from the stops before them on the target's own patch of plate.
 
 Usage: ``python benchmarks/placement_moves.py [--config configs/rectangle.yaml] [--plant lab]
-[--first 1000] [--draws 200] [--out results/benchmarks/placement_moves_lab.json]``
+[--first 1000] [--draws 200] [--out results/benchmarks/placement_moves_PLANT.json]``
 """
 
 from __future__ import annotations
@@ -23,18 +23,22 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import math
 import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from _args import campaign_report, exit_with, int_at_least
 
 from capsule_mpc.atomic import json_ready
+from capsule_mpc.experiments.aggregate import aggregate
 from capsule_mpc.experiments.runs import prepare_run
 from capsule_mpc.experiments.sweep.campaign import sweep, sweep_failures
 from capsule_mpc.experiments.table import TABLE_FILE, read_table
+from capsule_mpc.outputs import write_report_file
 from capsule_mpc.sim import RunResult
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,29 +73,32 @@ def measure(results: Mapping[str, RunResult]) -> dict[str, dict[str, Any]]:
 
 
 def report(runs: list[list[dict[str, float]]], tolerance_mm: float) -> dict[str, Any]:
-    """Per move number (0: the path's stop; the last pools the later moves), over every run's rests:
-    how many landed within the tolerance as seen, the landing's mean and sd along x and y (mm), and
-    the median time from the decision on that rest to the next one, s (a run's last two rests have
-    none: the last move is not followed by one)."""
-    landed: dict[int, list[dict[str, float]]] = {}
-    for run in runs:
-        for i, rest in enumerate(run):
-            gap = {"gap_s": run[i + 1]["t_s"] - rest["t_s"]} if i + 2 < len(run) else {}
-            landed.setdefault(min(int(rest["move"]), REPORTED_MOVES), []).append({**rest, **gap})
-    out = {}
-    for move, entries in sorted(landed.items()):
-        x, y = (np.array([r[k] for r in entries]) for k in ("x_mm", "y_mm"))
-        gaps = [r["gap_s"] for r in entries if "gap_s" in r]
-        out[str(move)] = {
-            "rests": len(entries),
-            "within_tolerance": int(np.sum(np.hypot(x, y) <= tolerance_mm)),
-            "x_mean_mm": float(x.mean()),
-            "x_sd_mm": float(x.std(ddof=1)) if len(x) > 1 else 0.0,
-            "y_mean_mm": float(y.mean()),
-            "y_sd_mm": float(y.std(ddof=1)) if len(y) > 1 else 0.0,
-            "next_move_median_s": float(np.median(gaps)) if gaps else None,
+    """Per move number (0: the path's stop; the last pools the later moves), over every run's rests,
+    by the campaigns' one aggregation (:func:`capsule_mpc.experiments.aggregate.aggregate`): how
+    many landed within the tolerance as seen, the landing's mean and sd along x and y (mm), and the
+    median time from the decision on that rest to the next one, s (a run's last two rests have none:
+    the last move is not followed by one)."""
+    rows = [
+        {**rest, "move": min(int(rest["move"]), REPORTED_MOVES),
+         "gap_s": run[i + 1]["t_s"] - rest["t_s"] if i + 2 < len(run) else math.nan}
+        for run in runs
+        for i, rest in enumerate(run)
+    ]  # fmt: skip
+    rests = pd.DataFrame(rows, columns=["move", "x_mm", "y_mm", "gap_s"])
+    rests["within"] = np.hypot(rests["x_mm"], rests["y_mm"]) <= tolerance_mm
+    stats = aggregate(rests, by=["move"], metrics=["x_mm", "y_mm", "gap_s"])
+    return {
+        str(move): {
+            "rests": int(row[("runs", "n")]),
+            "within_tolerance": int(row[("within", "count")]),
+            "x_mean_mm": row[("x_mm", "mean")],
+            "x_sd_mm": row[("x_mm", "sd")],
+            "y_mean_mm": row[("y_mm", "mean")],
+            "y_sd_mm": row[("y_mm", "sd")],
+            "next_move_median_s": row[("gap_s", "median")] if row[("gap_s", "n")] else None,
         }
-    return out
+        for move, row in stats.sort_index().iterrows()
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -102,9 +109,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--draws", type=int_at_least(1), default=200, help="plant draws (200)")
     ap.add_argument("--workers", type=int_at_least(1), help="worker processes (default: CPU count)")
     ap.add_argument(
-        "--out", type=campaign_report, default=ROOT / "results" / "benchmarks" / "placement_moves_lab.json"
+        "--out", type=campaign_report, help="report (default results/benchmarks/placement_moves_PLANT.json)"
     )
     args = ap.parse_args(argv)
+    args.out = args.out or ROOT / "results" / "benchmarks" / f"placement_moves_{args.plant}.json"
     scenario, path, meta = prepare_run(args.config, None, None, args.plant)
     folder = args.out.with_suffix("")
     summary = sweep(
@@ -140,9 +148,8 @@ def main(argv: list[str] | None = None) -> int:
         "moves": moves,
         "draws": [{"seed": int(s), "rests": r} for s, r in zip(table["seed"], rows)],
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(json_ready(result), indent=2) + "\n")
-    return 1 if sweep_failures(summary) else 0
+    written = write_report_file(args.out, json.dumps(json_ready(result), indent=2) + "\n", "placement_moves")
+    return written or (1 if sweep_failures(summary) else 0)
 
 
 if __name__ == "__main__":
